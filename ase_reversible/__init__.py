@@ -1,0 +1,22 @@
+"""ase-reversible: molecular dynamics for ASE that runs backwards exactly.
+
+>>> from ase_reversible import ReversibleVerlet
+>>> dyn = ReversibleVerlet(atoms, 5 * ase.units.fs)   # doctest: +SKIP
+>>> dyn.run(1000); dyn.reverse(); dyn.run(1000)       # doctest: +SKIP
+
+leaves ``atoms`` bit for bit where the constructor put it.
+"""
+
+from .errors import (ImpureForcesError, NonFiniteForcesError,
+                     QuantumRangeError, ReversibilityError,
+                     UnsupportedConstraintError)
+from .fixedpoint import FixedPointState, Grid
+from .purity import probe_purity
+from .verlet import AnchorMovedWarning, ReversibleVerlet
+
+__version__ = '0.1.0'
+
+__all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
+           'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
+           'NonFiniteForcesError', 'ImpureForcesError',
+           'UnsupportedConstraintError']

@@ -1,0 +1,283 @@
+"""Force purity: forces as an exact function of the positions.
+
+Exact reversal needs every kick to be a function of the positions alone: the
+reverse run meets each position again and must round the same increment.
+Many calculators break this in the last bits (findings.md, section 3): the
+order in which a neighbour list visits pairs, and so the rounding of the
+sums, depends on where that list was last built.  Three providers handle
+this, chosen per calculator by :func:`force_provider`:
+
+``'sorted'`` (ASE's LennardJones and EMT)
+    The calculator's neighbour list is replaced by a sorted one.  Its
+    sums then run over the same pairs in the same order whatever the
+    history, so forces are bitwise reproducible at no cost per step.
+
+``'guarded'`` (asap3 calculators)
+    Forces may carry history noise up to a bound ``force_noise``.  A kick
+    increment ``y`` (in quanta) is only rounded as computed when noise of
+    that size could not move it across a rounding boundary; otherwise the
+    forces are recomputed from a neighbour list built at exactly the
+    current positions ("clean", a pure function of them) and rounded from
+    those.  Both branches give ``rint(y_clean)``, so the kick is a pure
+    function of the positions.  The momentum quantum is chosen coarse
+    enough that clean recomputations are rare (about 1% of force calls).
+
+``'trust'`` (everything else, after a probe)
+    Forces are used as returned.  :func:`probe_purity` recomputes forces at
+    the same positions after moving the atoms elsewhere; a calculator that
+    fails it raises :class:`ImpureForcesError` under ``'auto'``.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+from .errors import ImpureForcesError
+
+#: Default bound on history noise in forces, eV/Å (scaled by max|F| above
+#: 1 eV/Å).  The largest noise measured, asap3 EMT on periodic copper, was
+#: 8.2e-14 eV/Å: this leaves a margin of 11.
+DEFAULT_FORCE_NOISE = 2.0**-40
+#: Fraction of force calls that may need a clean recomputation.
+TARGET_CLEAN_RATE = 0.01
+#: Distance (Å, per axis) the atoms are moved to force a neighbour-list
+#: rebuild: more than any skin, so the list is rebuilt on the way back.
+REBUILD_SHIFT = 8.0
+
+
+class TrustedForces:
+    """Forces used as the calculator returns them."""
+
+    mode = 'trust'
+    force_noise = 0.0
+
+    def forces(self, atoms) -> np.ndarray:
+        """Forces ``[n_atoms, 3]`` (eV/Å) at the atoms' current positions."""
+        return atoms.get_forces(md=True)
+
+    def kick_increment(self, atoms, f_nc, scale, project):
+        """Kick increment ``scale * f_nc`` in quanta, projected.
+
+        Returns ``(y_nc, f_nc)``: the float increment, to be rounded by
+        the caller, and the forces it was computed from.
+        """
+        y_nc = f_nc * scale
+        project(y_nc)
+        return y_nc, f_nc
+
+    def min_momentum_quantum(self, n_atoms, max_kick_time):
+        """Lower bound on the momentum quantum this provider needs."""
+        return 0.0
+
+    def todict(self):
+        return {'mode': self.mode}
+
+
+class SortedNeighborListForces(TrustedForces):
+    """ASE calculators with an ``ase.neighborlist.NeighborList`` in ``.nl``.
+
+    The calculator creates its list on the first calculation (and again when
+    the atomic numbers change); the list is then swapped for a sorted copy
+    and the unsorted results are discarded, costing one extra force call.
+    """
+
+    mode = 'sorted'
+
+    def forces(self, atoms):
+        f_nc = atoms.get_forces(md=True)
+        # Checked after the call: the calculator may have (re)built an
+        # unsorted list inside it, or answered from a cache filled by one.
+        if not _has_sorted_list(atoms.calc):
+            _install_sorted_list(atoms.calc)
+            f_nc = atoms.get_forces(md=True)
+        return f_nc
+
+
+class GuardedForces(TrustedForces):
+    """Noisy forces made exact by guarded rounding (see module docstring).
+
+    Parameters
+    ----------
+    force_noise : float
+        Bound on the history noise of a force component, eV/Å, for forces
+        up to 1 eV/Å; relative to max|F| above that.
+    """
+
+    mode = 'guarded'
+
+    def __init__(self, force_noise: float = DEFAULT_FORCE_NOISE):
+        force_noise = float(force_noise)
+        if not (math.isfinite(force_noise) and force_noise > 0):
+            raise ValueError(f'force_noise must be positive and finite (eV/Å),'
+                             f' got {force_noise!r}')
+        self.force_noise = force_noise
+        #: Number of kicks whose forces were recomputed from a clean list.
+        self.clean_recomputations = 0
+        #: Largest |F_history - F_clean| seen in those recomputations, eV/Å.
+        self.max_observed_noise = 0.0
+        self._warned = False
+        self._clean_nc = None  # the last clean forces: need no guard
+
+    def kick_increment(self, atoms, f_nc, scale, project):
+        y_nc = f_nc * scale
+        project(y_nc)
+        if f_nc is self._clean_nc:
+            return y_nc, f_nc
+        bound = abs(scale) * self.force_noise * max(1.0, np.abs(f_nc).max())
+        # Noise below `bound` cannot flip rint(y) unless y lies within
+        # `bound` of a half-integer.
+        if not (np.abs(y_nc - np.rint(y_nc)) > 0.5 - bound).any():
+            return y_nc, f_nc
+        clean_nc = self.clean_forces(atoms)
+        self._record_noise(np.abs(clean_nc - f_nc).max())
+        y_nc = clean_nc * scale
+        project(y_nc)
+        return y_nc, clean_nc
+
+    def clean_forces(self, atoms):
+        """Forces from a neighbour list built at exactly these positions."""
+        x_nc = atoms.positions.copy()
+        atoms.positions = x_nc + REBUILD_SHIFT
+        try:
+            atoms.get_forces(md=True)
+        finally:
+            atoms.positions = x_nc
+        self.clean_recomputations += 1
+        self._clean_nc = atoms.get_forces(md=True)
+        return self._clean_nc
+
+    def _record_noise(self, noise):
+        noise = float(noise)
+        self.max_observed_noise = max(self.max_observed_noise, noise)
+        if noise > self.force_noise / 8 and not self._warned:
+            self._warned = True
+            warnings.warn(
+                f'Force noise of {noise:.3g} eV/Å was observed, close to the '
+                f'bound force_noise={self.force_noise:.3g} eV/Å that exact '
+                'reversal relies on. Construct the integrator with a larger '
+                'force_noise.', RuntimeWarning, stacklevel=4)
+
+    def min_momentum_quantum(self, n_atoms, max_kick_time):
+        # P(clean) per force call ~ 2 * 3N * noise * |c h| / q_p.
+        return (2 * 3 * max(n_atoms, 1) * self.force_noise * max_kick_time
+                / TARGET_CLEAN_RATE)
+
+    def todict(self):
+        return {'mode': self.mode, 'force_noise': self.force_noise}
+
+
+def probe_purity(atoms, trials: int = 2, displacement: float = 0.3,
+                 seed: int = 0) -> float:
+    """Largest force difference (eV/Å) at identical positions.
+
+    Computes the forces, moves the atoms away (a random displacement of
+    ``displacement`` Å rms plus a shift of ``REBUILD_SHIFT`` Å, enough to
+    make a calculator rebuild its neighbour lists), moves them back bit for
+    bit and computes again, ``trials`` times.  Zero means no history
+    dependence was seen, which is evidence, not proof, of purity.  The
+    atoms are left at their original positions.
+    """
+    rng = np.random.default_rng(seed)
+    x_nc = atoms.positions.copy()
+    _discard_results(atoms.calc)
+    f0_nc = atoms.get_forces(md=True)
+    worst = 0.0
+    try:
+        for _ in range(trials):
+            atoms.positions = (x_nc + REBUILD_SHIFT
+                               + rng.normal(0.0, displacement, x_nc.shape))
+            atoms.get_forces(md=True)
+            atoms.positions = x_nc
+            worst = max(worst, float(np.abs(atoms.get_forces(md=True)
+                                            - f0_nc).max()))
+    finally:
+        atoms.positions = x_nc
+    return worst
+
+
+def force_provider(atoms, mode: str = 'auto',
+                   force_noise: float | None = None):
+    """Choose how forces are made a pure function of positions.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        With its calculator attached.
+    mode : {'auto', 'sorted', 'guarded', 'trust'}
+        ``'auto'`` picks ``'sorted'`` for ASE's LennardJones and EMT,
+        ``'guarded'`` for asap3 calculators, and ``'trust'`` for any other
+        calculator that passes :func:`probe_purity`.
+    force_noise : float, optional
+        Noise bound for ``'guarded'`` (eV/Å).
+    """
+    calc = atoms.calc
+    modes = ('auto', 'sorted', 'guarded', 'trust')
+    if mode not in modes:
+        raise ValueError(f'force_purity must be one of {modes}, got {mode!r}')
+    if force_noise is not None and mode not in ('auto', 'guarded'):
+        raise ValueError("force_noise only applies to force_purity='guarded'")
+    if mode == 'auto':
+        if _is_ase_neighborlist_calculator(calc):
+            mode = 'sorted'
+        elif _is_asap3(calc) or force_noise is not None:
+            mode = 'guarded'
+        else:
+            noise = probe_purity(atoms)
+            if noise:
+                raise ImpureForcesError(
+                    f'{type(calc).__name__} returned forces that differ by '
+                    f'{noise:.3g} eV/Å at identical positions after the '
+                    'atoms had been moved elsewhere: its forces depend on '
+                    'its history, which breaks exact reversal. If a '
+                    'neighbour list is the cause, use '
+                    "force_purity='guarded' (with force_noise above that "
+                    "difference); force_purity='trust' skips this check.")
+            mode = 'trust'
+    if mode == 'sorted':
+        if not _is_ase_neighborlist_calculator(calc):
+            raise ValueError(
+                "force_purity='sorted' needs an ASE calculator that keeps "
+                f"an ase.neighborlist.NeighborList in .nl; "
+                f"{type(calc).__name__} does not.")
+        _discard_results(calc)
+        return SortedNeighborListForces()
+    if mode == 'guarded':
+        return GuardedForces(DEFAULT_FORCE_NOISE if force_noise is None
+                             else force_noise)
+    return TrustedForces()
+
+
+def _is_ase_neighborlist_calculator(calc):
+    from ase.calculators.emt import EMT
+    from ase.calculators.lj import LennardJones
+    return isinstance(calc, (EMT, LennardJones))
+
+
+def _is_asap3(calc):
+    module = type(calc).__module__ or ''
+    return module.split('.')[0] in ('asap3', '_asap')
+
+
+def _has_sorted_list(calc):
+    nl = getattr(calc, 'nl', None)
+    return nl is not None and getattr(nl.nl, 'sorted', False)
+
+
+def _install_sorted_list(calc):
+    from ase.neighborlist import NeighborList
+    old = calc.nl.nl
+    new = NeighborList(old.cutoffs - old.skin, skin=old.skin, sorted=True,
+                       self_interaction=old.self_interaction,
+                       bothways=old.bothways)
+    new.nl.cutoffs = old.cutoffs.copy()
+    calc.nl = new
+    _discard_results(calc)
+
+
+def _discard_results(calc):
+    results = getattr(calc, 'results', None)
+    if isinstance(results, dict):
+        results.clear()

@@ -1,0 +1,322 @@
+"""ReversibleVerlet: bit-for-bit reversible NVE dynamics for ASE."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+from ase.md.md import MolecularDynamics
+
+from . import fixedpoint as fp
+from .constraints import constraint_projection
+from .errors import NonFiniteForcesError, QuantumRangeError
+from .io import read_record, write_record
+from .purity import force_provider
+
+DRIFT, KICK = 'drift', 'kick'
+
+#: Sub-steps of each scheme: (kind, fraction of the time step).  Both are
+#: palindromes, so the same sequence run with -h is the exact inverse.
+SCHEMES = {
+    'velocity': ((KICK, 0.5), (DRIFT, 1.0), (KICK, 0.5)),
+    'position': ((DRIFT, 0.5), (KICK, 1.0), (DRIFT, 0.5)),
+}
+
+
+class AnchorMovedWarning(UserWarning):
+    """The state was edited outside the integrator: reversal starts anew."""
+
+
+class ReversibleVerlet(MolecularDynamics):
+    """Verlet dynamics in int64 fixed point that can be run back exactly.
+
+    Positions and momenta are integers counted in power-of-two quanta
+    (:mod:`ase_reversible.fixedpoint`).  Every sub-step adds the odd
+    rounding of a function of the *other* variable -- drift:
+    ``x += rint(c h p / m / q_x)``, kick: ``p += rint(c h F(x) / q_p)`` --
+    so after ``run(n)``, :meth:`reverse` and ``run(n)`` the positions and
+    momenta are bitwise those right after the constructor (J. Stam, "An
+    Exact Bitwise Reversible Integrator", eq. posVerlet).
+
+    The constructor snaps positions and momenta to the grid (a move of at
+    most half a quantum) and writes them back to ``atoms``.  The values on
+    ``atoms`` are exact images of the integers at every step, so any
+    trajectory frame is an exact restart point: read it with
+    ``ase.io.read``, attach a calculator and construct a new
+    ``ReversibleVerlet``.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        With a calculator attached.
+    timestep : float
+        Time step in ASE time units (``5 * ase.units.fs``); may be
+        negative to run backwards.
+    trajectory, logfile, loginterval, append_trajectory
+        As for :class:`ase.md.verlet.VelocityVerlet`.
+    scheme : {'velocity', 'position'}
+        ``'velocity'`` (default): kick-drift-kick.  ``'position'``:
+        drift-kick-drift, the paper's position Verlet.  Both take one force
+        evaluation per step; kick-drift-kick ends each step with the forces
+        and energy at the new positions, so loggers, observers and
+        trajectories read them for free, while drift-kick-drift has to
+        compute them again whenever something asks.
+    position_quantum : float, optional
+        Å, a power of two.  Default: from a restart record in
+        ``atoms.info`` if present, otherwise 1024 times the system's size
+        over 2**53 (:func:`~ase_reversible.fixedpoint.choose_position_quantum`).
+    momentum_quantum : float, optional
+        amu Å / ASE time unit, a power of two.  Default: from a restart
+        record, otherwise 256 times the momentum scale over 2**53, raised
+        if the force-purity mode needs it coarser.
+    force_purity : {'auto', 'sorted', 'guarded', 'trust'}
+        How forces are made a pure function of positions; see
+        :mod:`ase_reversible.purity`.
+    force_noise : float, optional
+        Bound on history noise in the forces for ``'guarded'``, eV/Å.
+    """
+
+    def __init__(self, atoms, timestep, trajectory=None, logfile=None,
+                 loginterval=1, *, scheme='velocity', position_quantum=None,
+                 momentum_quantum=None, force_purity='auto', force_noise=None,
+                 **kwargs):
+        # Validate everything before the base class touches any file.
+        timestep = _check_timestep(timestep)
+        if scheme not in SCHEMES:
+            raise ValueError(f'scheme must be one of {tuple(SCHEMES)}, '
+                             f'got {scheme!r}')
+        if atoms.calc is None:
+            raise RuntimeError('The atoms have no calculator: attach one '
+                               '(atoms.calc = ...) before constructing '
+                               'ReversibleVerlet.')
+        masses_n = atoms.get_masses()
+        if not (np.all(np.isfinite(masses_n)) and np.all(masses_n > 0)):
+            bad = int(np.argwhere(~(masses_n > 0) | ~np.isfinite(masses_n))[0, 0])
+            raise ValueError(f'Atom {bad} has mass {masses_n[bad]!r}: every '
+                             'mass must be positive and finite (set it with '
+                             'atoms.set_masses).')
+        for name in ('positions', 'momenta'):
+            values = atoms.arrays.get(name)
+            if values is not None and not np.all(np.isfinite(values)):
+                raise ValueError(f'The atoms have non-finite {name}.')
+        self._project = constraint_projection(atoms)
+        self._purity_mode = force_purity
+        self._force_noise = force_noise
+        self._purity = force_provider(atoms, force_purity, force_noise)
+        self._calc = atoms.calc
+        self.scheme = scheme
+        grid, time0 = self._choose_grid(atoms, masses_n, timestep,
+                                        position_quantum, momentum_quantum)
+        self.grid = grid
+        super().__init__(atoms, timestep, trajectory=trajectory,
+                         logfile=logfile, loginterval=loginterval, **kwargs)
+        self._m_n1 = masses_n[:, None]
+        self._time0 = time0
+        self._step_index = 0
+        self._f_cache = None
+        self._install(self._encode_atoms(), anchored=True)
+        self._prepare_plan()
+
+    # -- public ---------------------------------------------------------
+
+    def reverse(self):
+        """Flip the direction of time: further steps retrace the path."""
+        self.dt = -self.dt
+        self._prepare_plan()
+        return self
+
+    @property
+    def state(self) -> fp.FixedPointState:
+        """The exact state: int64 positions and momenta in quanta."""
+        return self._state
+
+    @property
+    def force_purity(self):
+        """The force provider in use (mode, and statistics if guarded)."""
+        return self._purity
+
+    def get_time(self):
+        """Simulated time in ASE units, continued from a restart record."""
+        return self._time0 + self._step_index * abs(self.dt)
+
+    def todict(self):
+        return {**super().todict(), 'scheme': self.scheme,
+                **self.grid.todict(), 'force_purity': self._purity.mode}
+
+    def step(self):
+        self._sync()
+        saved = self._state, self._f_cache
+        try:
+            for substep, coefficient in self._plan:
+                substep(coefficient)
+        except BaseException:
+            # Sub-steps build new arrays, so putting the saved ones back
+            # undoes a partial step exactly.
+            self._state, self._f_cache = saved
+            self._write_positions()
+            raise
+        self._write_momenta()
+        self._step_index += 1 if self.dt > 0 else -1
+        write_record(self.atoms, self.grid, self.get_time())
+
+    # -- hooks of MolecularDynamics ------------------------------------
+
+    def _refresh_properties(self):
+        # ASE asks for forces after every step.  Kick-drift-kick already
+        # holds them; drift-kick-drift would pay a whole extra force call,
+        # so its energies are computed only when a logger or observer asks.
+        self._sync()
+        if self._plan[0][0] == self._kick:
+            self._forces()
+
+    # -- sub-steps ------------------------------------------------------
+
+    def _prepare_plan(self):
+        qx, qp = self.grid.position_quantum, self.grid.momentum_quantum
+        plan = []
+        for kind, c in SCHEMES[self.scheme]:
+            ch = c * self.dt  # negating dt negates every factor exactly
+            if kind == DRIFT:
+                plan.append((self._drift, ch * (qp / qx) / self._m_n1))
+            else:
+                plan.append((self._kick, ch / qp))
+        self._plan = tuple(plan)
+
+    def _drift(self, factor_n1):
+        ix_nc, ip_nc = self._state
+        y_nc = ip_nc * factor_n1
+        self._project(y_nc)
+        ix_nc = fp.add_rounded(ix_nc, y_nc, 'position',
+                               self.grid.position_quantum)
+        self._state = fp.FixedPointState(ix_nc, ip_nc)
+        self._write_positions()
+
+    def _kick(self, scale):
+        f_nc = self._forces()
+        y_nc, f_used_nc = self._purity.kick_increment(
+            self.atoms, f_nc, scale, self._project)
+        if f_used_nc is not f_nc:
+            self._f_cache = (self._state.ix_nc, f_used_nc)
+        try:
+            ip_nc = fp.add_rounded(self._state.ip_nc, y_nc, 'momentum',
+                                   self.grid.momentum_quantum)
+        except QuantumRangeError:
+            if not np.all(np.isfinite(f_used_nc)):
+                raise NonFiniteForcesError(
+                    f'{type(self.atoms.calc).__name__} returned non-finite '
+                    'forces; the step was not taken and the state is still '
+                    'reversible. Check the structure (overlapping atoms?) '
+                    'and the calculator.') from None
+            raise
+        self._state = fp.FixedPointState(self._state.ix_nc, ip_nc)
+
+    def _forces(self):
+        """Forces at the current grid positions, computed once per position."""
+        ix_nc = self._state.ix_nc
+        if self._f_cache is not None and self._f_cache[0] is ix_nc:
+            return self._f_cache[1]
+        f_nc = self._purity.forces(self.atoms)
+        self._f_cache = (ix_nc, f_nc)
+        return f_nc
+
+    # -- state <-> atoms -------------------------------------------------
+
+    def _choose_grid(self, atoms, masses_n, timestep, qx, qp):
+        record = read_record(atoms)
+        time0 = 0.0
+        if record is not None:
+            fits = _fits(atoms, record)
+            if fits:
+                qx = record['position_quantum'] if qx is None else qx
+                qp = record['momentum_quantum'] if qp is None else qp
+                time0 = record['time']
+            else:
+                warnings.warn('The restart record in atoms.info does not fit '
+                              'these atoms; choosing new quanta.',
+                              AnchorMovedWarning, stacklevel=3)
+        if qx is None:
+            qx = fp.choose_position_quantum(atoms.positions, atoms.cell,
+                                            atoms.pbc)
+        if qp is None:
+            momenta = atoms.arrays.get('momenta', np.zeros((len(atoms), 3)))
+            qp = fp.choose_momentum_quantum(masses_n, momenta)
+            max_kick = abs(timestep) * max(
+                c for kind, c in SCHEMES[self.scheme] if kind == KICK)
+            floor = self._purity.min_momentum_quantum(len(atoms), max_kick)
+            if floor > qp:
+                qp = math.ldexp(1.0, math.frexp(floor)[1])  # power of 2 > floor
+        return fp.Grid(qx, qp), time0
+
+    def _encode_atoms(self):
+        atoms = self.atoms
+        p_nc = atoms.get_momenta()
+        self._project(p_nc)
+        return fp.FixedPointState(
+            fp.encode(atoms.positions, self.grid.position_quantum, 'position'),
+            fp.encode(p_nc, self.grid.momentum_quantum, 'momentum'))
+
+    def _install(self, state, anchored):
+        self._state = state
+        self._f_cache = None
+        self._write_positions()
+        self._write_momenta()
+        if anchored:
+            write_record(self.atoms, self.grid, self.get_time())
+
+    def _write_positions(self):
+        self._x_nc = fp.decode(self._state.ix_nc, self.grid.position_quantum)
+        self.atoms.set_positions(self._x_nc, apply_constraint=False)
+
+    def _write_momenta(self):
+        self._p_nc = fp.decode(self._state.ip_nc, self.grid.momentum_quantum)
+        self.atoms.set_momenta(self._p_nc, apply_constraint=False)
+
+    def _sync(self):
+        """Take edits made to the atoms outside the integrator."""
+        atoms = self.atoms
+        if len(atoms) != len(self._x_nc):
+            raise ValueError('The number of atoms changed; construct a new '
+                             'ReversibleVerlet for the new system.')
+        if atoms.calc is not self._calc:
+            if atoms.calc is None:
+                raise RuntimeError('The atoms lost their calculator; attach '
+                                   'one before running.')
+            self._purity = force_provider(atoms, self._purity_mode,
+                                          self._force_noise)
+            self._calc = atoms.calc
+            self._f_cache = None
+        momenta = atoms.arrays.get('momenta')
+        if (np.array_equal(atoms.arrays['positions'], self._x_nc)
+                and momenta is not None
+                and np.array_equal(momenta, self._p_nc)):
+            return
+        self._install(self._encode_atoms(), anchored=True)
+        warnings.warn(
+            'Positions or momenta were changed outside ReversibleVerlet. The '
+            'change was taken and snapped to the grid; reversal now leads '
+            f'back to this point (time {self.get_time():.6g}), not beyond.',
+            AnchorMovedWarning, stacklevel=3)
+
+
+def _check_timestep(timestep):
+    try:
+        dt = float(timestep)
+    except (TypeError, ValueError):
+        raise TypeError(f'timestep must be a number (ASE time units, e.g. '
+                        f'5 * ase.units.fs), got {timestep!r}') from None
+    if not math.isfinite(dt) or dt == 0:
+        raise ValueError(f'timestep must be finite and non-zero (ASE time '
+                         f'units, e.g. 5 * ase.units.fs), got {timestep!r}')
+    return dt
+
+
+def _fits(atoms, record):
+    try:
+        grid = fp.Grid(record['position_quantum'], record['momentum_quantum'])
+    except ValueError:
+        return False
+    momenta = atoms.arrays.get('momenta')
+    return (np.abs(atoms.positions).max(initial=0) < 0.5 * grid.position_range
+            and (momenta is None or np.abs(momenta).max(initial=0)
+                 < 0.5 * grid.momentum_range))

@@ -1,0 +1,83 @@
+"""Systems and calculators shared by the tests.
+
+Every calculator here is a real one (ASE's or asap3's); builders return
+fresh Atoms with thermal momenta drawn from a fixed seed.
+"""
+
+import numpy as np
+import pytest
+from ase import units
+from ase.build import bulk
+from ase.calculators.emt import EMT
+from ase.calculators.lj import LennardJones
+from ase.cluster import Icosahedron
+from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
+
+asap3 = pytest.importorskip('asap3')
+
+AR_EPSILON, AR_SIGMA, AR_RC = 0.0104, 3.4, 8.5
+DT = 5 * units.fs
+
+
+def ase_lj():
+    return LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC)
+
+
+def asap_lj():
+    return asap3.LennardJones([18], [AR_EPSILON], [AR_SIGMA], rCut=AR_RC,
+                              modified=True)
+
+
+CALCULATORS = {'ase-lj': ase_lj, 'asap-lj': asap_lj,
+               'ase-emt': EMT, 'asap-emt': asap3.EMT}
+
+
+def thermalize(atoms, temperature_K, seed=0):
+    MaxwellBoltzmannDistribution(atoms, temperature_K=temperature_K,
+                                 rng=np.random.default_rng(seed),
+                                 force_temp=True)
+    return atoms
+
+
+def argon_cluster(shells, temperature_K, seed=0):
+    """Argon icosahedron: shells 2, 3, 4 give 13, 55, 147 atoms."""
+    atoms = Icosahedron('Ar', shells, latticeconstant=5.26)
+    atoms.center(vacuum=10.0)  # asap3 wants a cell even without pbc
+    return thermalize(atoms, temperature_K, seed)
+
+
+def copper_cluster(shells=3, temperature_K=600, seed=0):
+    atoms = Icosahedron('Cu', shells)
+    atoms.center(vacuum=10.0)
+    return thermalize(atoms, temperature_K, seed)
+
+
+def copper_bulk(size=(3, 3, 3), temperature_K=600, seed=0):
+    atoms = bulk('Cu', cubic=True) * size
+    atoms.rattle(0.05, seed=seed)
+    return thermalize(atoms, temperature_K, seed)
+
+
+def argon_bulk(size=(3, 3, 3), temperature_K=80, seed=0):
+    atoms = bulk('Ar', 'fcc', a=5.26, cubic=True) * size
+    return thermalize(atoms, temperature_K, seed)
+
+
+def snapshot(atoms):
+    return atoms.get_positions(), atoms.get_momenta()
+
+
+def assert_same_state(atoms, reference):
+    positions, momenta = reference
+    assert np.array_equal(atoms.get_positions(), positions)
+    assert np.array_equal(atoms.get_momenta(), momenta)
+
+
+def forward_and_back(dyn, steps):
+    """Run `steps`, reverse, run `steps`; return the state after the constructor."""
+    start = snapshot(dyn.atoms)
+    dyn.run(steps)
+    moved = not np.array_equal(dyn.atoms.get_positions(), start[0])
+    dyn.reverse()
+    dyn.run(steps)
+    return start, moved
