@@ -15,7 +15,7 @@ import numpy as np
 from ase import units
 from ase.calculators.lj import LennardJones
 from ase.cluster import Icosahedron
-from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
+from ase.md import velocitydistribution
 from ase.md.verlet import VelocityVerlet
 
 from .verlet import ReversibleVerlet
@@ -23,12 +23,21 @@ from .verlet import ReversibleVerlet
 SHELLS = {13: 2, 55: 3, 147: 4, 309: 5}
 
 
+def thermalize(atoms, temperature_K, seed):
+    """Maxwell-Boltzmann momenta at exactly ``temperature_K``."""
+    rng = np.random.default_rng(seed)
+    if hasattr(velocitydistribution, 'thermalize_momenta'):  # ASE >= 3.29
+        velocitydistribution.thermalize_momenta(
+            atoms, temperature_K, exact_temperature=True, rng=rng)
+    else:
+        velocitydistribution.MaxwellBoltzmannDistribution(
+            atoms, temperature_K=temperature_K, rng=rng, force_temp=True)
+
+
 def make_cluster(n_atoms, temperature_K, seed):
     atoms = Icosahedron('Ar', SHELLS[n_atoms], latticeconstant=5.26)
     atoms.center(vacuum=10.0)
-    MaxwellBoltzmannDistribution(atoms, temperature_K=temperature_K,
-                                 rng=np.random.default_rng(seed),
-                                 force_temp=True)
+    thermalize(atoms, temperature_K, seed)
     atoms.calc = LennardJones(sigma=3.4, epsilon=0.0104, rc=8.5)
     return atoms
 

@@ -11,7 +11,7 @@ from ase.build import bulk
 from ase.calculators.emt import EMT
 from ase.calculators.lj import LennardJones
 from ase.cluster import Icosahedron
-from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
+from ase_reversible.demo import thermalize as _thermalize
 
 asap3 = pytest.importorskip('asap3')
 
@@ -33,9 +33,7 @@ CALCULATORS = {'ase-lj': ase_lj, 'asap-lj': asap_lj,
 
 
 def thermalize(atoms, temperature_K, seed=0):
-    MaxwellBoltzmannDistribution(atoms, temperature_K=temperature_K,
-                                 rng=np.random.default_rng(seed),
-                                 force_temp=True)
+    _thermalize(atoms, temperature_K, seed)
     return atoms
 
 

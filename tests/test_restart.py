@@ -1,0 +1,88 @@
+"""Exact restarts from trajectory frames, the way ASE users resume."""
+
+import numpy as np
+import pytest
+from ase.io import read
+
+from ase_reversible import AnchorMovedWarning, ReversibleVerlet
+
+from conftest import (CALCULATORS, DT, argon_cluster, assert_same_state,
+                      copper_bulk, snapshot)
+
+CASES = {
+    'Ar55 ase-lj': (lambda: argon_cluster(3, 120), 'ase-lj', 60, 10),
+    'Ar55 asap-lj': (lambda: argon_cluster(3, 120), 'asap-lj', 600, 100),
+    'Cu108 asap-emt': (lambda: copper_bulk((3, 3, 3), 600), 'asap-emt', 600,
+                       100),
+}
+
+
+@pytest.mark.parametrize('scheme', ['velocity', 'position'])
+@pytest.mark.parametrize('case', list(CASES))
+def test_resume_from_a_frame_continues_bit_for_bit(case, scheme, tmp_path):
+    build, calc, steps, interval = CASES[case]
+    traj = tmp_path / 'md.traj'
+    atoms = build()
+    atoms.calc = CALCULATORS[calc]()
+    dyn = ReversibleVerlet(atoms, DT, trajectory=str(traj),
+                           loginterval=interval, scheme=scheme)
+    start = snapshot(atoms)
+    dyn.run(steps)
+    end = snapshot(atoms)
+
+    # Resume from a frame in the middle: read, attach, construct.
+    frame = 2
+    resumed = read(traj, frame)
+    resumed.calc = CALCULATORS[calc]()
+    dyn2 = ReversibleVerlet(resumed, DT, scheme=scheme)
+    assert dyn2.grid == dyn.grid
+    assert dyn2.get_time() == pytest.approx(frame * interval * DT)
+    dyn2.run(steps - frame * interval)
+    assert_same_state(resumed, end)
+
+    # The resumed run reverses through the restart point to the start.
+    dyn2.reverse()
+    dyn2.run(steps)
+    assert_same_state(resumed, start)
+    assert dyn2.get_time() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_every_frame_is_on_the_grid(tmp_path):
+    atoms = argon_cluster(3, 120)
+    atoms.calc = CALCULATORS['asap-lj']()
+    traj = tmp_path / 'md.traj'
+    dyn = ReversibleVerlet(atoms, DT, trajectory=str(traj), loginterval=50)
+    dyn.run(200)
+    qx, qp = dyn.grid.position_quantum, dyn.grid.momentum_quantum
+    frames = read(traj, ':')
+    assert len(frames) == 5
+    for frame in frames:
+        ix = frame.positions / qx
+        ip = frame.get_momenta() / qp
+        assert np.array_equal(ix, np.rint(ix))
+        assert np.array_equal(ip, np.rint(ip))
+    assert np.array_equal((frames[-1].positions / qx).astype(np.int64),
+                          dyn.state.ix_nc)
+    assert np.array_equal((frames[-1].get_momenta() / qp).astype(np.int64),
+                          dyn.state.ip_nc)
+
+
+def test_an_edit_between_runs_is_taken_and_reversal_anchors_there():
+    atoms = argon_cluster(3, 120)
+    atoms.calc = CALCULATORS['asap-lj']()
+    dyn = ReversibleVerlet(atoms, DT)
+    dyn.run(100)
+    atoms.set_momenta(atoms.get_momenta() * 1.1)
+    with pytest.warns(AnchorMovedWarning, match='reversal now leads back'):
+        dyn.run(1)
+    dyn.reverse()
+    dyn.run(1)
+    edited = snapshot(atoms)
+    # The edit was snapped to the grid and is a new anchor.
+    ip = edited[1] / dyn.grid.momentum_quantum
+    assert np.array_equal(ip, np.rint(ip))
+    dyn.reverse()
+    dyn.run(300)
+    dyn.reverse()
+    dyn.run(300)
+    assert_same_state(atoms, edited)
