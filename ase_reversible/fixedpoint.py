@@ -155,7 +155,7 @@ def encode(values, quantum: float, what: str) -> np.ndarray:
     with np.errstate(over='ignore', invalid='ignore'):
         y = np.asarray(values, dtype=np.float64) / quantum
     np.rint(y, out=y)
-    _check_range(y, what, quantum)
+    _check_range(y, what, quantum, 'Choose a larger quantum.')
     return y.astype(np.int64)
 
 
@@ -173,13 +173,18 @@ def add_rounded(ints: np.ndarray, y: np.ndarray, what: str,
     still holds the unchanged ``ints``.
     """
     np.rint(y, out=y)
-    _check_range(y, what + ' increment', quantum)
+    _check_range(y, what + ' increment', quantum, _STEP_ADVICE)
     new = ints + y.astype(np.int64)
-    _check_range(new, what, quantum)
+    _check_range(new, what, quantum, _STEP_ADVICE)
     return new
 
 
-def _check_range(a: np.ndarray, what: str, quantum: float):
+_STEP_ADVICE = ('The step was not taken. If the system is fine, construct the '
+                'integrator with a larger quantum; if it is blowing up, use a '
+                'smaller time step.')
+
+
+def _check_range(a: np.ndarray, what: str, quantum: float, advice: str):
     if a.size == 0:
         return
     # max() propagates NaN and NaN < LIMIT is False: one pass catches both.
@@ -188,11 +193,9 @@ def _check_range(a: np.ndarray, what: str, quantum: float):
     bad = ~(np.abs(a) < LIMIT)
     atom = int(np.argwhere(bad.reshape(len(a), -1).any(axis=1))[0, 0])
     if not np.all(np.isfinite(a)):
-        raise QuantumRangeError(
-            f'{what} of atom {atom} is not finite; the step was not taken.')
+        raise QuantumRangeError(f'{what} of atom {atom} is not finite. '
+                                f'{advice}')
     raise QuantumRangeError(
-        f'{what} of atom {atom} would leave the fixed-point range '
-        f'(|value| < {_FLIMIT * quantum:.4g} with quantum {quantum:.4g}); '
-        'the step was not taken. If the system is fine, construct the '
-        'integrator with a larger quantum; if it is blowing up, use a '
-        'smaller time step.')
+        f'{what} of atom {atom} is outside the fixed-point range '
+        f'(|value| < {_FLIMIT * quantum:.4g} with quantum {quantum:.4g}). '
+        f'{advice}')

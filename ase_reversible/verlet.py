@@ -93,7 +93,7 @@ class ReversibleVerlet(MolecularDynamics):
         masses_n = atoms.get_masses()
         if not (np.all(np.isfinite(masses_n)) and np.all(masses_n > 0)):
             bad = int(np.argwhere(~(masses_n > 0) | ~np.isfinite(masses_n))[0, 0])
-            raise ValueError(f'Atom {bad} has mass {masses_n[bad]!r}: every '
+            raise ValueError(f'Atom {bad} has mass {float(masses_n[bad])}: every '
                              'mass must be positive and finite (set it with '
                              'atoms.set_masses).')
         for name in ('positions', 'momenta'):
@@ -109,13 +109,13 @@ class ReversibleVerlet(MolecularDynamics):
         grid, time0 = self._choose_grid(atoms, masses_n, timestep,
                                         position_quantum, momentum_quantum)
         self.grid = grid
+        state = _encode(atoms, grid, self._project)  # may refuse: no files yet
         super().__init__(atoms, timestep, trajectory=trajectory,
                          logfile=logfile, loginterval=loginterval, **kwargs)
         self._m_n1 = masses_n[:, None]
         self._time0 = time0
         self._step_index = 0
-        self._f_cache = None
-        self._install(self._encode_atoms(), anchored=True)
+        self._install(state, anchored=True)
         self._prepare_plan()
 
     # -- public ---------------------------------------------------------
@@ -248,14 +248,6 @@ class ReversibleVerlet(MolecularDynamics):
                 qp = math.ldexp(1.0, math.frexp(floor)[1])  # power of 2 > floor
         return fp.Grid(qx, qp), time0
 
-    def _encode_atoms(self):
-        atoms = self.atoms
-        p_nc = atoms.get_momenta()
-        self._project(p_nc)
-        return fp.FixedPointState(
-            fp.encode(atoms.positions, self.grid.position_quantum, 'position'),
-            fp.encode(p_nc, self.grid.momentum_quantum, 'momentum'))
-
     def _install(self, state, anchored):
         self._state = state
         self._f_cache = None
@@ -291,7 +283,7 @@ class ReversibleVerlet(MolecularDynamics):
                 and momenta is not None
                 and np.array_equal(momenta, self._p_nc)):
             return
-        self._install(self._encode_atoms(), anchored=True)
+        self._install(_encode(atoms, self.grid, self._project), anchored=True)
         warnings.warn(
             'Positions or momenta were changed outside ReversibleVerlet. The '
             'change was taken and snapped to the grid; reversal now leads '
@@ -299,7 +291,19 @@ class ReversibleVerlet(MolecularDynamics):
             AnchorMovedWarning, stacklevel=3)
 
 
+def _encode(atoms, grid, project):
+    """Snap the atoms' positions and (projected) momenta to the grid."""
+    p_nc = atoms.get_momenta()
+    project(p_nc)
+    return fp.FixedPointState(
+        fp.encode(atoms.positions, grid.position_quantum, 'position'),
+        fp.encode(p_nc, grid.momentum_quantum, 'momentum'))
+
+
 def _check_timestep(timestep):
+    if isinstance(timestep, (str, bytes)):
+        raise TypeError(f'timestep must be a number (ASE time units, e.g. '
+                        f'5 * ase.units.fs), got the string {timestep!r}')
     try:
         dt = float(timestep)
     except (TypeError, ValueError):

@@ -68,7 +68,7 @@ class RecordingVerlet(ReversibleVerlet):
         self.events.append(('observer', self.nsteps))
 
 
-# -- irun --------------------------------------------------------------------
+# -- irun ---------------------------------------------------------------------
 
 def expected_irun_events(first, steps):
     """The hook sequence of ase.md.md.MolecularDynamics.irun."""
@@ -117,7 +117,7 @@ def test_observer_interval_counts_from_the_first_run():
     assert seen == [0, 3, 6, 9]
 
 
-# -- force evaluations ---------------------------------------------------------
+# -- force evaluations --------------------------------------------------------
 
 def calculations(steps, make_dyn):
     """Calculations made by constructing a fresh system's dynamics and
@@ -200,7 +200,7 @@ def test_continued_and_reversed_runs_cost_one_evaluation_per_step():
     assert atoms.calc.calculations - before == 10
 
 
-# -- log file against trajectory frames ----------------------------------------
+# -- log file against trajectory frames ---------------------------------------
 
 def log_rows(path):
     header, *lines = path.read_text().splitlines()
@@ -304,7 +304,7 @@ def test_append_trajectory_keeps_earlier_frames(tmp_path, append):
     assert frames[-1].info['reversible']['time'] == 20 * DT
 
 
-# -- time and reversal ---------------------------------------------------------
+# -- time and reversal --------------------------------------------------------
 
 def test_reverse_runs_the_clock_back_to_zero():
     atoms = argon()
@@ -339,7 +339,7 @@ def test_negative_timestep_runs_backwards_from_the_start():
     assert_same_state(atoms, start)
 
 
-# -- drop-in replacement ---------------------------------------------------------
+# -- drop-in replacement ------------------------------------------------------
 
 def test_positional_arguments_of_velocity_verlet_work(tmp_path):
     atoms = argon(ase_lj)
