@@ -79,3 +79,21 @@ def forward_and_back(dyn, steps):
     dyn.reverse()
     dyn.run(steps)
     return start, moved
+
+
+def assert_frame_on_grid(frame, grid):
+    """Positions and momenta of a frame are whole numbers of quanta."""
+    ix = frame.positions / grid.position_quantum
+    ip = frame.get_momenta() / grid.momentum_quantum
+    assert np.array_equal(ix, np.rint(ix))
+    assert np.array_equal(ip, np.rint(ip))
+
+
+def assert_frame_is_state(frame, dyn):
+    """A frame decodes to the integrator's exact integer state."""
+    assert np.array_equal(
+        (frame.positions / dyn.grid.position_quantum).astype(np.int64),
+        dyn.state.ix_nc)
+    assert np.array_equal(
+        (frame.get_momenta() / dyn.grid.momentum_quantum).astype(np.int64),
+        dyn.state.ip_nc)

@@ -17,7 +17,8 @@ from ase.md.verlet import VelocityVerlet
 
 from ase_reversible import ReversibleVerlet
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, DT, argon_cluster,
-                      asap_lj, ase_lj, assert_same_state, snapshot)
+                      asap_lj, ase_lj, assert_frame_is_state,
+                      assert_frame_on_grid, assert_same_state, snapshot)
 
 
 class CountingLennardJones(LennardJones):
@@ -220,8 +221,6 @@ def test_log_lines_match_trajectory_frames(tmp_path):
     rows = log_rows(log)
     assert len(frames) == len(rows) == 5
 
-    qx = dyn.grid.position_quantum
-    qp = dyn.grid.momentum_quantum
     for step, (frame, row) in enumerate(zip(frames, rows)):
         time_ps, etot, epot, ekin = row[:4]
         frame_epot = frame.get_potential_energy()
@@ -234,16 +233,10 @@ def test_log_lines_match_trajectory_frames(tmp_path):
         assert f'{5 * step * DT / (1000 * units.fs):.4f}' == time_ps
         assert frame.info['reversible']['time'] == 5 * step * DT
 
-        ix = frame.positions / qx
-        ip = frame.get_momenta() / qp
-        assert np.array_equal(ix, np.rint(ix))
-        assert np.array_equal(ip, np.rint(ip))
+        assert_frame_on_grid(frame, dyn.grid)
 
     # The last frame is the integrator's exact state, not an approximation.
-    assert np.array_equal((frames[-1].positions / qx).astype(np.int64),
-                          dyn.state.ix_nc)
-    assert np.array_equal((frames[-1].get_momenta() / qp).astype(np.int64),
-                          dyn.state.ip_nc)
+    assert_frame_is_state(frames[-1], dyn)
 
 
 def test_trajectory_description_names_the_integrator_and_its_grid(tmp_path):

@@ -6,8 +6,9 @@ from ase.io import read
 
 from ase_reversible import AnchorMovedWarning, ReversibleVerlet
 
-from conftest import (CALCULATORS, DT, argon_cluster, assert_same_state,
-                      copper_bulk, snapshot)
+from conftest import (CALCULATORS, DT, argon_cluster, assert_frame_is_state,
+                      assert_frame_on_grid, assert_same_state, copper_bulk,
+                      snapshot)
 
 CASES = {
     'Ar55 ase-lj': (lambda: argon_cluster(3, 120), 'ase-lj', 60, 10),
@@ -53,18 +54,11 @@ def test_every_frame_is_on_the_grid(tmp_path):
     traj = tmp_path / 'md.traj'
     dyn = ReversibleVerlet(atoms, DT, trajectory=str(traj), loginterval=50)
     dyn.run(200)
-    qx, qp = dyn.grid.position_quantum, dyn.grid.momentum_quantum
     frames = read(traj, ':')
     assert len(frames) == 5
     for frame in frames:
-        ix = frame.positions / qx
-        ip = frame.get_momenta() / qp
-        assert np.array_equal(ix, np.rint(ix))
-        assert np.array_equal(ip, np.rint(ip))
-    assert np.array_equal((frames[-1].positions / qx).astype(np.int64),
-                          dyn.state.ix_nc)
-    assert np.array_equal((frames[-1].get_momenta() / qp).astype(np.int64),
-                          dyn.state.ip_nc)
+        assert_frame_on_grid(frame, dyn.grid)
+    assert_frame_is_state(frames[-1], dyn)
 
 
 def test_an_edit_between_runs_is_taken_and_reversal_anchors_there():
