@@ -163,12 +163,14 @@ class ReversibleVerlet(MolecularDynamics):
     # -- hooks of MolecularDynamics ------------------------------------
 
     def _refresh_properties(self):
-        # ASE asks for forces after every step.  Kick-drift-kick already
-        # holds them; drift-kick-drift would pay a whole extra force call,
-        # so its energies are computed only when a logger or observer asks.
-        self._sync()
-        if self._plan[0][0] == self._kick:
-            self._forces()
+        # ASE asks for forces after every step.  Kick-drift-kick ends each
+        # step holding them; drift-kick-drift would pay a whole extra force
+        # call, so its energies are computed only when a logger or observer
+        # asks.  Only the call before the first step has work to do.
+        if self.nsteps == 0:
+            self._sync()
+            if self._plan[0][0] == self._kick:
+                self._forces()
 
     # -- sub-steps ------------------------------------------------------
 
