@@ -245,7 +245,6 @@ def force_provider(atoms, mode: str = 'auto',
                 "force_purity='sorted' needs an ASE calculator that keeps "
                 f"an ase.neighborlist.NeighborList in .nl; "
                 f"{type(calc).__name__} does not.")
-        _discard_results(calc)
         return SortedNeighborListForces()
     if mode == 'guarded':
         return GuardedForces(DEFAULT_FORCE_NOISE if force_noise is None

@@ -115,7 +115,7 @@ class ReversibleVerlet(MolecularDynamics):
         self._m_n1 = masses_n[:, None]
         self._time0 = time0
         self._step_index = 0
-        self._install(state, anchored=True)
+        self._install(state)
         self._prepare_plan()
 
     # -- public ---------------------------------------------------------
@@ -250,13 +250,13 @@ class ReversibleVerlet(MolecularDynamics):
                 qp = math.ldexp(1.0, math.frexp(floor)[1])  # power of 2 > floor
         return fp.Grid(qx, qp), time0
 
-    def _install(self, state, anchored):
+    def _install(self, state):
+        """Make ``state`` the anchor of reversal and show it on the atoms."""
         self._state = state
         self._f_cache = None
         self._write_positions()
         self._write_momenta()
-        if anchored:
-            write_record(self.atoms, self.grid, self.get_time())
+        write_record(self.atoms, self.grid, self.get_time())
 
     def _write_positions(self):
         self._x_nc = fp.decode(self._state.ix_nc, self.grid.position_quantum)
@@ -285,7 +285,7 @@ class ReversibleVerlet(MolecularDynamics):
                 and momenta is not None
                 and np.array_equal(momenta, self._p_nc)):
             return
-        self._install(_encode(atoms, self.grid, self._project), anchored=True)
+        self._install(_encode(atoms, self.grid, self._project))
         warnings.warn(
             'Positions or momenta were changed outside ReversibleVerlet. The '
             'change was taken and snapped to the grid; reversal now leads '
