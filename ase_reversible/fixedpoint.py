@@ -164,19 +164,74 @@ def decode(ints, quantum: float, out=None) -> np.ndarray:
     return np.multiply(ints, quantum, out=out, dtype=np.float64)
 
 
-def add_rounded(ints: np.ndarray, y: np.ndarray, what: str,
-                quantum: float) -> np.ndarray:
-    """Return ``ints + rint(y)`` as a new array; ``y`` is rounded in place.
+class FixedPointArray:
+    """One fixed-point variable ``[n_atoms, 3]`` updated without allocations.
 
-    Nothing is returned unless every element of the increment and of the
-    sum is finite and inside the range, so a caller that gets an exception
-    still holds the unchanged ``ints``.
+    Holds the int64 counts and their exact float64 image ``counts *
+    quantum``.  Three buffers rotate -- the value at the last
+    :meth:`checkpoint`, the current value, and the one being written -- so
+    an update never overwrites the checkpoint, and :meth:`rollback` puts it
+    back without copying anything.
+
+    Parameters
+    ----------
+    ints : int64 array [n_atoms, 3]
+        Initial counts, all below ``LIMIT`` in magnitude.
+    quantum : float
+        The power-of-two quantum.
+    what : str
+        'position' or 'momentum', for error messages.
     """
-    np.rint(y, out=y)
-    _check_range(y, what + ' increment', quantum, _STEP_ADVICE)
-    new = ints + y.astype(np.int64)
-    _check_range(new, what, quantum, _STEP_ADVICE)
-    return new
+
+    def __init__(self, ints: np.ndarray, quantum: float, what: str):
+        self.quantum = quantum
+        self.what = what
+        self._ints = [np.array(ints, dtype=np.int64)]
+        self._ints += [np.empty_like(self._ints[0]) for _ in range(2)]
+        self._floats = [decode(self._ints[0], quantum)]
+        self._floats += [np.empty_like(self._floats[0]) for _ in range(2)]
+        self._current = self._checkpoint = 0
+
+    @property
+    def ints(self) -> np.ndarray:
+        """The current counts (int64); overwritten by later updates."""
+        return self._ints[self._current]
+
+    @property
+    def floats(self) -> np.ndarray:
+        """The current exact image in float64; overwritten by later updates."""
+        return self._floats[self._current]
+
+    def add_integers(self, r: np.ndarray):
+        """Add the integer-valued float array ``r`` (clobbered) to the counts.
+
+        Raises :class:`QuantumRangeError` and leaves the value unchanged if
+        an element of ``r`` or of the sum is non-finite or out of range.
+        """
+        _check_range_fast(r, self.what + ' increment', self.quantum)
+        spare = 3 - self._current - self._checkpoint if \
+            self._current != self._checkpoint else (self._current + 1) % 3
+        new = self._ints[spare]
+        np.copyto(new, r, casting='unsafe')
+        np.add(self._ints[self._current], new, out=new)
+        # |counts| and |r| are below 2**53, so the int64 sum cannot wrap.
+        _check_range_fast(new, self.what, self.quantum)
+        np.multiply(new, self.quantum, out=self._floats[spare])
+        self._current = spare
+
+    def checkpoint(self):
+        """Remember the current value for :meth:`rollback`."""
+        self._checkpoint = self._current
+
+    def rollback(self):
+        """Return to the value at the last :meth:`checkpoint`."""
+        self._current = self._checkpoint
+
+
+def _check_range_fast(a: np.ndarray, what: str, quantum: float):
+    # Two reductions and no temporary; NaN fails both comparisons.
+    if a.size and not (a.max() < LIMIT and a.min() > -LIMIT):
+        _check_range(a, what, quantum, _STEP_ADVICE)
 
 
 _STEP_ADVICE = ('The step was not taken. If the system is fine, construct the '

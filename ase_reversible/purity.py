@@ -58,15 +58,17 @@ class TrustedForces:
         """Forces ``[n_atoms, 3]`` (eV/Å) at the atoms' current positions."""
         return atoms.get_forces(md=True)
 
-    def kick_increment(self, atoms, f_nc, scale, project):
-        """Kick increment ``scale * f_nc`` in quanta, projected.
+    def rounded_kick(self, atoms, f_nc, scale, project, out, scratch):
+        """The kick in quanta, ``rint(project(scale * f_nc))``, into ``out``.
 
-        Returns ``(y_nc, f_nc)``: the float increment, to be rounded by
-        the caller, and the forces it was computed from.
+        ``out`` and ``scratch`` are float arrays ``[n_atoms, 3]``; the
+        caller adds ``out`` to the momentum counts.  Returns the forces the
+        kick was computed from (``f_nc`` or a clean recomputation).
         """
-        y_nc = f_nc * scale
-        project(y_nc)
-        return y_nc, f_nc
+        np.multiply(f_nc, scale, out=out)
+        project(out)
+        np.rint(out, out=out)
+        return f_nc
 
     def min_momentum_quantum(self, n_atoms, max_kick_time):
         """Lower bound on the momentum quantum this provider needs."""
@@ -121,21 +123,28 @@ class GuardedForces(TrustedForces):
         self._warned = False
         self._clean_nc = None  # the last clean forces: need no guard
 
-    def kick_increment(self, atoms, f_nc, scale, project):
-        y_nc = f_nc * scale
+    def rounded_kick(self, atoms, f_nc, scale, project, out, scratch):
+        y_nc = scratch
+        np.multiply(f_nc, scale, out=y_nc)
         project(y_nc)
+        np.rint(y_nc, out=out)
         if f_nc is self._clean_nc:
-            return y_nc, f_nc
-        bound = abs(scale) * self.force_noise * max(1.0, np.abs(f_nc).max())
+            return f_nc
+        f_max = max(f_nc.max(initial=0.0), -f_nc.min(initial=0.0))
+        bound = abs(scale) * self.force_noise * max(1.0, f_max)
         # Noise below `bound` cannot flip rint(y) unless y lies within
-        # `bound` of a half-integer.
-        if not (np.abs(y_nc - np.rint(y_nc)) > 0.5 - bound).any():
-            return y_nc, f_nc
+        # `bound` of a half-integer.  NaN forces fail the comparison and
+        # go straight back to the caller, which refuses them.
+        np.subtract(y_nc, out, out=y_nc)
+        np.abs(y_nc, out=y_nc)
+        if not y_nc.max(initial=0.0) > 0.5 - bound:
+            return f_nc
         clean_nc = self.clean_forces(atoms)
         self._record_noise(np.abs(clean_nc - f_nc).max())
-        y_nc = clean_nc * scale
-        project(y_nc)
-        return y_nc, clean_nc
+        np.multiply(clean_nc, scale, out=out)
+        project(out)
+        np.rint(out, out=out)
+        return clean_nc
 
     def clean_forces(self, atoms):
         """Forces from a neighbour list built at exactly these positions."""

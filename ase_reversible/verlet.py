@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 
@@ -127,6 +128,7 @@ class ReversibleVerlet(MolecularDynamics):
         self._m_n1 = masses_n[:, None]
         self._time0 = time0
         self._step_index = 0
+        self._versions = itertools.count()
         self._install(state)
         self._prepare_plan()
 
@@ -140,8 +142,8 @@ class ReversibleVerlet(MolecularDynamics):
 
     @property
     def state(self) -> fp.FixedPointState:
-        """The exact state: int64 positions and momenta in quanta."""
-        return self._state
+        """A copy of the exact state: int64 positions and momenta in quanta."""
+        return fp.FixedPointState(self._x.ints.copy(), self._p.ints.copy())
 
     @property
     def force_purity(self):
@@ -160,14 +162,18 @@ class ReversibleVerlet(MolecularDynamics):
 
     def step(self):
         self._sync()
-        saved = self._state, self._f_cache
+        self._x.checkpoint()
+        self._p.checkpoint()
+        saved = self._x_version, self._f_cache
         try:
             for substep, coefficient in self._plan:
                 substep(coefficient)
         except BaseException:
-            # Sub-steps build new arrays, so putting the saved ones back
+            # Updates never overwrite the checkpoint, so going back to it
             # undoes a partial step exactly.
-            self._state, self._f_cache = saved
+            self._x.rollback()
+            self._p.rollback()
+            self._x_version, self._f_cache = saved
             self._write_positions()
             raise
         self._write_momenta()
@@ -194,29 +200,30 @@ class ReversibleVerlet(MolecularDynamics):
         for kind, c in self._substeps:
             ch = c * self.dt  # negating dt negates every factor exactly
             if kind == DRIFT:
-                plan.append((self._drift, ch * (qp / qx) / self._m_n1))
+                # Applied to the momenta's exact float image p = ip * qp.
+                plan.append((self._drift, ch / qx / self._m_n1))
             else:
                 plan.append((self._kick, ch / qp))
         self._plan = tuple(plan)
 
     def _drift(self, factor_n1):
-        ix_nc, ip_nc = self._state
-        y_nc = ip_nc * factor_n1
+        y_nc = np.multiply(self._p.floats, factor_n1, out=self._y_nc)
         self._project(y_nc)
-        ix_nc = fp.add_rounded(ix_nc, y_nc, 'position',
-                               self.grid.position_quantum)
-        self._state = fp.FixedPointState(ix_nc, ip_nc)
+        np.rint(y_nc, out=y_nc)
+        self._x.add_integers(y_nc)
+        self._x_version = next(self._versions)
         self._write_positions()
 
     def _kick(self, scale):
         f_nc = self._forces()
-        y_nc, f_used_nc = self._purity.kick_increment(
-            self.atoms, f_nc, scale, self._project)
+        r_nc = self._y_nc
+        f_used_nc = self._purity.rounded_kick(
+            self.atoms, f_nc, scale, self._project, out=r_nc,
+            scratch=self._scratch_nc)
         if f_used_nc is not f_nc:
-            self._f_cache = (self._state.ix_nc, f_used_nc)
+            self._f_cache = (self._x_version, f_used_nc)
         try:
-            ip_nc = fp.add_rounded(self._state.ip_nc, y_nc, 'momentum',
-                                   self.grid.momentum_quantum)
+            self._p.add_integers(r_nc)
         except QuantumRangeError:
             if not np.all(np.isfinite(f_used_nc)):
                 raise NonFiniteForcesError(
@@ -225,15 +232,13 @@ class ReversibleVerlet(MolecularDynamics):
                     'reversible. Check the structure (overlapping atoms?) '
                     'and the calculator.') from None
             raise
-        self._state = fp.FixedPointState(self._state.ix_nc, ip_nc)
 
     def _forces(self):
         """Forces at the current grid positions, computed once per position."""
-        ix_nc = self._state.ix_nc
-        if self._f_cache is not None and self._f_cache[0] is ix_nc:
+        if self._f_cache is not None and self._f_cache[0] == self._x_version:
             return self._f_cache[1]
         f_nc = self._purity.forces(self.atoms)
-        self._f_cache = (ix_nc, f_nc)
+        self._f_cache = (self._x_version, f_nc)
         return f_nc
 
     # -- state <-> atoms -------------------------------------------------
@@ -266,24 +271,32 @@ class ReversibleVerlet(MolecularDynamics):
 
     def _install(self, state):
         """Make ``state`` the anchor of reversal and show it on the atoms."""
-        self._state = state
+        self._x = fp.FixedPointArray(state.ix_nc, self.grid.position_quantum,
+                                     'position')
+        self._p = fp.FixedPointArray(state.ip_nc, self.grid.momentum_quantum,
+                                     'momentum')
+        self._y_nc = np.empty(state.ix_nc.shape)
+        self._scratch_nc = np.empty(state.ix_nc.shape)
+        self._x_version = next(self._versions)
         self._f_cache = None
         self._write_positions()
         self._write_momenta()
         write_record(self.atoms, self.grid, self.get_time())
 
     def _write_positions(self):
-        self._x_nc = fp.decode(self._state.ix_nc, self.grid.position_quantum)
-        self.atoms.set_positions(self._x_nc, apply_constraint=False)
+        self.atoms.arrays['positions'][:] = self._x.floats
 
     def _write_momenta(self):
-        self._p_nc = fp.decode(self._state.ip_nc, self.grid.momentum_quantum)
-        self.atoms.set_momenta(self._p_nc, apply_constraint=False)
+        momenta = self.atoms.arrays.get('momenta')
+        if momenta is None:
+            self.atoms.set_momenta(self._p.floats, apply_constraint=False)
+        else:
+            momenta[:] = self._p.floats
 
     def _sync(self):
         """Take edits made to the atoms outside the integrator."""
         atoms = self.atoms
-        if len(atoms) != len(self._x_nc):
+        if len(atoms) != len(self._x.ints):
             raise ValueError('The number of atoms changed; construct a new '
                              'ReversibleVerlet for the new system.')
         if atoms.calc is not self._calc:
@@ -295,9 +308,9 @@ class ReversibleVerlet(MolecularDynamics):
             self._calc = atoms.calc
             self._f_cache = None
         momenta = atoms.arrays.get('momenta')
-        if (np.array_equal(atoms.arrays['positions'], self._x_nc)
+        if (np.array_equal(atoms.arrays['positions'], self._x.floats)
                 and momenta is not None
-                and np.array_equal(momenta, self._p_nc)):
+                and np.array_equal(momenta, self._p.floats)):
             return
         self._install(_encode(atoms, self.grid, self._project))
         warnings.warn(

@@ -52,32 +52,61 @@ def test_encode_moves_by_at_most_half_a_quantum(values, exponent):
     assert np.all(np.abs(fp.decode(ints, q) - values) <= 0.5 * q)
 
 
+def rounded(y):
+    return np.rint(np.array(y, dtype=np.float64))
+
+
+def assert_holds(variable, ints):
+    assert np.array_equal(variable.ints, ints)
+    # The float image is exact: the counts times the quantum.
+    assert np.array_equal(variable.floats / variable.quantum,
+                          np.asarray(ints, dtype=np.float64))
+
+
 @given(arrays(np.int64, 6, elements=st.integers(-2**52, 2**52)),
-       arrays(np.float64, 6, elements=st.floats(-2.0**52, 2.0**52)))
-def test_add_rounded_is_undone_by_the_negated_increment(ints, y):
-    forward = fp.add_rounded(ints, y.copy(), 'x', 1.0)
-    back = fp.add_rounded(forward, -y, 'x', 1.0)
-    assert np.array_equal(back, ints)
+       arrays(np.float64, 6, elements=st.floats(-2.0**52, 2.0**52)),
+       exponents)
+def test_a_rounded_increment_is_undone_by_the_negated_one(ints, y, exponent):
+    variable = fp.FixedPointArray(ints, math.ldexp(1.0, exponent), 'x')
+    variable.add_integers(rounded(y))
+    variable.add_integers(rounded(-y))
+    assert_holds(variable, ints)
 
 
 @given(st.integers(-fp.LIMIT + 1, fp.LIMIT - 1),
        st.floats(-2.0**60, 2.0**60, allow_nan=False))
-def test_add_rounded_refuses_to_leave_the_range(start, increment):
-    ints = np.array([start], dtype=np.int64)
-    total = start + int(np.rint(increment))
-    if abs(int(np.rint(increment))) < fp.LIMIT and abs(total) < fp.LIMIT:
-        assert fp.add_rounded(ints, np.array([increment]), 'x', 1.0)[0] == total
+def test_an_update_never_leaves_the_range(start, increment):
+    variable = fp.FixedPointArray(np.array([start]), 1.0, 'x')
+    step = int(np.rint(increment))
+    if abs(step) < fp.LIMIT and abs(start + step) < fp.LIMIT:
+        variable.add_integers(rounded([increment]))
+        assert_holds(variable, [start + step])
     else:
         with pytest.raises(QuantumRangeError):
-            fp.add_rounded(ints, np.array([increment]), 'x', 1.0)
-    assert ints[0] == start  # the input is never modified
+            variable.add_integers(rounded([increment]))
+        assert_holds(variable, [start])  # nothing was committed
 
 
 @pytest.mark.parametrize('bad', [np.nan, np.inf, -np.inf])
 def test_non_finite_increments_are_refused(bad):
+    variable = fp.FixedPointArray(np.zeros(3, np.int64), 1.0, 'momentum')
     with pytest.raises(QuantumRangeError, match='not finite'):
-        fp.add_rounded(np.zeros(3, np.int64), np.array([0.0, bad, 1.0]),
-                       'momentum', 1.0)
+        variable.add_integers(np.array([0.0, bad, 1.0]))
+    assert_holds(variable, [0, 0, 0])
+
+
+@given(st.lists(arrays(np.float64, 4, elements=st.floats(-1e6, 1e6)),
+                min_size=1, max_size=6))
+def test_rollback_returns_to_the_checkpoint_after_any_updates(increments):
+    start = np.arange(4)
+    variable = fp.FixedPointArray(start, 2.0**-3, 'x')
+    variable.add_integers(rounded([1, 2, 3, 4]))
+    variable.checkpoint()
+    expected = variable.ints.copy()
+    for y in increments:  # more updates than there are spare buffers
+        variable.add_integers(rounded(y))
+    variable.rollback()
+    assert_holds(variable, expected)
 
 
 @given(st.floats(min_value=1e-200, max_value=1e200))
