@@ -151,7 +151,15 @@ class GuardedForces(TrustedForces):
         x_nc = atoms.positions.copy()
         atoms.positions = x_nc + REBUILD_SHIFT
         try:
-            atoms.get_forces(md=True)
+            # Every atom now sits further than any skin from where the list
+            # was built, so it is rebuilt here and again, at exactly x_nc,
+            # on the way back.  asap3 can update its list without computing
+            # forces, which saves a third of the cost.
+            update = getattr(atoms.calc, 'check_update_neighborlist', None)
+            if update is not None:
+                update(atoms)
+            else:
+                atoms.get_forces(md=True)
         finally:
             atoms.positions = x_nc
         self.clean_recomputations += 1
