@@ -174,6 +174,7 @@ class ReversibleVerlet(MolecularDynamics):
             self._x.rollback()
             self._p.rollback()
             self._x_version, self._f_cache = saved
+            self._r_key = None  # r_nc may hold a kick of the failed step
             self._write_positions()
             raise
         self._write_momenta()
@@ -215,17 +216,21 @@ class ReversibleVerlet(MolecularDynamics):
         self._write_positions()
 
     def _kick(self, scale):
-        f_nc = self._forces()
-        r_nc = self._y_nc
-        f_used_nc = self._purity.rounded_kick(
-            self.atoms, f_nc, scale, self._project, out=r_nc,
-            scratch=self._scratch_nc)
-        if f_used_nc is not f_nc:
+        r_nc = self._r_nc
+        key = (self._x_version, scale)
+        # Kick-drift-kick ends a step and starts the next with the same kick
+        # at the same positions: its rounding is reused, not recomputed.
+        if self._r_key != key:
+            self._r_key = None  # r_nc is about to be overwritten
+            f_used_nc = self._purity.rounded_kick(
+                self.atoms, self._forces(), scale, self._project, out=r_nc,
+                scratch=self._y_nc)
             self._f_cache = (self._x_version, f_used_nc)
+            self._r_key = key
         try:
             self._p.add_integers(r_nc)
         except QuantumRangeError:
-            if not np.all(np.isfinite(f_used_nc)):
+            if not np.all(np.isfinite(self._f_cache[1])):
                 raise NonFiniteForcesError(
                     f'{type(self.atoms.calc).__name__} returned non-finite '
                     'forces; the step was not taken and the state is still '
@@ -276,7 +281,8 @@ class ReversibleVerlet(MolecularDynamics):
         self._p = fp.FixedPointArray(state.ip_nc, self.grid.momentum_quantum,
                                      'momentum')
         self._y_nc = np.empty(state.ix_nc.shape)
-        self._scratch_nc = np.empty(state.ix_nc.shape)
+        self._r_nc = np.empty(state.ix_nc.shape)
+        self._r_key = None
         self._x_version = next(self._versions)
         self._f_cache = None
         self._write_positions()
@@ -306,7 +312,7 @@ class ReversibleVerlet(MolecularDynamics):
             self._purity = force_provider(atoms, self._purity_mode,
                                           self._force_noise)
             self._calc = atoms.calc
-            self._f_cache = None
+            self._f_cache = self._r_key = None
         momenta = atoms.arrays.get('momenta')
         if (np.array_equal(atoms.arrays['positions'], self._x.floats)
                 and momenta is not None

@@ -87,6 +87,26 @@ def test_an_update_never_leaves_the_range(start, increment):
         assert_holds(variable, [start])  # nothing was committed
 
 
+def test_the_range_is_enforced_over_many_updates():
+    variable = fp.FixedPointArray(np.zeros(2, np.int64), 1.0, 'x')
+    step = rounded([2.0**50, -(2.0**50)])
+    for k in range(1, 8):
+        variable.add_integers(step)
+    with pytest.raises(QuantumRangeError, match='outside'):
+        variable.add_integers(step)  # would reach 8 * 2**50 == LIMIT
+    assert_holds(variable, [7 * 2**50, -7 * 2**50])
+
+
+def test_back_and_forth_updates_never_raise_a_false_alarm():
+    # The running bound on |counts| grows with every update; it must be
+    # replaced by the true maximum rather than raise.
+    variable = fp.FixedPointArray(np.array([3, -3]), 1.0, 'x')
+    for _ in range(50):
+        variable.add_integers(rounded([2.0**52, 2.0**52]))
+        variable.add_integers(rounded([-(2.0**52), -(2.0**52)]))
+    assert_holds(variable, [3, -3])
+
+
 @pytest.mark.parametrize('bad', [np.nan, np.inf, -np.inf])
 def test_non_finite_increments_are_refused(bad):
     variable = fp.FixedPointArray(np.zeros(3, np.int64), 1.0, 'momentum')
