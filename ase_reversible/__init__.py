@@ -9,7 +9,7 @@ leaves ``atoms`` bit for bit where the constructor put it.
 
 from .errors import (ImpureForcesError, NonFiniteForcesError,
                      QuantumRangeError, ReversibilityError,
-                     UnsupportedConstraintError)
+                     UnstableIntegrationError, UnsupportedConstraintError)
 from .fixedpoint import FixedPointState, Grid
 from .purity import probe_purity
 from .verlet import AnchorMovedWarning, ReversibleVerlet
@@ -19,4 +19,4 @@ __version__ = '0.1.0'
 __all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
            'NonFiniteForcesError', 'ImpureForcesError',
-           'UnsupportedConstraintError']
+           'UnstableIntegrationError', 'UnsupportedConstraintError']

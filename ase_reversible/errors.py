@@ -18,6 +18,10 @@ class NonFiniteForcesError(ReversibilityError, FloatingPointError):
     """The calculator returned NaN or infinite forces."""
 
 
+class UnstableIntegrationError(ReversibilityError, RuntimeError):
+    """The total energy drifted beyond its tolerance: the run is blowing up."""
+
+
 class ImpureForcesError(ReversibilityError, RuntimeError):
     """The calculator's forces are not a pure function of the positions."""
 

@@ -7,16 +7,23 @@ import math
 import warnings
 
 import numpy as np
+from ase import units
 from ase.md.md import MolecularDynamics
 
 from . import fixedpoint as fp
 from .compositions import composition_for, substeps
 from .constraints import constraint_projection
-from .errors import NonFiniteForcesError, QuantumRangeError
+from .errors import (NonFiniteForcesError, QuantumRangeError,
+                     UnstableIntegrationError)
 from .io import read_record, write_record
 from .purity import force_provider
 
 DRIFT, KICK = 'drift', 'kick'
+
+#: Default steps between checks of the total energy.
+ENERGY_CHECK_INTERVAL = 100
+#: Temperature (K) whose kinetic energy is the smallest default tolerance.
+ENERGY_TOLERANCE_TEMPERATURE = 100.0
 
 #: Sub-steps of each scheme: (kind, fraction of the time step).  Both are
 #: palindromes, so the same sequence run with -h is the exact inverse.
@@ -85,18 +92,35 @@ class ReversibleVerlet(MolecularDynamics):
         :mod:`ase_reversible.purity`.
     force_noise : float, optional
         Bound on history noise in the forces for ``'guarded'``, eV/Å.
+    energy_check : int
+        Every this many steps (default 100; 0 turns the check off) the
+        total energy is compared with its value where reversal is
+        anchored; a difference above ``energy_tolerance`` stops the run
+        with :class:`~ase_reversible.UnstableIntegrationError` before the
+        next step, at a valid, reversible state (the check then stays
+        quiet until the energy is back within the tolerance, so the run
+        can be reversed).  This is what catches a time step past the
+        stability limit.  A check reads the energy the
+        calculator has from the last force call ('velocity'; for asap3 a
+        fraction of a force call) or computes it ('position').
+    energy_tolerance : float, optional
+        eV.  Default: the kinetic energy at the anchor or that of the atoms
+        at 100 K, whichever is larger.
     """
 
     def __init__(self, atoms, timestep, trajectory=None, logfile=None,
                  loginterval=1, *, scheme='velocity', order=2,
                  composition=None, position_quantum=None,
                  momentum_quantum=None, force_purity='auto', force_noise=None,
+                 energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
                  **kwargs):
         # Validate everything before the base class touches any file.
         timestep = _check_timestep(timestep)
         if scheme not in SCHEMES:
             raise ValueError(f'scheme must be one of {tuple(SCHEMES)}, '
                              f'got {scheme!r}')
+        self.energy_check, self.energy_tolerance = _check_energy_watch(
+            energy_check, energy_tolerance)
         self.composition = composition_for(order, composition)
         self._substeps = substeps(SCHEMES[scheme], self.composition)
         if atoms.calc is None:
@@ -162,6 +186,8 @@ class ReversibleVerlet(MolecularDynamics):
 
     def step(self):
         self._sync()
+        if self.energy_check and self.nsteps % self.energy_check == 0:
+            self._check_energy()
         self._x.checkpoint()
         self._p.checkpoint()
         saved = self._x_version, self._f_cache
@@ -180,6 +206,37 @@ class ReversibleVerlet(MolecularDynamics):
         self._write_momenta()
         self._step_index += 1 if self.dt > 0 else -1
         write_record(self.atoms, self.grid, self.get_time())
+
+    def _check_energy(self):
+        """Stop before a step if the energy drifted beyond the tolerance."""
+        kinetic = 0.5 * float(np.sum(self._p.floats ** 2 / self._m_n1))
+        energy = self.atoms.get_potential_energy() + kinetic
+        if self._anchor_energy is None:
+            self._anchor_energy = energy
+            floor = 1.5 * len(self.atoms) * units.kB * \
+                ENERGY_TOLERANCE_TEMPERATURE
+            self._tolerance = (self.energy_tolerance
+                               if self.energy_tolerance is not None
+                               else max(kinetic, floor))
+            return
+        drift = energy - self._anchor_energy
+        if abs(drift) <= self._tolerance:
+            self._energy_alarm = False
+            return
+        # Raised once: the way back (reverse(), run) passes through the
+        # same bad energies and must not be stopped.  The check is armed
+        # again once the energy is back within the tolerance.
+        if not self._energy_alarm:
+            self._energy_alarm = True
+            raise UnstableIntegrationError(
+                f'The total energy has changed by {drift:.4g} eV since the '
+                f'anchor of reversal (tolerance {self._tolerance:.4g} eV) '
+                f'after step {self.nsteps}: the integration is unstable. Use '
+                f'a smaller time step (now {abs(self.dt) / units.fs:g} fs). '
+                'The step was not taken; the state is valid and reverse() '
+                'leads back exactly (the check stays quiet until the energy '
+                'is within the tolerance again). If the change is expected, '
+                'raise energy_tolerance or pass energy_check=0.')
 
     # -- hooks of MolecularDynamics ------------------------------------
 
@@ -285,6 +342,8 @@ class ReversibleVerlet(MolecularDynamics):
         self._r_key = None
         self._x_version = next(self._versions)
         self._f_cache = None
+        self._anchor_energy = None  # taken at the next check
+        self._energy_alarm = False
         self._write_positions()
         self._write_momenta()
         write_record(self.atoms, self.grid, self.get_time())
@@ -333,6 +392,19 @@ def _encode(atoms, grid, project):
     return fp.FixedPointState(
         fp.encode(atoms.positions, grid.position_quantum, 'position'),
         fp.encode(p_nc, grid.momentum_quantum, 'momentum'))
+
+
+def _check_energy_watch(interval, tolerance):
+    if isinstance(interval, bool) or not isinstance(interval, int) \
+            or interval < 0:
+        raise ValueError(f'energy_check must be a whole number of steps '
+                         f'(0 turns the check off), got {interval!r}')
+    if tolerance is not None:
+        tolerance = float(tolerance)
+        if not tolerance > 0:
+            raise ValueError(f'energy_tolerance must be positive (eV), got '
+                             f'{tolerance!r}')
+    return interval, tolerance
 
 
 def _check_timestep(timestep):

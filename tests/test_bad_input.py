@@ -438,3 +438,17 @@ def test_edit_between_runs_becomes_the_new_reversal_anchor(edit):
     # Back to the edit, not past it to the constructor state.
     run_back(dyn, 10, edited)
     assert dyn.get_time() == 10 * DT
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'energy_check': -1}, 'energy_check must be a whole number'),
+    ({'energy_check': 2.5}, 'energy_check must be a whole number'),
+    ({'energy_check': True}, 'energy_check must be a whole number'),
+    ({'energy_tolerance': 0.0}, 'energy_tolerance must be positive'),
+    ({'energy_tolerance': float('nan')}, 'energy_tolerance must be positive'),
+])
+def test_bad_energy_check_settings_are_refused(kwargs, message):
+    atoms = argon_cluster(2, 80)
+    atoms.calc = asap_lj()
+    with pytest.raises(ValueError, match=message):
+        ReversibleVerlet(atoms, DT, **kwargs)
