@@ -93,9 +93,9 @@ class ReversibleVerlet(MolecularDynamics):
     force_noise : float, optional
         Bound on history noise in the forces for ``'guarded'``, eV/Å.
     energy_check : int
-        Every this many steps (default 100; 0 turns the check off) the
-        total energy is compared with its value where reversal is
-        anchored; a difference above ``energy_tolerance`` stops the run
+        At steps 1, 2, 4, ... and then every this many steps (default 100;
+        0 turns the check off) the total energy is compared with its value
+        where reversal is anchored; a difference above ``energy_tolerance`` stops the run
         with :class:`~ase_reversible.UnstableIntegrationError` before the
         next step, at a valid, reversible state (the check then stays
         quiet until the energy is back within the tolerance, so the run
@@ -162,6 +162,9 @@ class ReversibleVerlet(MolecularDynamics):
         """Flip the direction of time: further steps retrace the path."""
         self.dt = -self.dt
         self._prepare_plan()
+        # The way back may start outside the energy tolerance (a run that
+        # ended between checks): the check waits until it is inside again.
+        self._energy_alarm = True
         return self
 
     @property
@@ -186,7 +189,8 @@ class ReversibleVerlet(MolecularDynamics):
 
     def step(self):
         self._sync()
-        if self.energy_check and self.nsteps % self.energy_check == 0:
+        if self.energy_check and _is_check_step(self.nsteps,
+                                                self.energy_check):
             self._check_energy()
         self._x.checkpoint()
         self._p.checkpoint()
@@ -392,6 +396,12 @@ def _encode(atoms, grid, project):
     return fp.FixedPointState(
         fp.encode(atoms.positions, grid.position_quantum, 'position'),
         fp.encode(p_nc, grid.momentum_quantum, 'momentum'))
+
+
+def _is_check_step(n, interval):
+    # Steps 1, 2, 4, ... catch a time step that blows up at once; after
+    # that every `interval` steps keeps the cost at one energy per interval.
+    return n % interval == 0 or (n < interval and n & (n - 1) == 0)
 
 
 def _check_energy_watch(interval, tolerance):

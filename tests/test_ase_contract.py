@@ -161,10 +161,23 @@ def test_velocity_scheme_costs_one_force_evaluation_per_step(tmp_path, output):
 
 
 def test_position_scheme_costs_one_force_evaluation_per_step_unlogged():
+    # The energy check is off: its cost is counted on its own below.
     def make(atoms):
-        return ReversibleVerlet(atoms, DT, scheme='position')
+        return ReversibleVerlet(atoms, DT, scheme='position', energy_check=0)
 
     assert cost_per_ten_steps(make) == 10
+
+
+@pytest.mark.parametrize('scheme, per_check', [('velocity', 0),
+                                               ('position', 1)])
+def test_energy_check_costs_an_evaluation_only_where_none_is_cached(
+        scheme, per_check):
+    # Steps 11-20 start with nsteps 10-19, of which 16 is a check step
+    # (1, 2, 4, 8, 16, ... before the 100-step interval takes over).
+    def make(atoms):
+        return ReversibleVerlet(atoms, DT, scheme=scheme)
+
+    assert cost_per_ten_steps(make) == 10 + per_check
 
 
 @pytest.mark.parametrize('loginterval', [1, 5])
@@ -172,7 +185,7 @@ def test_position_scheme_pays_one_more_evaluation_per_logged_step(loginterval):
     # Drift-kick-drift ends a step at positions where no forces are known:
     # each log line needs its own calculation of the energy.
     def make(atoms):
-        return ReversibleVerlet(atoms, DT, scheme='position',
+        return ReversibleVerlet(atoms, DT, scheme='position', energy_check=0,
                                 logfile=io.StringIO(), loginterval=loginterval)
 
     logged_in_steps_11_to_20 = 10 // loginterval

@@ -89,10 +89,11 @@ def test_time_step_past_stability_stops_with_a_range_error(scheme):
     run_back(dyn, done, start)
 
 
-def test_copper_blow_up_under_asap3_is_stopped_by_the_position_range():
+@pytest.mark.parametrize('energy_check', [0, ENERGY_CHECK_INTERVAL])
+def test_copper_blow_up_under_asap3_is_stopped_reversibly(energy_check):
     # asap3 forces are guarded, which coarsens the momentum quantum until
-    # the momentum range is far beyond any blow-up: the position range is
-    # what stops the run here.
+    # the momentum range is far beyond any blow-up: without the energy
+    # check, the position range is what stops the run.
     def copper():
         return with_calc(copper_bulk((3, 3, 3), 300), 'asap-emt')
 
@@ -100,16 +101,34 @@ def test_copper_blow_up_under_asap3_is_stopped_by_the_position_range():
     k0 = kinetic_energy(copper())
     assert velocity_verlet_energy_error(copper(), dt, steps) > 1e6 * k0
 
-    dyn = ReversibleVerlet(copper(), dt)
+    dyn = ReversibleVerlet(copper(), dt, energy_check=energy_check)
     start = snapshot(dyn.atoms)
-    with pytest.raises(QuantumRangeError,
-                       match='^position (increment )?of atom [0-9]+ is '
-                             'outside the fixed-point range'):
-        dyn.run(steps)
+    if energy_check:
+        with pytest.raises(UnstableIntegrationError):
+            dyn.run(steps)
+        assert 0 < dyn.nsteps <= 4  # caught by one of the first checks
+    else:
+        with pytest.raises(QuantumRangeError,
+                           match='^position (increment )?of atom [0-9]+ is '
+                                 'outside the fixed-point range'):
+            dyn.run(steps)
     done = dyn.nsteps
     assert 0 < done < steps
     assert_atoms_show_committed_state(dyn)
     run_back(dyn, done, start)
+
+
+def test_a_run_that_ends_unstable_between_checks_still_runs_back():
+    # 100 fs on cold Ar55: the energy check at step 300 passes, the one at
+    # 400 would not; stopping at 399 leaves the state outside the tolerance
+    # without an error, and the way back must not be stopped by the check.
+    atoms = with_calc(argon_cluster(3, 40), 'ase-lj')
+    dyn = ReversibleVerlet(atoms, 100 * units.fs)
+    start = snapshot(atoms)
+    e0 = atoms.get_total_energy()
+    dyn.run(399)
+    assert abs(atoms.get_total_energy() - e0) > dyn._tolerance  # control
+    run_back(dyn, 399, start)
 
 
 # -- hot, evaporating cluster -------------------------------------------------
@@ -173,7 +192,7 @@ def test_close_contact_the_step_cannot_resolve_is_stopped_reversibly(
                        match='total energy has changed by .* step was not '
                              'taken'):
         dyn.run(250)
-    assert dyn.nsteps == ENERGY_CHECK_INTERVAL
+    assert 0 < dyn.nsteps <= ENERGY_CHECK_INTERVAL
     assert_atoms_show_committed_state(dyn)
     run_back(dyn, dyn.nsteps, start)
 
@@ -225,7 +244,9 @@ def test_contact_beyond_the_momentum_range_stops_reversibly(
         make, min_force, what, first_step):
     atoms = make()
     assert np.abs(atoms.get_forces()).max() > min_force  # control
-    dyn = ReversibleVerlet(atoms, DT)
+    # The range is the detector under test; the energy check would often
+    # stop these runs first.
+    dyn = ReversibleVerlet(atoms, DT, energy_check=0)
     start = snapshot(atoms)
 
     with pytest.raises(QuantumRangeError,
