@@ -1,54 +1,36 @@
 """Cost per MD step of ReversibleVerlet against ASE's VelocityVerlet.
 
-Usage::
+A section of ``run_all.py``::
 
-    python benchmarks/step_cost.py           # full run, up to ~15 minutes
-    python benchmarks/step_cost.py --quick   # small systems only, < 2 minutes
+    python benchmarks/run_all.py --only step_cost           # ~8-12 minutes
+    python benchmarks/run_all.py --quick --only step_cost   # < 40 s
 
-Writes ``docs/performance.md`` (the whole file, regenerated on every run) and
-the raw timings to ``docs/step_cost.json``.
+Method.  For each calculator and system size, every contestant gets its own
+copy of the same thermalised atoms with its own fresh calculator.  After a
+short warm-up, the contestants run blocks of the same number of steps in
+rounds; the order rotates from round to round, so slow drifts of the
+machine (clock boosts, other load) hit all contestants alike.  A
+contestant's per-step time is the median over rounds of block time / steps;
+ratios are ratios of these medians.
 
-Method.  For each calculator and system, every contestant gets its own copy
-of the same thermalised atoms with its own fresh calculator.  After a short
-warm-up, the contestants run blocks of the same number of steps in rounds;
-the order rotates from round to round, so slow drifts of the machine (clock
-boosts, other load) hit all contestants alike.  A contestant's per-step time
-is the median over rounds of block time / steps; ratios are ratios of these
-medians.  The floor is the calculator's own force call: one atom is moved by
-a tiny amount, so the calculator redoes the whole calculation but never
-rebuilds its neighbour list.
+Two floors stand for "the force call alone".  The nudge floor moves one atom
+by a tiny amount, so the calculator redoes the whole calculation but never
+rebuilds its neighbour list: it understates what MD costs the calculator.
+The replay floor sets the positions of a recorded VelocityVerlet trajectory
+of the same system frame by frame and asks for the forces, so it pays for
+the neighbour-list updates and rebuilds that real MD causes, and nothing
+else: time beyond it is the integrator's own.
 """
 
 from __future__ import annotations
 
-import os
+import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
-# Single-threaded BLAS, set before numpy is imported.  Some numpy calls on
-# the MD path go to OpenBLAS threads (np.vdot in Atoms.get_kinetic_energy,
-# which MDLogger calls every step); on a busy machine every hand-off waits
-# for a scheduler time slice, milliseconds that would swamp the per-step
-# costs measured here.  Set the variables yourself to override.
-BLAS_THREAD_VARIABLES = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS',
-                         'MKL_NUM_THREADS')
-#: The caller's environment: `nproc` honours OMP_NUM_THREADS, so the machine
-#: description must not see the value set here.
-CALLER_ENVIRONMENT = dict(os.environ)
-for _name in BLAS_THREAD_VARIABLES:
-    os.environ.setdefault(_name, '1')
-
-# The remaining imports follow the thread settings on purpose.
-import argparse
 import io
-import json
-import platform
 import statistics
-import subprocess
 import sys
 import time
-import warnings
 from dataclasses import asdict, dataclass
-from datetime import datetime
-from pathlib import Path
 from typing import Callable
 
 import asap3
@@ -58,72 +40,63 @@ from ase import units
 from ase.build import bulk
 from ase.calculators.emt import EMT
 from ase.calculators.lj import LennardJones
-from ase.cluster import Icosahedron
 from ase.md.logger import MDLogger
-from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
 from ase.md.verlet import VelocityVerlet
 
-import ase_reversible
 from ase_reversible import ReversibleVerlet
 
-DOCS = Path(__file__).resolve().parent.parent / 'docs'
+TITLE = 'Cost per step'
+PLOT = 'step_cost.png'
+
 TIMESTEP_FS = 5.0
 TIMESTEP = TIMESTEP_FS * units.fs
-WARMUP_STEPS = 5
 #: Move of one coordinate (Å) that makes the calculator recompute: far below
-#: any neighbour-list skin, so the floor never includes a list rebuild.
+#: any neighbour-list skin, so the nudge floor never includes a rebuild.
 FLOOR_NUDGE = 1e-6
 
 # Argon Lennard-Jones parameters (eV, Å) and lattice constant (Å).
 AR_EPSILON, AR_SIGMA, AR_CUTOFF, AR_LATTICE = 0.0104, 3.4, 8.5, 5.26
 AR_TEMPERATURE_K, CU_TEMPERATURE_K = 60.0, 300.0
 
+#: Repeats of the 4-atom cubic fcc cell: 144, 1000, 4000 and 32000 atoms.
+REPEATS = ((3, 3, 4), (5, 5, 10), (10, 10, 10), (20, 20, 20))
 
-@dataclass(frozen=True)
-class Settings:
-    label: str            # 'full' or 'quick'
-    rounds: int
-    block_seconds: float  # target wall time of one block
-    min_steps: int        # per block, however slow the case
-    max_steps: int
-
-
-FULL = Settings('full', rounds=7, block_seconds=0.8, min_steps=5,
-                max_steps=5000)
-QUICK = Settings('quick', rounds=3, block_seconds=0.2, min_steps=3,
-                 max_steps=1000)
+#: Issue targets, checked against every run's numbers in the observations.
+TARGET_RATIO_TO_VV = 1.0
+TARGET_OVERHEAD_PERCENT = 5.0
+TARGET_OVERHEAD_CALCULATOR = 'asap3 EMT'
+TARGET_OVERHEAD_MIN_ATOMS = 4000
 #: Reversible velocity counts as "slower than VelocityVerlet" above this ratio.
 SLOWER_THRESHOLD = 1.05
 
 
+@dataclass(frozen=True)
+class Settings:
+    rounds: int
+    block_seconds: float  # target wall time of one VelocityVerlet block
+    min_steps: int        # per block, however slow the case
+    max_steps: int
+    warmup_steps: int
+
+
+# Blocks of the slowest cases (ASE calculators at 4000 atoms) take
+# min_steps steps, longer than block_seconds: that sets the full run time.
+FULL = Settings(rounds=7, block_seconds=0.6, min_steps=2, max_steps=5000,
+                warmup_steps=3)
+QUICK = Settings(rounds=3, block_seconds=0.12, min_steps=2, max_steps=1000,
+                 warmup_steps=2)
+
+
 # -- systems and calculators -----------------------------------------------
-
-def thermalised(atoms, temperature_K):
-    # Deprecated in ASE 3.29, but a thin wrapper of thermalize_momenta,
-    # which older ASE versions lack: same momenta, so keep it and its
-    # warning quiet.
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore', DeprecationWarning)
-        MaxwellBoltzmannDistribution(atoms, temperature_K=temperature_K,
-                                     rng=np.random.default_rng(0),
-                                     force_temp=True)
-    return atoms
-
 
 def argon_crystal(repeat):
     atoms = bulk('Ar', 'fcc', a=AR_LATTICE, cubic=True) * repeat
-    return thermalised(atoms, AR_TEMPERATURE_K)
-
-
-def argon_icosahedron():
-    atoms = Icosahedron('Ar', 4, latticeconstant=AR_LATTICE)  # 147 atoms
-    atoms.center(vacuum=10.0)
-    return thermalised(atoms, AR_TEMPERATURE_K)
+    return common.thermalised(atoms, AR_TEMPERATURE_K)
 
 
 def copper_crystal(repeat):
     atoms = bulk('Cu', 'fcc', cubic=True) * repeat
-    return thermalised(atoms, CU_TEMPERATURE_K)
+    return common.thermalised(atoms, CU_TEMPERATURE_K)
 
 
 def ase_lj():
@@ -136,50 +109,66 @@ def asap_lj():
 
 
 @dataclass(frozen=True)
-class Case:
-    calculator: str
+class Calculator:
+    label: str
     system: str
-    build: Callable[[], ase.Atoms]  # fresh thermalised atoms, no calculator
-    make_calc: Callable[[], object]  # a fresh calculator
+    build: Callable[[tuple], ase.Atoms]  # repeat -> thermalised atoms
+    make_calc: Callable[[], object]
+    full_max_atoms: int
+    quick_max_atoms: int
+    min_atoms: int = 0
+
+
+#: ASE's pure-Python calculators stop at 4000 atoms: a step takes a quarter
+#: (LennardJones) to over half (EMT) a second there, so these two cases take
+#: about a third of the full run.  asap3's LennardJones refuses cells
+#: thinner than twice its cutoff plus skin, which the 144-atom argon cell is.
+CALCULATORS = (
+    Calculator('ASE LennardJones', 'Ar fcc crystal', argon_crystal, ase_lj,
+               full_max_atoms=4000, quick_max_atoms=150),
+    Calculator('ASE EMT', 'Cu fcc crystal', copper_crystal, EMT,
+               full_max_atoms=4000, quick_max_atoms=150),
+    Calculator('asap3 LennardJones', 'Ar fcc crystal', argon_crystal,
+               asap_lj, full_max_atoms=32000, quick_max_atoms=1000,
+               min_atoms=1000),
+    Calculator('asap3 EMT', 'Cu fcc crystal', copper_crystal, asap3.EMT,
+               full_max_atoms=32000, quick_max_atoms=1000),
+)
+
+
+@dataclass(frozen=True)
+class Case:
+    calculator: Calculator
+    repeat: tuple
+
+    @property
+    def n_atoms(self):
+        return 4 * int(np.prod(self.repeat))
+
+    def build(self):
+        return self.calculator.build(self.repeat)
 
 
 def step_cost_cases(quick):
-    """Cases of the main table; quick mode keeps the smallest sizes."""
-    # 4 atoms per cubic cell: (3, 3, 4) gives 144, 5**3 * 4 = 500, etc.
-    ase_sizes = [(3, 3, 4)] if quick else [(3, 3, 4), (5, 5, 5)]
-    asap_sizes = [(5, 5, 5)] if quick else [(5, 5, 5), (10, 10, 10),
-                                             (20, 20, 20)]
     cases = []
-    for r in ase_sizes:
-        cases.append(Case('ASE LennardJones', 'Ar fcc crystal',
-                          lambda r=r: argon_crystal(r), ase_lj))
-    cases.append(Case('ASE LennardJones', 'Ar icosahedron (cluster)',
-                      argon_icosahedron, ase_lj))
-    for r in ase_sizes:
-        cases.append(Case('ASE EMT', 'Cu fcc crystal',
-                          lambda r=r: copper_crystal(r), EMT))
-    for r in asap_sizes:
-        cases.append(Case('asap3 LennardJones', 'Ar fcc crystal',
-                          lambda r=r: argon_crystal(r), asap_lj))
-    for r in asap_sizes:
-        cases.append(Case('asap3 EMT', 'Cu fcc crystal',
-                          lambda r=r: copper_crystal(r), asap3.EMT))
+    for calc in CALCULATORS:
+        limit = calc.quick_max_atoms if quick else calc.full_max_atoms
+        cases += [Case(calc, r) for r in REPEATS
+                  if calc.min_atoms <= 4 * np.prod(r) <= limit]
     return cases
 
 
 def logging_cases(quick):
     """One ASE LJ and one mid-size asap3 EMT case for the logger table."""
-    asap_repeat = (5, 5, 5) if quick else (10, 10, 10)
-    return [Case('ASE LennardJones', 'Ar fcc crystal',
-                 lambda: argon_crystal((3, 3, 4)), ase_lj),
-            Case('asap3 EMT', 'Cu fcc crystal',
-                 lambda: copper_crystal(asap_repeat), asap3.EMT)]
+    by_label = {c.label: c for c in CALCULATORS}
+    return [Case(by_label['ASE LennardJones'], REPEATS[0]),
+            Case(by_label['asap3 EMT'], REPEATS[1] if quick else REPEATS[2])]
 
 
 # -- contestants -----------------------------------------------------------
 
-class ForceCallOnly:
-    """The floor: one full force calculation per "step" and nothing else."""
+class NudgeFloor:
+    """One full force calculation per "step", never a list rebuild."""
 
     def __init__(self, atoms):
         self.atoms = atoms
@@ -191,11 +180,49 @@ class ForceCallOnly:
             # Alternate the sign so the atom stays put on average.
             x_nc[0, 0] += self._sign * FLOOR_NUDGE
             self._sign = -self._sign
-            self.atoms.get_forces()
+            self.atoms.get_forces(md=True)
+
+
+class ReplayFloor:
+    """The force calls of a recorded MD run, rebuilds included."""
+
+    def __init__(self, atoms):
+        self.atoms = atoms
+        self.frames = None  # [n_frames, n_atoms, 3], set by record()
+        self._next = 0
+
+    def record(self, template, make_calc, n_frames):
+        """Positions of a fresh VelocityVerlet run from ``template``."""
+        atoms = template.copy()
+        atoms.calc = make_calc()
+        frames = np.empty((n_frames,) + atoms.positions.shape)
+        count = 0
+
+        def store():
+            nonlocal count
+            frames[count] = atoms.positions
+            count += 1
+
+        dyn = VelocityVerlet(atoms, TIMESTEP)
+        dyn.attach(store, interval=1)  # also called before the first step
+        dyn.run(n_frames - 1)
+        self.frames = frames
+        # The frames start where this contestant's atoms already are.
+        assert np.array_equal(frames[0], self.atoms.positions)
+
+    def run(self, steps):
+        if self.frames is None:
+            raise RuntimeError('record() first')
+        atoms, frames = self.atoms, self.frames
+        for i in range(self._next, self._next + steps):
+            atoms.set_positions(frames[i])
+            atoms.get_forces(md=True)
+        self._next += steps
 
 
 INTEGRATORS = {
-    'force': ForceCallOnly,
+    'force': NudgeFloor,
+    'replay': ReplayFloor,
     'vv': lambda atoms: VelocityVerlet(atoms, TIMESTEP),
     'rv_velocity': lambda atoms: ReversibleVerlet(atoms, TIMESTEP,
                                                   scheme='velocity'),
@@ -205,6 +232,9 @@ INTEGRATORS = {
                                                scheme='velocity',
                                                force_purity='trust'),
 }
+STEP_CONTESTANTS = ('force', 'replay', 'vv', 'rv_velocity', 'rv_position',
+                    'rv_trust')
+LOGGING_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
 
 
 @dataclass
@@ -221,18 +251,17 @@ class Contestant:
         return getattr(self.purity, 'clean_recomputations', None)
 
 
-def make_contestants(case, names, with_logger=False):
+def make_contestants(template, case, names, with_logger=False):
     """Each contestant on its own copy of the same atoms and calculator."""
-    template = case.build()
     contestants = []
     for name in names:
         atoms = template.copy()
-        atoms.calc = case.make_calc()
+        atoms.calc = case.calculator.make_calc()
         runner = INTEGRATORS[name](atoms)
-        if with_logger and name != 'force':
+        if with_logger and name not in ('force', 'replay'):
             runner.attach(MDLogger(runner, atoms, io.StringIO()), interval=1)
         contestants.append(Contestant(name, runner))
-    return contestants, len(template)
+    return contestants
 
 
 # -- timing ----------------------------------------------------------------
@@ -249,8 +278,7 @@ def choose_steps(reference, settings):
                 or steps >= settings.max_steps):
             break
         steps *= 2
-    per_step = elapsed / steps
-    wanted = round(settings.block_seconds / per_step)
+    wanted = round(settings.block_seconds * steps / elapsed)
     return max(settings.min_steps, min(settings.max_steps, wanted))
 
 
@@ -308,11 +336,18 @@ def _medians(samples):
 
 def benchmark(case, names, settings, with_logger=False):
     """Time one case; returns a JSON-ready dict of raw and median results."""
-    contestants, n_atoms = make_contestants(case, names, with_logger)
+    template = case.build()
+    contestants = make_contestants(template, case, names, with_logger)
     for c in contestants:
-        c.runner.run(WARMUP_STEPS)
+        if not isinstance(c.runner, ReplayFloor):
+            c.runner.run(settings.warmup_steps)
     by_name = {c.name: c for c in contestants}
     steps = choose_steps(by_name['vv'], settings)
+    if 'replay' in by_name:
+        replay = by_name['replay'].runner
+        replay.record(template, case.calculator.make_calc,
+                      settings.warmup_steps + steps * settings.rounds)
+        replay.run(settings.warmup_steps)
     clean_before = {c.name: c.clean_recomputations() for c in contestants}
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
     force_calls = steps * settings.rounds  # one force evaluation per step
@@ -327,8 +362,9 @@ def benchmark(case, names, settings, with_logger=False):
     forces_again, energy_after = time_cached_queries(
         by_name['force'].runner.atoms, min(steps, 20))
     result = {
-        'calculator': case.calculator, 'system': case.system,
-        'n_atoms': n_atoms, 'with_logger': with_logger,
+        'calculator': case.calculator.label,
+        'system': case.calculator.system,
+        'n_atoms': len(template), 'with_logger': with_logger,
         'steps_per_block': steps, 'rounds': settings.rounds,
         'per_step_seconds': wall,
         'per_step_cpu_seconds': cpu,
@@ -345,54 +381,133 @@ def benchmark(case, names, settings, with_logger=False):
                   if hasattr(c.runner, 'grid')},
     }
     med = result['median_seconds']
-    print(f'  {case.calculator:20s} {case.system:26s} N={n_atoms:6d} '
+    print(f'  {case.calculator.label:20s} N={len(template):6d} '
           f'S={steps:5d}  ' + '  '.join(f'{k}={v * 1e3:.3f}ms'
                                         for k, v in med.items()),
           flush=True)
     return result
 
 
-# -- machine description ---------------------------------------------------
-
-def _run(command):
-    try:
-        return subprocess.run(command, capture_output=True, text=True,
-                              check=True, cwd=DOCS.parent,
-                              env=CALLER_ENVIRONMENT).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
-
-
-def cpu_model():
-    try:
-        with open('/proc/cpuinfo') as f:
-            for line in f:
-                if line.startswith('model name'):
-                    return line.split(':', 1)[1].strip()
-    except OSError:
-        pass
-    return None
-
-
-def machine_info():
-    uname = platform.uname()
-    commit = _run(['git', 'rev-parse', '--short', 'HEAD'])
-    dirty = _run(['git', 'status', '--porcelain', '--untracked-files=no'])
+def run(quick, figures):
+    settings = QUICK if quick else FULL
+    print('  cost per step:', flush=True)
+    steps = [benchmark(case, STEP_CONTESTANTS, settings)
+             for case in step_cost_cases(quick)]
+    print('  with a logger every step:', flush=True)
+    logging = [benchmark(case, LOGGING_CONTESTANTS, settings,
+                         with_logger=True)
+               for case in logging_cases(quick)]
+    plot(steps, figures / PLOT)
     return {
-        'processor': platform.processor() or '(not reported)',
-        'cpu_model': cpu_model(),
-        'uname': f'{uname.system} {uname.release} {uname.machine}',
-        'nproc': _run(['nproc']) or str(os.cpu_count()),
-        'python': platform.python_version(),
-        'numpy': np.__version__,
-        'ase': ase.__version__,
-        'asap3': asap3.__version__,
-        'ase_reversible': ase_reversible.__version__,
-        'git_commit': (commit + ('+local changes' if dirty else '')
-                       if commit else None),
-        'blas_threads': ', '.join(f'{name}={os.environ.get(name)}'
-                                  for name in BLAS_THREAD_VARIABLES),
+        'settings': {**asdict(settings), 'timestep_fs': TIMESTEP_FS,
+                     'floor_nudge_angstrom': FLOOR_NUDGE,
+                     'ar_temperature_K': AR_TEMPERATURE_K,
+                     'cu_temperature_K': CU_TEMPERATURE_K},
+        'step_cost': steps,
+        'logging': logging,
+        'plots': [PLOT],
     }
+
+
+# -- derived numbers -------------------------------------------------------
+
+#: The process's CPU time: single-threaded here, so on a machine shared with
+#: other jobs it is the step's cost without the waits for a core.
+CPU = 'median_cpu_seconds'
+
+def ratio(r, name, reference='vv', clock='median_seconds'):
+    med = r[clock]
+    return med[name] / med[reference]
+
+
+def paired_ratios(r, name, reference='vv'):
+    """Per-round ratios: both blocks of a round ran close together."""
+    wall = r['per_step_seconds']
+    return [a / b for a, b in zip(wall[name], wall[reference])]
+
+
+def overhead_percent(r, name, floor='replay', clock='median_seconds'):
+    """Time beyond the floor, in % of the floor."""
+    med = r[clock]
+    return 100 * (med[name] - med[floor]) / med[floor]
+
+
+def in_force_calls(r, key):
+    return r[key] / r['median_seconds']['force']
+
+
+def wall_over_cpu(r):
+    """Largest wall/CPU ratio of a case's medians: 1.00 on a quiet machine."""
+    return max(r['median_seconds'][k] / r['median_cpu_seconds'][k]
+               for k in r['median_seconds'])
+
+
+def position_extra_calls(r):
+    """Extra cost of 'position' over 'velocity', in nudge force calls."""
+    med = r['median_seconds']
+    return (med['rv_position'] - med['rv_velocity']) / med['force']
+
+
+def by_calculator(results):
+    groups = {}
+    for r in results:
+        groups.setdefault(r['calculator'], []).append(r)
+    return {k: sorted(v, key=lambda r: r['n_atoms'])
+            for k, v in groups.items()}
+
+
+# -- plot ------------------------------------------------------------------
+
+def plot(results, path):
+    plt = common.pyplot()
+    from matplotlib.lines import Line2D
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.3))
+    colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
+    sizes = sorted({r['n_atoms'] for r in results})
+    for colour, (label, rs) in zip(colours, by_calculator(results).items()):
+        n = [r['n_atoms'] for r in rs]
+        left.plot(n, [ratio(r, 'rv_velocity') for r in rs], 'o-',
+                  color=colour, label=label)
+        right.plot(n, [overhead_percent(r, 'rv_velocity') for r in rs],
+                   'o-', color=colour)
+        right.plot(n, [overhead_percent(r, 'vv') for r in rs], 'x--',
+                   color=colour, alpha=0.7)
+    left.axhline(TARGET_RATIO_TO_VV, color='k', lw=0.8, ls=':',
+                 label=f'target: ≤ {TARGET_RATIO_TO_VV:g}')
+    left.set_ylabel('Reversible (velocity) / VelocityVerlet, per step')
+    left.set_title('Time per step relative to VelocityVerlet')
+    right.axhline(TARGET_OVERHEAD_PERCENT, color='k', lw=0.8, ls=':')
+    right.axhline(0, color='grey', lw=0.5)
+    # Overheads span from a few % (noise around 0) to a few hundred %.
+    right.set_yscale('symlog', linthresh=10)
+    right.margins(y=0.08)
+    low, high = right.get_ylim()
+    right.set_yticks([t for t in (-200, -100, -50, -20, -10, -5, 0, 5, 10,
+                                  20, 50, 100, 200, 500, 1000)
+                      if low <= t <= high])
+    right.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+    right.set_ylabel('time beyond the replay floor, % of the floor')
+    right.set_title('Overhead beyond the force calls of real MD')
+    right.legend(loc='best', handles=[
+        Line2D([], [], color='k', marker='o', label='Reversible (velocity)'),
+        Line2D([], [], color='k', marker='x', ls='--', alpha=0.7,
+               label='VelocityVerlet'),
+        Line2D([], [], color='k', lw=0.8, ls=':',
+               label=f'target ({TARGET_OVERHEAD_CALCULATOR}, '
+                     f'N ≥ {TARGET_OVERHEAD_MIN_ATOMS}): '
+                     f'< {TARGET_OVERHEAD_PERCENT:g}%')], fontsize=8)
+    left.legend(fontsize=8)
+    for ax in (left, right):
+        ax.set_xscale('log')
+        ax.set_xticks(sizes)
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel('number of atoms')
+        ax.grid(True, which='major', alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 # -- Markdown --------------------------------------------------------------
@@ -406,123 +521,162 @@ def ms(seconds):
     return f'{v:.3f}'
 
 
-def with_ratio(result, name, reference='vv'):
-    med = result['median_seconds']
-    return f'{ms(med[name])} (×{med[name] / med[reference]:.2f})'
+def with_ratio(r, name):
+    return f"{ms(r['median_seconds'][name])} (×{ratio(r, name):.2f})"
 
 
-def overhead(result, name):
-    """Time beyond the force call, in ms and in % of the force call."""
-    med = result['median_seconds']
-    extra = med[name] - med['force']
-    return f'{ms(extra)} ({100 * extra / med["force"]:+.0f}%)'
+def beyond(r, name, floor):
+    med = r['median_seconds']
+    return (f'{ms(med[name] - med[floor])} '
+            f'({overhead_percent(r, name, floor):+.0f}%)')
 
 
-def clean_fraction(result, name):
-    entry = result['clean_recomputations'].get(name)
-    if entry is None or result['force_purity'][name]['mode'] != 'guarded':
+def clean_fraction(r, name):
+    entry = r['clean_recomputations'].get(name)
+    if entry is None or r['force_purity'][name]['mode'] != 'guarded':
         return '—'
     k, n = entry['recomputations'], entry['force_calls']
     return f'{100 * k / n:.2g}% ({k}/{n})'
 
 
+def case_label(r):
+    return f"{r['calculator']}, N={r['n_atoms']}"
+
+
 def step_cost_table(results):
-    head = ('| calculator | system | N | purity (auto) | force call (ms) '
-            '| VelocityVerlet (ms/step) | Reversible velocity (ms/step, ×VV) '
-            '| Reversible position (ms/step, ×VV) '
-            '| Reversible trust (ms/step, ×VV) '
-            '| VV beyond force call (ms, %) '
-            '| Reversible velocity beyond force call (ms, %) '
-            '| clean recomputations, velocity / position | round spread '
-            '| wall / CPU |')
-    lines = [head, '|' + ' --- |' * head.count(' | ') + ' --- |']
-    for r in results:
-        med = r['median_seconds']
-        spread = max(r['spread'].values())
-        lines.append(
-            f"| {r['calculator']} | {r['system']} | {r['n_atoms']} "
-            f"| {r['force_purity']['rv_velocity']['mode']} "
-            f"| {ms(med['force'])} | {ms(med['vv'])} "
-            f"| {with_ratio(r, 'rv_velocity')} "
-            f"| {with_ratio(r, 'rv_position')} "
-            f"| {with_ratio(r, 'rv_trust')} "
-            f"| {overhead(r, 'vv')} | {overhead(r, 'rv_velocity')} "
-            f"| {clean_fraction(r, 'rv_velocity')} / "
-            f"{clean_fraction(r, 'rv_position')} "
-            f"| {100 * spread:.0f}% | {wall_over_cpu(r):.2f} |")
-    return '\n'.join(lines)
+    header = ('calculator', 'N', 'steps × rounds', 'purity (auto)',
+              'nudge floor (ms)', 'replay floor (ms)',
+              'VelocityVerlet (ms/step)',
+              'Reversible velocity (ms/step, ×VV)',
+              'Reversible position (ms/step, ×VV)',
+              'Reversible trust (ms/step, ×VV)')
+    rows = [(r['calculator'], r['n_atoms'],
+             f"{r['steps_per_block']} × {r['rounds']}",
+             r['force_purity']['rv_velocity']['mode'],
+             ms(r['median_seconds']['force']),
+             ms(r['median_seconds']['replay']),
+             ms(r['median_seconds']['vv']),
+             with_ratio(r, 'rv_velocity'), with_ratio(r, 'rv_position'),
+             with_ratio(r, 'rv_trust'))
+            for r in results]
+    return common.markdown_table(header, rows)
 
 
-def in_force_calls(result, key):
-    return result[key] / result['median_seconds']['force']
-
-
-def cache_table(results):
-    head = ('| calculator | system | N | force call (ms) '
-            '| get_forces() again (ms, in force calls) '
-            '| get_potential_energy() after get_forces() '
-            '(ms, in force calls) |')
-    lines = [head, '|' + ' --- |' * head.count(' | ') + ' --- |']
-    for r in results:
-        cells = [f"{ms(r[key])} ({in_force_calls(r, key):.2f})"
-                 for key in ('get_forces_again_seconds',
-                             'energy_after_forces_seconds')]
-        lines.append(
-            f"| {r['calculator']} | {r['system']} | {r['n_atoms']} "
-            f"| {ms(r['median_seconds']['force'])} | {cells[0]} "
-            f"| {cells[1]} |")
-    return '\n'.join(lines)
-
-
-def wall_over_cpu(result):
-    """Largest wall/CPU ratio of a case's medians: 1.00 on a quiet machine."""
-    return max(result['median_seconds'][k] / result['median_cpu_seconds'][k]
-               for k in result['median_seconds'])
-
-
-def position_extra_calls(result):
-    """Extra cost of 'position' over 'velocity', in force calls."""
-    med = result['median_seconds']
-    return (med['rv_position'] - med['rv_velocity']) / med['force']
+def overhead_table(results):
+    header = ('calculator', 'N', 'replay − nudge floor (ms, %)',
+              'VV beyond replay floor (ms, %)',
+              'Reversible velocity beyond replay floor (ms, %)',
+              'Reversible velocity beyond nudge floor (ms, %)',
+              'clean recomputations, velocity / position',
+              'round spread', 'wall / CPU')
+    rows = [(r['calculator'], r['n_atoms'],
+             beyond(r, 'replay', 'force'),
+             beyond(r, 'vv', 'replay'),
+             beyond(r, 'rv_velocity', 'replay'),
+             beyond(r, 'rv_velocity', 'force'),
+             f"{clean_fraction(r, 'rv_velocity')} / "
+             f"{clean_fraction(r, 'rv_position')}",
+             f"{100 * max(r['spread'].values()):.0f}%",
+             f'{wall_over_cpu(r):.2f}')
+            for r in results]
+    return common.markdown_table(header, rows)
 
 
 def logging_table(results):
-    head = ('| calculator | system | N | force call (ms) '
-            '| VelocityVerlet + logger (ms/step) '
-            '| Reversible velocity + logger (ms/step, ×VV) '
-            '| Reversible position + logger (ms/step, ×VV) '
-            '| position − velocity (ms/step, in force calls) '
-            '| round spread | wall / CPU |')
-    lines = [head, '|' + ' --- |' * head.count(' | ') + ' --- |']
+    header = ('calculator', 'N', 'nudge floor (ms)',
+              'VelocityVerlet + logger (ms/step)',
+              'Reversible velocity + logger (ms/step, ×VV)',
+              'Reversible position + logger (ms/step, ×VV)',
+              'position − velocity (ms/step, in nudge force calls)',
+              'round spread', 'wall / CPU')
+    rows = []
     for r in results:
         med = r['median_seconds']
-        extra = med['rv_position'] - med['rv_velocity']
-        lines.append(
-            f"| {r['calculator']} | {r['system']} | {r['n_atoms']} "
-            f"| {ms(med['force'])} | {ms(med['vv'])} "
-            f"| {with_ratio(r, 'rv_velocity')} "
-            f"| {with_ratio(r, 'rv_position')} "
-            f"| {ms(extra)} ({position_extra_calls(r):.2f}) "
-            f"| {100 * max(r['spread'].values()):.0f}% "
-            f"| {wall_over_cpu(r):.2f} |")
-    return '\n'.join(lines)
+        rows.append((r['calculator'], r['n_atoms'], ms(med['force']),
+                     ms(med['vv']), with_ratio(r, 'rv_velocity'),
+                     with_ratio(r, 'rv_position'),
+                     f"{ms(med['rv_position'] - med['rv_velocity'])} "
+                     f'({position_extra_calls(r):.2f})',
+                     f"{100 * max(r['spread'].values()):.0f}%",
+                     f'{wall_over_cpu(r):.2f}'))
+    return common.markdown_table(header, rows)
 
 
-def case_label(r):
-    return f"{r['calculator']}, {r['system']}, N={r['n_atoms']}"
+def cache_table(results):
+    header = ('calculator', 'N', 'nudge floor (ms)',
+              'get_forces() again (ms, in force calls)',
+              'get_potential_energy() after get_forces() '
+              '(ms, in force calls)')
+    rows = [(r['calculator'], r['n_atoms'], ms(r['median_seconds']['force']),
+             *(f'{ms(r[key])} ({in_force_calls(r, key):.2f})'
+               for key in ('get_forces_again_seconds',
+                           'energy_after_forces_seconds')))
+            for r in results]
+    return common.markdown_table(header, rows)
+
+
+def target_lines(results):
+    """The issue's targets, judged on this run's numbers."""
+    out = []
+    for name, scheme in (('rv_velocity', 'velocity'),
+                         ('rv_position', 'position')):
+        missed = [r for r in results
+                  if ratio(r, name) > TARGET_RATIO_TO_VV]
+        head = (f"- Reversible '{scheme}' (force_purity='auto') per step "
+                f'≤ VelocityVerlet: met in {len(results) - len(missed)} of '
+                f'{len(results)} cases')
+        if not missed:
+            out.append(head + '.')
+            continue
+
+        def item(r):
+            paired = paired_ratios(r, name)
+            med = r['median_seconds']
+            consistent = ('slower in every round'
+                          if min(paired) > TARGET_RATIO_TO_VV
+                          else 'not slower in every round')
+            return (f'{case_label(r)}: ×{ratio(r, name):.3f} '
+                    f"(+{ms(med[name] - med['vv'])} ms/step; per-round "
+                    f'ratios ×{min(paired):.2f} to ×{max(paired):.2f}, '
+                    f'{consistent}; on CPU time '
+                    f'×{ratio(r, name, clock=CPU):.3f})')
+        out.append(head + '; missed in ' + '; '.join(map(item, missed))
+                   + '.')
+    big = [r for r in results
+           if r['calculator'] == TARGET_OVERHEAD_CALCULATOR
+           and r['n_atoms'] >= TARGET_OVERHEAD_MIN_ATOMS]
+    if not big:
+        out.append(f'- Overhead target ({TARGET_OVERHEAD_CALCULATOR}, '
+                   f'N ≥ {TARGET_OVERHEAD_MIN_ATOMS}): no such case in '
+                   f'this run.')
+    for r in big:
+        value = overhead_percent(r, 'rv_velocity')
+        verdict = 'met' if value < TARGET_OVERHEAD_PERCENT else 'missed'
+        out.append(f"- Reversible 'velocity' beyond the replay floor "
+                   f'< {TARGET_OVERHEAD_PERCENT:g}% ({case_label(r)}): '
+                   f'{value:+.1f}%, {verdict} (on CPU time '
+                   f"{overhead_percent(r, 'rv_velocity', clock=CPU):+.1f}%; "
+                   f"VelocityVerlet: {overhead_percent(r, 'vv'):+.1f}%, "
+                   f"on CPU time {overhead_percent(r, 'vv', clock=CPU):+.1f}%)"
+                   '.')
+    return '\n'.join(out)
 
 
 def summary(step_results, log_results):
     """Observations computed from this run's numbers."""
-    def ratio(r, name):
-        return r['median_seconds'][name] / r['median_seconds']['vv']
-
     out = []
     vel = sorted(step_results, key=lambda r: ratio(r, 'rv_velocity'))
     lo, hi = vel[0], vel[-1]
     out.append(f"- Reversible velocity / VelocityVerlet ranges from "
                f"×{ratio(lo, 'rv_velocity'):.2f} ({case_label(lo)}) to "
                f"×{ratio(hi, 'rv_velocity'):.2f} ({case_label(hi)}).")
+    cpu = sorted(step_results,
+                 key=lambda r: ratio(r, 'rv_velocity', clock=CPU))
+    out.append(f"- On CPU time the same ratio ranges from "
+               f"×{ratio(cpu[0], 'rv_velocity', clock=CPU):.2f} "
+               f"({case_label(cpu[0])}) to "
+               f"×{ratio(cpu[-1], 'rv_velocity', clock=CPU):.2f} "
+               f"({case_label(cpu[-1])}).")
     slower = [r for r in step_results
               if ratio(r, 'rv_velocity') > SLOWER_THRESHOLD]
     if slower:
@@ -531,16 +685,23 @@ def summary(step_results, log_results):
             return (f"{case_label(r)}: "
                     f"+{100 * (ratio(r, 'rv_velocity') - 1):.0f}% "
                     f"(+{ms(med['rv_velocity'] - med['vv'])} ms/step)")
-        items = '; '.join(excess(r) for r in slower)
         out.append(f'- Reversible velocity is more than '
                    f'{100 * (SLOWER_THRESHOLD - 1):.0f}% slower than '
-                   f'VelocityVerlet in: {items}.')
+                   f'VelocityVerlet in: '
+                   + '; '.join(map(excess, slower)) + '.')
     else:
         out.append(f'- Reversible velocity is nowhere more than '
                    f'{100 * (SLOWER_THRESHOLD - 1):.0f}% slower than '
                    f'VelocityVerlet.')
-    purity_cost = [ratio(r, 'rv_velocity') / ratio(r, 'rv_trust')
-                   for r in step_results]
+    rebuild = sorted(step_results,
+                     key=lambda r: overhead_percent(r, 'replay', 'force'))
+    out.append(f'- The replay floor (force calls of real MD, list rebuilds '
+               f'included) exceeds the nudge floor by '
+               f"{overhead_percent(rebuild[0], 'replay', 'force'):+.0f}% "
+               f'({case_label(rebuild[0])}) to '
+               f"{overhead_percent(rebuild[-1], 'replay', 'force'):+.0f}% "
+               f'({case_label(rebuild[-1])}).')
+    purity_cost = [ratio(r, 'rv_velocity', 'rv_trust') for r in step_results]
     out.append(f"- Force purity handling (auto vs 'trust', velocity scheme) "
                f"costs ×{min(purity_cost):.2f} to ×{max(purity_cost):.2f}.")
     fractions = []
@@ -553,8 +714,9 @@ def summary(step_results, log_results):
     if fractions:
         out.append(f'- Guarded (asap3) force calls needing a clean '
                    f'recomputation: {100 * min(fractions):.2g}% to '
-                   f'{100 * max(fractions):.2g}% (each costs two extra '
-                   f'force calls).')
+                   f'{100 * max(fractions):.2g}% (each recomputes the '
+                   f'forces from a freshly built neighbour list).')
+
     def recomputes(key, threshold):
         hits = [r for r in step_results
                 if in_force_calls(r, key) > threshold]
@@ -577,8 +739,8 @@ def summary(step_results, log_results):
                    f"'position' step is no extra work.")
     for r in log_results:
         out.append(f"- With a logger every step, 'position' costs "
-                   f"{position_extra_calls(r):.2f} force calls per step more "
-                   f"than 'velocity' ({case_label(r)}).")
+                   f'{position_extra_calls(r):.2f} nudge force calls per '
+                   f"step more than 'velocity' ({case_label(r)}).")
     worst = max(step_results + log_results, key=wall_over_cpu)
     out.append(f'- Largest wall / CPU time ratio: {wall_over_cpu(worst):.2f} '
                f'({case_label(worst)}); well above 1 means other processes '
@@ -587,50 +749,46 @@ def summary(step_results, log_results):
     return '\n'.join(out)
 
 
-def render_markdown(report):
-    m, s = report['machine'], report['settings']
-    quick = s['label'] == 'quick'
-    title = '# Performance: cost per step' + (' (QUICK RUN)' if quick else '')
-    quick_note = ('\n> **QUICK run**: small systems only, few rounds, short '
-                  'blocks. Numbers are indicative; run without `--quick` '
-                  'for the full table.\n' if quick else '')
-    machine = '\n'.join(f'- {k}: {v}' for k, v in m.items() if v)
-    load = report['load_average']
-    machine += (f"\n- load average (1 min) at start / end: "
-                f"{load['start']:.2f} / {load['end']:.2f} (this run adds "
-                f"about 1; more means other processes shared the machine)")
-    return f"""{title}
+def render(results):
+    s = results['settings']
+    steps, logging = results['step_cost'], results['logging']
+    systems = '; '.join(sorted({f"{r['calculator']}: {r['system']}"
+                                for r in steps}))
+    return f"""\
+How much a step of `ReversibleVerlet` costs against ASE's `VelocityVerlet`
+and against the calculator's force call alone, for periodic crystals
+({systems}) at {s['ar_temperature_K']:g} K (Ar) and \
+{s['cu_temperature_K']:g} K (Cu), time step {s['timestep_fs']:g} fs.
 
-<!-- Generated by benchmarks/step_cost.py; edits are overwritten. -->
+![Reversible velocity / VelocityVerlet per step (left) and time beyond the \
+replay floor in % of the floor (right), against the number of atoms]\
+(benchmarks/{results['plots'][0]})
 
-Produced by `{report['command']}` (run from the repository root) \
-on {report['date']}; raw timings in `docs/step_cost.json`.
-{quick_note}
-Machine:
+### Method
 
-{machine}
-
-## Method
-
-Each contestant runs on its own copy of the same thermalised atoms with its
-own fresh calculator: Ar at {AR_TEMPERATURE_K:g} K and Cu at \
-{CU_TEMPERATURE_K:g} K (Maxwell-Boltzmann, seed 0), time step \
-{TIMESTEP_FS:g} fs.
-After {WARMUP_STEPS} warm-up steps each, the contestants run blocks of the
+Each contestant runs on its own copy of the same thermalised atoms
+(Maxwell-Boltzmann, seed 0) with its own fresh calculator. After
+{s['warmup_steps']} warm-up steps each, the contestants run blocks of the
 same number of steps, chosen per case so that a VelocityVerlet block takes
-about {s['block_seconds']:g} s (at least {s['min_steps']} steps), in \
-{s['rounds']} rounds with the order rotating each round.
-Times are medians over rounds of block time / steps; ratios are ratios of
-medians. "Round spread" is the largest (max − min) / median over the
-contestants of a case: differences smaller than that are noise. "Wall /
-CPU" is the largest ratio of a contestant's median wall time to its median
-CPU time (`time.process_time`, also in the JSON): near 1.00 the process had
-the CPU to itself. BLAS runs on one thread (see blas_threads above) so that
-numpy's thread hand-offs do not add scheduler delays to the steps.
+about {s['block_seconds']:g} s (at least {s['min_steps']} steps), in
+{s['rounds']} rounds with the order rotating each round. Times are medians
+over rounds of block time / steps; ratios are ratios of medians. "Round
+spread" is the largest (max − min) / median over the contestants of a case:
+differences smaller than that are noise. "Wall / CPU" is the largest ratio
+of a contestant's median wall time to its median CPU time
+(`time.process_time`, also in the JSON): near 1.00 the process had the CPU
+to itself. BLAS runs on one thread so that numpy's thread hand-offs do not
+add scheduler delays to the steps.
 
-- **force call**: the calculator alone: one atom moved by {FLOOR_NUDGE:g} Å,
-  then `atoms.get_forces()`, a full calculation that never rebuilds the
-  neighbour list. The floor for any integrator with one force call per step.
+- **nudge floor**: one atom moved by {s['floor_nudge_angstrom']:g} Å, then
+  `atoms.get_forces(md=True)`: a full calculation that never rebuilds the
+  neighbour list.
+- **replay floor**: the positions of a VelocityVerlet run of the same system
+  from the same start (recorded before the rounds, fresh calculator), set
+  frame by frame with `atoms.set_positions` followed by
+  `atoms.get_forces(md=True)`. It includes the neighbour-list updates and
+  rebuilds that MD really causes, so time beyond it is the integrator's
+  own work (plus its extra force calls, if any).
 - **VelocityVerlet**: `ase.md.verlet.VelocityVerlet`.
 - **Reversible velocity / position**: `ReversibleVerlet(scheme=...)` with
   `force_purity='auto'` (exact reversal): 'sorted' for ASE calculators,
@@ -638,91 +796,58 @@ numpy's thread hand-offs do not add scheduler delays to the steps.
 - **Reversible trust**: `ReversibleVerlet(scheme='velocity',
   force_purity='trust')`: the cost without any purity handling. *Not exact*
   for these calculators; a baseline only.
-- **beyond force call**: median step time minus the force call's: the
-  integrator's own work plus neighbour-list rebuilds (which the floor never
-  does), in ms and in % of the force call.
 - **clean recomputations**: for 'guarded', the share of force evaluations
   (one per step) whose kick was recomputed from a freshly built neighbour
   list, during the timed blocks, as count / force evaluations.
 
-## Cost per step
+### Time per step
 
-{step_cost_table(report['step_cost'])}
+{step_cost_table(steps)}
 
-## Scheme cost under logging
+### Overhead beyond the force call
+
+Median step time minus a floor, in ms and in % of that floor.
+
+{overhead_table(steps)}
+
+### Targets
+
+Judged on the wall-time medians above; a ratio within the round spread of
+1 is not resolved by this run. CPU time is given beside them: the process
+is single-threaded, so where wall / CPU is well above 1 (other processes
+held the CPU), CPU time is the steadier estimate of the cost.
+
+{target_lines(steps)}
+
+### Scheme cost under logging
 
 The same measurement with an `MDLogger` (writing to an `io.StringIO`)
-attached every step. Kick-drift-kick ('velocity') ends a step with a force
-calculation at the new positions, so the logger finds the energy in the
-calculator's cache (if the calculator keeps it; see the diagnostic below);
-drift-kick-drift ('position') ends a step between force calculations, so
-the logger's energy is a calculation of its own at every logged step. The
-second to last column gives that difference in units of the force call.
+attached every step (no replay floor). Kick-drift-kick ('velocity') ends a
+step with a force calculation at the new positions, so the logger finds the
+energy in the calculator's cache (if the calculator keeps it; see the
+diagnostic below); drift-kick-drift ('position') ends a step between force
+calculations, so the logger's energy is a calculation of its own at every
+logged step. The second to last column gives that difference in units of
+the nudge floor.
 
-{logging_table(report['logging'])}
+{logging_table(logging)}
 
-## Diagnostic: what the calculators cache
+### Diagnostic: what the calculators cache
 
-Asked again at unchanged positions (on the force-call contestant after the
+Asked again at unchanged positions (on the nudge-floor contestant after the
 rounds; median of three blocks): `get_forces()` repeated, as VelocityVerlet
 does at the start and end of each step, and `get_potential_energy()` right
 after `get_forces()`, as a logger does. A cache hit costs microseconds; a
 recomputation costs up to a whole force call.
 
-{cache_table(report['step_cost'])}
+{cache_table(steps)}
 
-## Observations (computed from this run)
+### Observations (computed from this run)
 
-{summary(report['step_cost'], report['logging'])}
-
-## Rerun
-
-    python benchmarks/step_cost.py           # full, up to ~15 min
-    python benchmarks/step_cost.py --quick   # small systems, < 2 min
-
-Both regenerate this whole file and `docs/step_cost.json`.
+{summary(steps, logging)}
 """
 
 
-# -- main ------------------------------------------------------------------
-
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    parser.add_argument('--quick', action='store_true',
-                        help='small systems, 3 rounds, short blocks')
-    args = parser.parse_args(argv)
-    settings = QUICK if args.quick else FULL
-    started = time.perf_counter()
-    load_start = os.getloadavg()[0]
-    report = {
-        'command': 'python benchmarks/step_cost.py'
-                   + (' --quick' if args.quick else ''),
-        'date': datetime.now().astimezone().isoformat(timespec='seconds'),
-        'machine': machine_info(),
-        'settings': {**asdict(settings), 'timestep_fs': TIMESTEP_FS,
-                     'warmup_steps': WARMUP_STEPS,
-                     'floor_nudge_angstrom': FLOOR_NUDGE},
-    }
-    print('Cost per step:', flush=True)
-    report['step_cost'] = [
-        benchmark(case, ['force', 'vv', 'rv_velocity', 'rv_position',
-                         'rv_trust'], settings)
-        for case in step_cost_cases(args.quick)]
-    print('With a logger every step:', flush=True)
-    report['logging'] = [
-        benchmark(case, ['force', 'vv', 'rv_velocity', 'rv_position'],
-                  settings, with_logger=True)
-        for case in logging_cases(args.quick)]
-    report['wall_seconds'] = time.perf_counter() - started
-    report['load_average'] = {'start': load_start,
-                              'end': os.getloadavg()[0]}
-
-    DOCS.mkdir(exist_ok=True)
-    (DOCS / 'step_cost.json').write_text(json.dumps(report, indent=1) + '\n')
-    (DOCS / 'performance.md').write_text(render_markdown(report))
-    print(f"Wrote {DOCS / 'performance.md'} and {DOCS / 'step_cost.json'} "
-          f"in {report['wall_seconds']:.0f} s")
-
-
 if __name__ == '__main__':
-    sys.exit(main())
+    import run_all
+    sys.exit(run_all.main(['--only', 'step_cost'] + sys.argv[1:]))
