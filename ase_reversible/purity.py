@@ -43,6 +43,12 @@ from .errors import ImpureForcesError
 DEFAULT_FORCE_NOISE = 2.0**-40
 #: Fraction of force calls that may need a clean recomputation.
 TARGET_CLEAN_RATE = 0.01
+#: Coordinates (Å) up to which DEFAULT_FORCE_NOISE holds.  History noise
+#: comes from rounding coordinate differences, so it grows with the
+#: coordinates' magnitude (asap3 on periodic argon: 2e-15 eV/Å near the
+#: origin, 5e-14 at 600 Å, 2e-13 at 3000 Å); beyond this extent the bound
+#: grows in proportion.
+NOISE_REFERENCE_EXTENT = 32.0
 #: Distance (Å, per axis) the atoms are moved to force a neighbour-list
 #: rebuild: more than any skin, so the list is rebuilt on the way back.
 REBUILD_SHIFT = 8.0
@@ -70,7 +76,7 @@ class TrustedForces:
         np.rint(out, out=out)
         return f_nc
 
-    def min_momentum_quantum(self, n_atoms, max_kick_time):
+    def min_momentum_quantum(self, n_atoms, max_kick_time, extent=0.0):
         """Lower bound on the momentum quantum this provider needs."""
         return 0.0
 
@@ -105,7 +111,8 @@ class GuardedForces(TrustedForces):
     ----------
     force_noise : float
         Bound on the history noise of a force component, eV/Å, for forces
-        up to 1 eV/Å; relative to max|F| above that.
+        up to 1 eV/Å and coordinates up to ``NOISE_REFERENCE_EXTENT``;
+        scaled by max|F| and by max|x| / ``NOISE_REFERENCE_EXTENT`` above.
     """
 
     mode = 'guarded'
@@ -131,7 +138,10 @@ class GuardedForces(TrustedForces):
         if f_nc is self._clean_nc:
             return f_nc
         f_max = max(f_nc.max(initial=0.0), -f_nc.min(initial=0.0))
-        bound = abs(scale) * self.force_noise * max(1.0, f_max)
+        x_nc = atoms.positions
+        extent = max(x_nc.max(initial=0.0), -x_nc.min(initial=0.0))
+        noise = self.force_noise * _extent_factor(extent)
+        bound = abs(scale) * noise * max(1.0, f_max)
         # Noise below `bound` cannot flip rint(y) unless y lies within
         # `bound` of a half-integer.  NaN forces fail the comparison and
         # go straight back to the caller, which refuses them.
@@ -140,7 +150,7 @@ class GuardedForces(TrustedForces):
         if not y_nc.max(initial=0.0) > 0.5 - bound:
             return f_nc
         clean_nc = self.clean_forces(atoms)
-        self._record_noise(np.abs(clean_nc - f_nc).max())
+        self._record_noise(np.abs(clean_nc - f_nc).max(), noise)
         np.multiply(clean_nc, scale, out=out)
         project(out)
         np.rint(out, out=out)
@@ -166,24 +176,30 @@ class GuardedForces(TrustedForces):
         self._clean_nc = atoms.get_forces(md=True)
         return self._clean_nc
 
-    def _record_noise(self, noise):
+    def _record_noise(self, noise, bound):
         noise = float(noise)
         self.max_observed_noise = max(self.max_observed_noise, noise)
-        if noise > self.force_noise / 8 and not self._warned:
+        if noise > bound / 8 and not self._warned:
             self._warned = True
             warnings.warn(
                 f'Force noise of {noise:.3g} eV/Å was observed, close to the '
-                f'bound force_noise={self.force_noise:.3g} eV/Å that exact '
-                'reversal relies on. Construct the integrator with a larger '
-                'force_noise.', RuntimeWarning, stacklevel=4)
+                f'bound of {bound:.3g} eV/Å (force_noise='
+                f'{self.force_noise:.3g} eV/Å, scaled by the coordinates\' '
+                'extent) that exact reversal relies on. Construct the '
+                'integrator with a larger force_noise.', RuntimeWarning,
+                stacklevel=4)
 
-    def min_momentum_quantum(self, n_atoms, max_kick_time):
+    def min_momentum_quantum(self, n_atoms, max_kick_time, extent=0.0):
         # P(clean) per force call ~ 2 * 3N * noise * |c h| / q_p.
         return (2 * 3 * max(n_atoms, 1) * self.force_noise * max_kick_time
-                / TARGET_CLEAN_RATE)
+                * _extent_factor(extent) / TARGET_CLEAN_RATE)
 
     def todict(self):
         return {'mode': self.mode, 'force_noise': self.force_noise}
+
+
+def _extent_factor(extent):
+    return max(1.0, extent / NOISE_REFERENCE_EXTENT)
 
 
 def probe_purity(atoms, trials: int = 2, displacement: float = 0.3,

@@ -330,7 +330,9 @@ class ReversibleVerlet(MolecularDynamics):
             qp = fp.choose_momentum_quantum(masses_n, momenta)
             max_kick = abs(timestep) * max(
                 abs(c) for kind, c in self._substeps if kind == KICK)
-            floor = self._purity.min_momentum_quantum(len(atoms), max_kick)
+            floor = self._purity.min_momentum_quantum(
+                len(atoms), max_kick,
+                extent=float(np.abs(atoms.positions).max(initial=0.0)))
             if floor > qp:
                 qp = math.ldexp(1.0, math.frexp(floor)[1])  # power of 2 > floor
         return fp.Grid(qx, qp), time0

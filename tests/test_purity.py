@@ -1,5 +1,7 @@
 """Force purity: the problem is real, and each remedy removes it."""
 
+import warnings
+
 import numpy as np
 import pytest
 from ase.calculators.emt import EMT
@@ -131,6 +133,35 @@ def test_clean_forces_equal_a_fresh_calculators_bit_for_bit(calc):
     for seed in range(3):
         forces_after_history(atoms, guard, seed)
         assert np.array_equal(guard.clean_forces(atoms), f_fresh)
+
+
+def test_guard_widens_with_the_coordinates_extent():
+    # Noise grows with |x| (rounding of coordinate differences), so the
+    # same kick that needs no clean recomputation near the origin needs
+    # one far from it.
+    from ase_reversible.purity import NOISE_REFERENCE_EXTENT
+
+    def clean_recomputations(shift):
+        atoms = argon_bulk((4, 4, 4), 80)
+        atoms.positions += shift
+        atoms.calc = CALCULATORS['asap-lj']()
+        guard = GuardedForces()
+        f_nc = guard.forces(atoms).copy()
+        scale = 1.0
+        # One component four times the origin's bound (force_noise x
+        # max|F|) from a rounding boundary, the others on whole numbers.
+        f_nc[:] = 0.0
+        f_nc[0, 0] = 7.5 * (1 - 4 * guard.force_noise)
+        out, scratch = np.empty_like(f_nc), np.empty_like(f_nc)
+        with warnings.catch_warnings():
+            # The made-up forces differ from the clean ones by eV/Å.
+            warnings.simplefilter('ignore', RuntimeWarning)
+            guard.rounded_kick(atoms, f_nc, scale, lambda y: None, out,
+                               scratch)
+        return guard.clean_recomputations
+
+    assert clean_recomputations(0.0) == 0
+    assert clean_recomputations(8 * NOISE_REFERENCE_EXTENT) == 1
 
 
 @pytest.mark.parametrize('mode', ['sorted', 'magic'])
