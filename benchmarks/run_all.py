@@ -90,6 +90,9 @@ def main(argv=None):
     args = parser.parse_args(argv)
     figures = args.out / 'benchmarks'
     figures.mkdir(parents=True, exist_ok=True)
+    # Taken before anything runs: the package is imported once, so the
+    # commit checked out now is the code every section measures.
+    machine = common.machine_info()
     for name in args.only or SECTIONS:
         module = _load(name)
         print(f'{name}: {module.TITLE}', flush=True)
@@ -103,7 +106,7 @@ def main(argv=None):
             'quick': args.quick,
             'wall_seconds': time.perf_counter() - started,
             'load_average': os.getloadavg(),
-            'machine': common.machine_info(),
+            'machine': machine,
             'results': results,
         }
         (figures / f'{name}.json').write_text(json.dumps(stored, indent=1)

@@ -29,6 +29,8 @@ COMMITS = (
     ('64e3cbb', 'rotating buffers, one rounding per kick, in-place writes'),
     ('6747469', "asap3's list updated without a force call far away"),
     ('dfceefa', 'the half kick reused; range checks on a running bound'),
+    ('9082669', 'the energy check (steps 1, 2, 4, ..., then every 100)'),
+    ('d48a84e', "guard bound scaled with the coordinates' extent"),
 )
 
 #: (label, builder expression for the worker, steps per block (full, quick)).
