@@ -93,7 +93,7 @@ class ReversibleVerlet(MolecularDynamics):
     force_noise : float, optional
         Bound on history noise in the forces for ``'guarded'``, eV/Å.
     energy_check : int
-        At steps 1, 2, 4, ... and then every this many steps (default 100;
+        At steps 1, 2, 4, 8 and then every this many steps (default 100;
         0 turns the check off) the total energy is compared with its value
         where reversal is anchored; a difference above ``energy_tolerance`` stops the run
         with :class:`~ase_reversible.UnstableIntegrationError` before the
@@ -400,10 +400,15 @@ def _encode(atoms, grid, project):
         fp.encode(p_nc, grid.momentum_quantum, 'momentum'))
 
 
+#: Steps (before the interval takes over) that catch an immediate blow-up.
+EARLY_ENERGY_CHECKS = (1, 2, 4, 8)
+
+
 def _is_check_step(n, interval):
-    # Steps 1, 2, 4, ... catch a time step that blows up at once; after
-    # that every `interval` steps keeps the cost at one energy per interval.
-    return n % interval == 0 or (n < interval and n & (n - 1) == 0)
+    # The early checks catch a time step that blows up at once; after that
+    # one energy per interval keeps the cost low (for asap3 EMT an energy
+    # after the forces costs half a force call).
+    return n % interval == 0 or n in EARLY_ENERGY_CHECKS
 
 
 def _check_energy_watch(interval, tolerance):

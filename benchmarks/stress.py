@@ -684,7 +684,7 @@ def _render_sweep(sweeps):
             'guarded force purity (asap3) the momentum quantum is coarser and '
             'the momentum range much wider (column "max |p| / range"). And '
             'the energy check compares the total energy with its start at '
-            'steps 1, 2, 4, ... and then every '
+            'steps 1, 2, 4, 8 and then every '
             f'{verlet.ENERGY_CHECK_INTERVAL} steps, against the larger of the '
             'initial kinetic energy and that of the atoms at '
             f'{verlet.ENERGY_TOLERANCE_TEMPERATURE:g} K; energy growth inside '
