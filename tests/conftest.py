@@ -4,6 +4,8 @@ Every calculator here is a real one (ASE's or asap3's); builders return
 fresh Atoms with thermal momenta drawn from a fixed seed.
 """
 
+import warnings
+
 import numpy as np
 import pytest
 from ase import units
@@ -11,6 +13,7 @@ from ase.build import bulk
 from ase.calculators.emt import EMT
 from ase.calculators.lj import LennardJones
 from ase.cluster import Icosahedron
+from ase_reversible import AnchorMovedWarning
 from ase_reversible.demo import thermalize as _thermalize
 
 asap3 = pytest.importorskip('asap3')
@@ -97,3 +100,23 @@ def assert_frame_is_state(frame, dyn):
     assert np.array_equal(
         (frame.get_momenta() / dyn.grid.momentum_quantum).astype(np.int64),
         dyn.state.ip_nc)
+
+
+def assert_atoms_show_committed_state(dyn):
+    """The atoms hold exactly what the integer state stands for."""
+    assert_same_state(dyn.atoms,
+                      (dyn.state.ix_nc * dyn.grid.position_quantum,
+                       dyn.state.ip_nc * dyn.grid.momentum_quantum))
+
+
+def run_back(dyn, steps, reference):
+    """Reverse, run ``steps`` and demand ``reference`` bit for bit.
+
+    A re-anchoring on the way would hide a state left inconsistent by an
+    error, so it is made an error here.
+    """
+    dyn.reverse()
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', AnchorMovedWarning)
+        dyn.run(steps)
+    assert_same_state(dyn.atoms, reference)

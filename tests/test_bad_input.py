@@ -18,7 +18,8 @@ from ase_reversible import (AnchorMovedWarning, NonFiniteForcesError,
                             QuantumRangeError, ReversibleVerlet,
                             UnsupportedConstraintError)
 from conftest import (AR_RC, AR_SIGMA, DT, argon_cluster, asap_lj, ase_lj,
-                      assert_same_state, forward_and_back, snapshot)
+                      assert_atoms_show_committed_state, assert_same_state,
+                      forward_and_back, run_back, snapshot)
 
 EARLIER_RUN = b'frames of an earlier run\n'
 
@@ -27,26 +28,6 @@ def argon(calc=ase_lj, shells=2):
     atoms = argon_cluster(shells, 80)
     atoms.calc = calc()
     return atoms
-
-
-def assert_atoms_show_committed_state(dyn):
-    """The atoms hold exactly what the integer state stands for."""
-    assert_same_state(dyn.atoms,
-                      (dyn.state.ix_nc * dyn.grid.position_quantum,
-                       dyn.state.ip_nc * dyn.grid.momentum_quantum))
-
-
-def run_back(dyn, steps, reference):
-    """Reverse, run ``steps`` and demand ``reference`` bit for bit.
-
-    A re-anchoring on the way would hide a state left inconsistent by an
-    error, so it is made an error here.
-    """
-    dyn.reverse()
-    with warnings.catch_warnings():
-        warnings.simplefilter('error', AnchorMovedWarning)
-        dyn.run(steps)
-    assert_same_state(dyn.atoms, reference)
 
 
 # -- refused constructions ----------------------------------------------------

@@ -20,7 +20,8 @@ from ase_reversible import (AnchorMovedWarning, QuantumRangeError,
                             ReversibleVerlet, UnstableIntegrationError)
 from ase_reversible.verlet import ENERGY_CHECK_INTERVAL
 from conftest import (AR_RC, AR_SIGMA, CALCULATORS, DT, argon_cluster,
-                      assert_same_state, copper_bulk, snapshot, thermalize)
+                      assert_atoms_show_committed_state, assert_same_state,
+                      copper_bulk, run_back, snapshot, thermalize)
 
 CU_BOND = 3.61 / np.sqrt(2)  # nearest-neighbour distance of ase.build's Cu
 
@@ -33,25 +34,6 @@ def with_calc(atoms, name):
 def kinetic_energy(atoms):
     return float((atoms.get_momenta()**2
                   / atoms.get_masses()[:, None]).sum() / 2)
-
-
-def run_back(dyn, steps, reference):
-    """Reverse, run ``steps`` and demand ``reference`` bit for bit.
-
-    A re-anchoring on the way would hide a state left inconsistent by an
-    error, so it is made an error here.
-    """
-    dyn.reverse()
-    with warnings.catch_warnings():
-        warnings.simplefilter('error', AnchorMovedWarning)
-        dyn.run(steps)
-    assert_same_state(dyn.atoms, reference)
-
-
-def assert_atoms_show_committed_state(dyn):
-    assert_same_state(dyn.atoms,
-                      (dyn.state.ix_nc * dyn.grid.position_quantum,
-                       dyn.state.ip_nc * dyn.grid.momentum_quantum))
 
 
 def velocity_verlet_energy_error(atoms, dt, steps):
