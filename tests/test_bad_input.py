@@ -5,7 +5,6 @@ An error during a run must leave the integrator at its last committed
 step, from which reversal still reaches the constructor state bit for bit.
 """
 
-import warnings
 
 import numpy as np
 import pytest

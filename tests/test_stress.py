@@ -8,15 +8,13 @@ state that still runs back bit for bit.  benchmarks/stress.py measures the
 same scenes at length.
 """
 
-import warnings
-
 import numpy as np
 import pytest
 from ase import Atoms, units
 from ase.build import bulk
 from ase.md.verlet import VelocityVerlet
 
-from ase_reversible import (AnchorMovedWarning, QuantumRangeError,
+from ase_reversible import (QuantumRangeError,
                             ReversibleVerlet, UnstableIntegrationError)
 from ase_reversible.verlet import ENERGY_CHECK_INTERVAL
 from conftest import (AR_RC, AR_SIGMA, CALCULATORS, DT, argon_cluster,
