@@ -213,7 +213,7 @@ class ReversibleVerlet(MolecularDynamics):
 
     def _check_energy(self):
         """Stop before a step if the energy drifted beyond the tolerance."""
-        kinetic = 0.5 * float(np.sum(self._p.floats ** 2 / self._m_n1))
+        kinetic = self.atoms.get_kinetic_energy()
         energy = self.atoms.get_potential_energy() + kinetic
         if self._anchor_energy is None:
             self._anchor_energy = energy
