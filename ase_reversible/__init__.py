@@ -11,12 +11,14 @@ from .errors import (ImpureForcesError, NonFiniteForcesError,
                      QuantumRangeError, ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
 from .fixedpoint import FixedPointState, Grid
+from .lennardjones import LennardJones
 from .purity import probe_purity
 from .verlet import AnchorMovedWarning, ReversibleVerlet
 
 __version__ = '0.1.0'
 
 __all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
+           'LennardJones',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
            'NonFiniteForcesError', 'ImpureForcesError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

@@ -22,10 +22,12 @@ this, chosen per calculator by :func:`force_provider`:
     function of the positions.  The momentum quantum is chosen coarse
     enough that clean recomputations are rare (about 1% of force calls).
 
-``'trust'`` (everything else, after a probe)
-    Forces are used as returned.  :func:`probe_purity` recomputes forces at
-    the same positions after moving the atoms elsewhere; a calculator that
-    fails it raises :class:`ImpureForcesError` under ``'auto'``.
+``'trust'`` (pure calculators, and everything else after a probe)
+    Forces are used as returned.  A calculator can declare itself pure with
+    a class attribute ``forces_are_pure = True``; any other is first checked
+    by :func:`probe_purity`, which recomputes forces at the same positions
+    after moving the atoms elsewhere; a calculator that fails it raises
+    :class:`ImpureForcesError` under ``'auto'``.
 """
 
 from __future__ import annotations
@@ -243,9 +245,12 @@ def force_provider(atoms, mode: str = 'auto',
     atoms : ase.Atoms
         With its calculator attached.
     mode : {'auto', 'sorted', 'guarded', 'trust'}
-        ``'auto'`` picks ``'sorted'`` for ASE's LennardJones and EMT,
-        ``'guarded'`` for asap3 calculators, and ``'trust'`` for any other
-        calculator that passes :func:`probe_purity`.
+        ``'auto'`` picks ``'trust'`` for a calculator whose
+        ``forces_are_pure`` attribute is True (it guarantees forces that
+        are a function of the positions alone), ``'sorted'`` for ASE's
+        LennardJones and EMT, ``'guarded'`` for asap3 calculators, and
+        ``'trust'`` for any other calculator that passes
+        :func:`probe_purity`.
     force_noise : float, optional
         Noise bound for ``'guarded'`` (eV/Å).
     """
@@ -256,7 +261,11 @@ def force_provider(atoms, mode: str = 'auto',
     if force_noise is not None and mode not in ('auto', 'guarded'):
         raise ValueError("force_noise only applies to force_purity='guarded'")
     if mode == 'auto':
-        if _is_ase_neighborlist_calculator(calc):
+        if getattr(calc, 'forces_are_pure', False) is True:
+            # The calculator vouches for itself (this package's
+            # LennardJones, PendulumChain, ...).
+            mode = 'trust'
+        elif _is_ase_neighborlist_calculator(calc):
             mode = 'sorted'
         elif _is_asap3(calc) or force_noise is not None:
             mode = 'guarded'

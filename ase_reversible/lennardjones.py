@@ -1,0 +1,264 @@
+"""A Lennard-Jones calculator with exact Hessian-vector products.
+
+The reversible adjoint (:mod:`ase_reversible.adjoint`) needs, besides the
+forces, products of the Hessian with a vector and the derivatives of the
+forces with respect to the potential's parameters.  This calculator gives
+all three analytically, and its forces are a pure function of the
+positions (see :data:`LennardJones.forces_are_pure`), so
+:class:`~ase_reversible.ReversibleVerlet` needs no force-purity remedy.
+
+Pair energy, with ``s = sigma / r`` and a switch that takes it smoothly to
+zero between ``ro`` and ``rc``::
+
+    u(r) = 4 epsilon (s**12 - s**6) S(t),   t = (r - ro) / (rc - ro),
+    S(t) = 1 - t**3 (10 - 15 t + 6 t**2)    (0 <= t <= 1)
+
+``S`` is the quintic smoothstep: ``u``, its first and its second derivative
+are continuous at both ends, so the forces are continuously differentiable
+and the map from the start of a run to its end is too -- which is what a
+gradient of that map needs.
+
+Array names follow one convention: a suffix gives the shape (``_nc``:
+``[n_atoms, 3]``, ``_pc``: ``[n_pairs, 3]``, ``_p``: ``[n_pairs]``), ``i_p``
+and ``j_p`` index the two atoms of each pair (each pair once, ``i < j`` or
+an image), and ``d_pc = x[j] - x[i] + image shift``.  Pair terms are
+summed onto atoms with :func:`numpy.bincount`, which adds them in pair
+order: with pairs in a canonical order, the sums are reproducible bit for
+bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from ase.calculators.calculator import Calculator, all_changes
+from ase.neighborlist import neighbor_list
+from ase.stress import full_3x3_to_voigt_6_stress
+
+
+class LennardJones(Calculator):
+    """Smoothly cut-off Lennard-Jones pair potential, one species.
+
+    Parameters
+    ----------
+    epsilon : float
+        Depth of the pair potential well, eV.
+    sigma : float
+        Distance at which the (unswitched) pair energy is zero, Å.
+    rc : float, optional
+        Cut-off, Å: pairs further apart do not interact.  Default
+        ``3 * sigma``.
+    ro : float, optional
+        Where the switch starts, Å (``0 <= ro < rc``).  Default
+        ``0.66 * rc``.
+    skin : float
+        Å.  Pairs are searched within ``rc + skin`` and the search is
+        repeated when an atom has moved more than ``skin / 2``.
+
+    Besides ``energy``, ``energies``, ``forces`` and ``stress`` it offers
+    :meth:`hessian_vector_product` and :meth:`force_parameter_derivative`.
+    """
+
+    implemented_properties = ['energy', 'free_energy', 'energies', 'forces',
+                              'stress']
+    default_parameters = {'epsilon': 1.0, 'sigma': 1.0, 'rc': None,
+                          'ro': None, 'skin': 1.0}
+    nolabel = True
+
+    #: The forces depend on the positions alone: pair search results are
+    #: reduced to the pairs inside ``rc``, sorted, before any sum.
+    forces_are_pure = True
+    #: Parameters :meth:`force_parameter_derivative` differentiates.
+    differentiable_parameters = ('epsilon', 'sigma')
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self._check_parameters()
+        self._search = None   # (positions, cell, pbc, i_p, j_p, shift_pc)
+        self._pairs = None    # (positions bytes, i_p, j_p, d_pc, r_p)
+
+    def set(self, **kwargs):
+        changed = super().set(**kwargs)
+        if changed:
+            self._check_parameters()
+            self._search = self._pairs = None
+        return changed
+
+    @property
+    def cutoffs(self):
+        """``(ro, rc)`` in Å, defaults resolved."""
+        p = self.parameters
+        rc = 3.0 * p['sigma'] if p['rc'] is None else float(p['rc'])
+        ro = 0.66 * rc if p['ro'] is None else float(p['ro'])
+        return ro, rc
+
+    def _check_parameters(self):
+        p = self.parameters
+        for name in ('epsilon', 'sigma', 'skin'):
+            value = p[name]
+            if not (np.isfinite(value) and value >= 0
+                    and (value > 0 or name == 'skin')):
+                raise ValueError(f'{name} must be a positive number, got '
+                                 f'{value!r}')
+        ro, rc = self.cutoffs
+        if not (np.isfinite(rc) and 0 <= ro < rc):
+            raise ValueError(f'Need 0 <= ro < rc, got ro={ro!r}, rc={rc!r} '
+                             '(Å)')
+
+    # -- ASE calculator interface ---------------------------------------
+
+    def calculate(self, atoms=None, properties=('energy',),
+                  system_changes=all_changes):
+        super().calculate(atoms, properties, system_changes)
+        n = len(self.atoms)
+        i_p, j_p, d_pc, r_p = self._pair_geometry(self.atoms)
+        u_p, du_p, _ = self._pair_terms(r_p, second=False)
+        # Force on i from the pair: du/dr * d / r (d points from i to j).
+        g_pc = (du_p / r_p)[:, None] * d_pc
+        f_nc = _scatter(i_p, g_pc, n) - _scatter(j_p, g_pc, n)
+        energies_n = 0.5 * (np.bincount(i_p, u_p, minlength=n)
+                            + np.bincount(j_p, u_p, minlength=n))
+        energy = float(np.sum(u_p))
+        self.results['energy'] = self.results['free_energy'] = energy
+        self.results['energies'] = energies_n
+        self.results['forces'] = f_nc
+        if self.atoms.cell.rank == 3:
+            virial_cc = -d_pc.T @ g_pc
+            stress_cc = -virial_cc / self.atoms.get_volume()
+            self.results['stress'] = full_3x3_to_voigt_6_stress(stress_cc)
+        elif 'stress' in properties:
+            raise ValueError('Stress needs a cell with three non-zero '
+                             'vectors.')
+
+    # -- derivatives ------------------------------------------------------
+
+    def hessian_vector_product(self, atoms, v_nc):
+        """``H v``: the Hessian of the energy times ``v``, eV/Å².
+
+        ``v_nc`` is ``[n_atoms, 3]``, the result too.  ``H = -dF/dx`` is
+        symmetric, so this is also ``-(dF/dx)^T v``, the product the
+        adjoint of a kick needs.
+        """
+        v_nc = np.asarray(v_nc, dtype=float)
+        n = len(atoms)
+        i_p, j_p, d_pc, r_p = self._pair_geometry(atoms)
+        _, du_p, d2u_p = self._pair_terms(r_p, second=True)
+        # The force on i from a pair is g(r) d with g = u'/r; its
+        # derivative along d is g I + (g'/r) d d^T, with g' = u''/r - u'/r².
+        g_p = du_p / r_p
+        h_p = (d2u_p - g_p) / r_p**2
+        dv_pc = v_nc[j_p] - v_nc[i_p]
+        jv_pc = g_p[:, None] * dv_pc + (h_p * np.einsum(
+            'pc,pc->p', d_pc, dv_pc))[:, None] * d_pc
+        return _scatter(j_p, jv_pc, n) - _scatter(i_p, jv_pc, n)
+
+    def force_parameter_derivative(self, atoms, name):
+        """``dF/d(name)`` ``[n_atoms, 3]`` at the atoms' positions.
+
+        ``name`` is ``'epsilon'`` (result in Å⁻¹) or ``'sigma'`` (eV/Å²);
+        the cut-offs stay where they are.
+        """
+        if name not in self.differentiable_parameters:
+            raise ValueError(f'No derivative with respect to {name!r}; '
+                             f'available: {self.differentiable_parameters}')
+        n = len(atoms)
+        i_p, j_p, d_pc, r_p = self._pair_geometry(atoms)
+        epsilon, sigma = self.parameters['epsilon'], self.parameters['sigma']
+        if name == 'epsilon':
+            _, du_p, _ = self._pair_terms(r_p, second=False)
+            ddu_p = du_p / epsilon
+        else:
+            s6_p = (sigma / r_p)**6
+            s12_p = s6_p * s6_p
+            switch_p, dswitch_p, _ = self._switch(r_p)
+            dphi_p = 4 * epsilon * (12 * s12_p - 6 * s6_p) / sigma
+            ddphi_p = 4 * epsilon * (-144 * s12_p + 36 * s6_p) / (r_p * sigma)
+            ddu_p = ddphi_p * switch_p + dphi_p * dswitch_p
+        g_pc = (ddu_p / r_p)[:, None] * d_pc
+        return _scatter(i_p, g_pc, n) - _scatter(j_p, g_pc, n)
+
+    # -- pairs ------------------------------------------------------------
+
+    def _pair_terms(self, r_p, second):
+        """``u``, ``du/dr`` and (if ``second``) ``d2u/dr2`` per pair."""
+        epsilon, sigma = self.parameters['epsilon'], self.parameters['sigma']
+        s6_p = (sigma / r_p)**6
+        s12_p = s6_p * s6_p
+        phi_p = 4 * epsilon * (s12_p - s6_p)
+        dphi_p = 4 * epsilon * (-12 * s12_p + 6 * s6_p) / r_p
+        switch_p, dswitch_p, d2switch_p = self._switch(r_p)
+        u_p = phi_p * switch_p
+        du_p = dphi_p * switch_p + phi_p * dswitch_p
+        if not second:
+            return u_p, du_p, None
+        d2phi_p = 4 * epsilon * (156 * s12_p - 42 * s6_p) / r_p**2
+        d2u_p = (d2phi_p * switch_p + 2 * dphi_p * dswitch_p
+                 + phi_p * d2switch_p)
+        return u_p, du_p, d2u_p
+
+    def _switch(self, r_p):
+        ro, rc = self.cutoffs
+        width = rc - ro
+        t_p = np.clip((r_p - ro) / width, 0.0, 1.0)
+        switch_p = 1 - t_p**3 * (10 - 15 * t_p + 6 * t_p**2)
+        dswitch_p = -30 * t_p**2 * (1 - t_p)**2 / width
+        d2switch_p = -60 * t_p * (1 - t_p) * (1 - 2 * t_p) / width**2
+        return switch_p, dswitch_p, d2switch_p
+
+    def _pair_geometry(self, atoms):
+        """Pairs within ``rc`` at the atoms' positions, in canonical order.
+
+        Cached for the last positions: the adjoint asks for the forces and
+        then for Hessian-vector products at the same positions.
+        """
+        x_nc = atoms.positions
+        key = x_nc.tobytes()
+        if self._pairs is not None and self._pairs[0] == key:
+            return self._pairs[1:]
+        i_p, j_p, shift_pc = self._candidates(atoms)
+        d_pc = x_nc[j_p] - x_nc[i_p] + shift_pc
+        r_p = np.sqrt(np.einsum('pc,pc->p', d_pc, d_pc))
+        # Only pairs inside rc enter the sums, so the candidates' history
+        # (where the search last ran) cannot change a single bit.
+        inside_p = r_p < self.cutoffs[1]
+        geometry = (i_p[inside_p], j_p[inside_p], d_pc[inside_p],
+                    r_p[inside_p])
+        self._pairs = (key,) + geometry
+        return geometry
+
+    def _candidates(self, atoms):
+        """Pairs within ``rc + skin`` of where the search last ran."""
+        x_nc, cell, pbc = atoms.positions, atoms.cell.array, atoms.pbc
+        search = self._search
+        skin = self.parameters['skin']
+        if (search is not None and np.array_equal(search[1], cell)
+                and np.array_equal(search[2], pbc)
+                and len(search[0]) == len(x_nc)):
+            moved = np.einsum('nc,nc->n', x_nc - search[0], x_nc - search[0])
+            if moved.max(initial=0.0) <= (0.5 * skin)**2:
+                return search[3:]
+        i_p, j_p, s_pc = neighbor_list('ijS', atoms,
+                                       self.cutoffs[1] + skin)
+        # Keep each pair once; order them canonically (by i, j, image).
+        keep_p = (i_p < j_p) | ((i_p == j_p) & _positive_image(s_pc))
+        order_p = np.lexsort((s_pc[keep_p, 2], s_pc[keep_p, 1],
+                              s_pc[keep_p, 0], j_p[keep_p], i_p[keep_p]))
+        i_p, j_p = i_p[keep_p][order_p], j_p[keep_p][order_p]
+        shift_pc = s_pc[keep_p][order_p] @ cell
+        self._search = (x_nc.copy(), cell.copy(), pbc.copy(), i_p, j_p,
+                        shift_pc)
+        return i_p, j_p, shift_pc
+
+
+def _positive_image(s_pc):
+    """True for the one of an image pair (i, i, S), (i, i, -S) to keep."""
+    first_p = np.where(s_pc[:, 0] != 0, s_pc[:, 0],
+                       np.where(s_pc[:, 1] != 0, s_pc[:, 1], s_pc[:, 2]))
+    return first_p > 0
+
+
+def _scatter(index_p, values_pc, n):
+    """Sum rows of ``values_pc`` onto atoms ``index_p``, in pair order."""
+    out_nc = np.empty((n, 3))
+    for c in range(3):
+        out_nc[:, c] = np.bincount(index_p, values_pc[:, c], minlength=n)
+    return out_nc
