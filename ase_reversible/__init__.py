@@ -10,7 +10,9 @@ leaves ``atoms`` bit for bit where the constructor put it.
 from .errors import (ImpureForcesError, NonFiniteForcesError,
                      QuantumRangeError, ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
+from .adjoint import Gradients
 from .fixedpoint import FixedPointState, Grid
+from .hessian import AnalyticHVP, FiniteDifferenceHVP
 from .lennardjones import LennardJones
 from .purity import probe_purity
 from .verlet import AnchorMovedWarning, ReversibleVerlet
@@ -18,7 +20,7 @@ from .verlet import AnchorMovedWarning, ReversibleVerlet
 __version__ = '0.1.0'
 
 __all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
-           'LennardJones',
+           'Gradients', 'LennardJones', 'AnalyticHVP', 'FiniteDifferenceHVP',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
            'NonFiniteForcesError', 'ImpureForcesError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

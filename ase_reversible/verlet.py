@@ -11,6 +11,7 @@ from ase import units
 from ase.md.md import MolecularDynamics
 
 from . import fixedpoint as fp
+from .adjoint import Adjoint
 from .compositions import composition_for, substeps
 from .constraints import constraint_projection
 from .errors import (NonFiniteForcesError, QuantumRangeError,
@@ -158,6 +159,81 @@ class ReversibleVerlet(MolecularDynamics):
 
     # -- public ---------------------------------------------------------
 
+    def backpropagate(self, steps, grad_positions, grad_momenta=None, *,
+                      hvp='auto', parameters=()):
+        """Gradients of a loss with respect to the state ``steps`` steps ago.
+
+        After ``run(steps)``, with ``grad_positions`` = dL/d(positions)
+        and ``grad_momenta`` = dL/d(momenta) of a scalar loss L at the
+        current state, retraces the ``steps`` steps exactly while
+        integrating the adjoint (:mod:`ase_reversible.adjoint`), and
+        returns dL/d(positions) and dL/d(momenta) at the state ``steps``
+        steps earlier.  Afterwards the atoms are at that earlier state, bit
+        for bit, and the time step has its original sign: ``run(steps)``
+        repeats the forward run exactly.  Memory does not grow with
+        ``steps``.
+
+        The retrace costs what the forward run cost, plus one
+        Hessian-vector product per step (kick-drift-kick; one per kick for
+        drift-kick-drift).  Observers are not called during it.  A loss on
+        several states of a run is handled by calling this once per
+        segment, adding each state's own dL/dx, dL/dp to the gradients
+        returned.
+
+        Parameters
+        ----------
+        steps : int
+            Number of steps to retrace, >= 0.
+        grad_positions : array_like ``[n_atoms, 3]``
+            dL/dx at the current state, (loss unit) / Å.
+        grad_momenta : array_like ``[n_atoms, 3]``, optional
+            dL/dp at the current state, (loss unit) / (amu Å / ASE time);
+            None means zero.
+        hvp : {'auto', 'analytic', 'finite-difference'} or callable
+            How Hessian-vector products are computed
+            (:func:`ase_reversible.hessian.hvp_for`): ``'auto'`` uses the
+            calculator's ``hessian_vector_product`` if it has one, else a
+            central finite difference of the forces (two force calls).
+        parameters : sequence of str
+            Potential parameters (e.g. ``('epsilon', 'sigma')`` for
+            :class:`ase_reversible.LennardJones`) whose gradients to
+            accumulate; returned in ``.parameters``.
+
+        Returns
+        -------
+        Gradients
+            ``(grad_positions0, grad_momenta0)``, each ``[n_atoms, 3]``,
+            with ``.parameters`` (dict) and ``.hessian_vector_products``.
+            Constraints are honoured: the gradients are those of the
+            constrained run.
+
+        If the retrace fails (the calculator raises, or an interrupt), the
+        atoms are left at the last completed step, still exactly
+        reversible, and the time step keeps its original sign.
+        """
+        steps = _check_steps(steps)
+        self._sync()
+        adjoint = Adjoint(self.atoms, grad_positions, grad_momenta,
+                          self._m_n1, self._project, hvp, parameters)
+        self.reverse()
+        try:
+            # Each retrace sub-step undoes the forward sub-step of the same
+            # kind and the opposite coefficient (the plans are palindromes).
+            hooks = tuple(
+                (lambda ch=-ch: adjoint.kick(ch)) if kind == KICK
+                else (lambda ch=-ch: adjoint.drift(ch, self.atoms))
+                for kind, ch in self._times)
+            plan = tuple(
+                step for hook, substep in zip(hooks, self._plan)
+                for step in ((_call, hook), substep))
+            for _ in range(steps):
+                self._advance(plan)
+            adjoint.flush(self.atoms)
+        finally:
+            self.reverse()
+            self._energy_alarm = False
+        return adjoint.result()
+
     def reverse(self):
         """Flip the direction of time: further steps retrace the path."""
         self.dt = -self.dt
@@ -192,11 +268,15 @@ class ReversibleVerlet(MolecularDynamics):
         if self.energy_check and _is_check_step(self.nsteps,
                                                 self.energy_check):
             self._check_energy()
+        self._advance(self._plan)
+
+    def _advance(self, plan):
+        """Apply the ``(substep, coefficient)`` pairs of ``plan`` as one step."""
         self._x.checkpoint()
         self._p.checkpoint()
         saved = self._x_version, self._f_cache
         try:
-            for substep, coefficient in self._plan:
+            for substep, coefficient in plan:
                 substep(coefficient)
         except BaseException:
             # Updates never overwrite the checkpoint, so going back to it
@@ -267,6 +347,8 @@ class ReversibleVerlet(MolecularDynamics):
             else:
                 plan.append((self._kick, ch / qp))
         self._plan = tuple(plan)
+        #: (kind, c h) of each sub-step, ASE time units.
+        self._times = tuple((kind, c * self.dt) for kind, c in self._substeps)
 
     def _drift(self, factor_n1):
         y_nc = np.multiply(self._p.floats, factor_n1, out=self._y_nc)
@@ -422,6 +504,17 @@ def _check_energy_watch(interval, tolerance):
             raise ValueError(f'energy_tolerance must be positive (eV), got '
                              f'{tolerance!r}')
     return interval, tolerance
+
+
+def _call(hook):
+    hook()
+
+
+def _check_steps(steps):
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) \
+            or steps < 0:
+        raise ValueError(f'steps must be a whole number >= 0, got {steps!r}')
+    return int(steps)
 
 
 def _check_timestep(timestep):
