@@ -106,6 +106,28 @@ class LennardJones(Calculator):
 
     # -- ASE calculator interface ---------------------------------------
 
+    def check_state(self, atoms, tol=1e-15):
+        """What changed since the last calculation, compared exactly.
+
+        ASE's default treats positions within 1e-15 Å as unchanged, which
+        a fine fixed-point grid can move by; and its ``allclose`` costs
+        more than the whole force calculation of a small cluster.
+        """
+        old = self.atoms
+        if old is None:
+            return list(all_changes)
+        changes = []
+        if not np.array_equal(old.arrays['positions'],
+                              atoms.arrays['positions']):
+            changes.append('positions')
+        if not np.array_equal(old.arrays['numbers'], atoms.arrays['numbers']):
+            changes.append('numbers')
+        if not np.array_equal(old.cell.array, atoms.cell.array):
+            changes.append('cell')
+        if not np.array_equal(old.pbc, atoms.pbc):
+            changes.append('pbc')
+        return changes
+
     def calculate(self, atoms=None, properties=('energy',),
                   system_changes=all_changes):
         super().calculate(atoms, properties, system_changes)
@@ -121,13 +143,12 @@ class LennardJones(Calculator):
         self.results['energy'] = self.results['free_energy'] = energy
         self.results['energies'] = energies_n
         self.results['forces'] = f_nc
-        if self.atoms.cell.rank == 3:
-            virial_cc = -d_pc.T @ g_pc
-            stress_cc = -virial_cc / self.atoms.get_volume()
+        if 'stress' in properties:  # only on request: MD never asks
+            if self.atoms.cell.rank != 3:
+                raise ValueError('Stress needs a cell with three non-zero '
+                                 'vectors.')
+            stress_cc = d_pc.T @ g_pc / self.atoms.get_volume()
             self.results['stress'] = full_3x3_to_voigt_6_stress(stress_cc)
-        elif 'stress' in properties:
-            raise ValueError('Stress needs a cell with three non-zero '
-                             'vectors.')
 
     # -- derivatives ------------------------------------------------------
 

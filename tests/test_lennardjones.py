@@ -155,3 +155,14 @@ def test_reversible_verlet_trusts_it_and_reverses_exactly():
     start, moved = forward_and_back(dyn, 2000)
     assert moved
     assert_same_state(atoms, start)
+
+
+def test_moves_below_ase_tolerance_are_seen():
+    # ASE's default state check ignores moves under 1e-15 Å; a fine
+    # fixed-point grid makes such moves.
+    atoms = rattled_cluster()
+    atoms.get_forces()
+    atoms.positions[0, 0] = np.nextafter(atoms.positions[0, 0], np.inf)
+    assert atoms.calc.check_state(atoms) == ['positions']
+    atoms.get_forces()
+    assert atoms.calc.check_state(atoms) == []
