@@ -26,7 +26,15 @@ that of the Hessian-vector products, see :mod:`ase_reversible.hessian`).
 
 Kicks with no drift between them act at the same positions on the same
 ``a_p``; their products are merged into one.  The kick-drift-kick scheme
-thus needs one product per step, the drift-kick-drift scheme one per kick.
+thus needs one product per step (``steps + 1`` for a retrace, the first
+kick of the run included), the drift-kick-drift scheme one per kick.
+
+Momenta that the constraints hold (a fixed atom's) are not free: the
+constructor projects them, and no step changes them.  The momentum
+gradient returned is therefore projected too, so an optimiser sees no
+direction it cannot move in.  Positions of fixed atoms stay in the
+position gradient: where a fixed atom is pinned changes the forces on the
+others.
 """
 
 from __future__ import annotations
@@ -143,8 +151,10 @@ class Adjoint:
             self.grad_parameters[name] += ch * float(np.vdot(df_nc, w_nc))
 
     def result(self):
-        return Gradients(self.ax_nc.copy(), self.ap_nc.copy(),
-                         self.grad_parameters, self.products)
+        ap_nc = self.ap_nc.copy()
+        self._project(ap_nc)
+        return Gradients(self.ax_nc.copy(), ap_nc, self.grad_parameters,
+                         self.products)
 
 
 def _gradient(value, n, name):

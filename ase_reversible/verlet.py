@@ -174,8 +174,8 @@ class ReversibleVerlet(MolecularDynamics):
         ``steps``.
 
         The retrace costs what the forward run cost, plus one
-        Hessian-vector product per step (kick-drift-kick; one per kick for
-        drift-kick-drift).  Observers are not called during it.  A loss on
+        Hessian-vector product per step (kick-drift-kick, ``steps + 1`` in
+        all; one per kick for drift-kick-drift).  Observers are not called during it.  A loss on
         several states of a run is handled by calling this once per
         segment, adding each state's own dL/dx, dL/dp to the gradients
         returned.
@@ -205,7 +205,8 @@ class ReversibleVerlet(MolecularDynamics):
             ``(grad_positions0, grad_momenta0)``, each ``[n_atoms, 3]``,
             with ``.parameters`` (dict) and ``.hessian_vector_products``.
             Constraints are honoured: the gradients are those of the
-            constrained run.
+            constrained run, and the momentum gradient is projected
+            (momenta a constraint holds are not free).
 
         If the retrace fails (the calculator raises, or an interrupt), the
         atoms are left at the last completed step, still exactly
