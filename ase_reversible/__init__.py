@@ -11,6 +11,7 @@ from .errors import (ImpureForcesError, NonFiniteForcesError,
                      QuantumRangeError, ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
 from .adjoint import Gradients
+from .chain import PendulumChain
 from .fixedpoint import FixedPointState, Grid
 from .hessian import AnalyticHVP, FiniteDifferenceHVP
 from .lennardjones import LennardJones
@@ -20,7 +21,7 @@ from .verlet import AnchorMovedWarning, ReversibleVerlet
 __version__ = '0.1.0'
 
 __all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
-           'Gradients', 'LennardJones', 'AnalyticHVP', 'FiniteDifferenceHVP',
+           'Gradients', 'LennardJones', 'PendulumChain', 'AnalyticHVP', 'FiniteDifferenceHVP',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
            'NonFiniteForcesError', 'ImpureForcesError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

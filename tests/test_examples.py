@@ -7,6 +7,7 @@ left the atoms back at their start bit for bit.
 """
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -18,11 +19,12 @@ def load(name):
     spec = importlib.util.spec_from_file_location(name,
                                                   EXAMPLES / f'{name}.py')
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
 
 
-@pytest.mark.parametrize('name', ['steer_argon'])
+@pytest.mark.parametrize('name', ['steer_argon', 'keyframe_chain'])
 def test_example_quick_mode(name, tmp_path):
     result = load(name).main(out_dir=tmp_path, quick=True)
     picture = Path(result['picture'])

@@ -1,0 +1,257 @@
+"""A pendulum chain: beads on stiff springs under gravity.
+
+The model of the paper's keyframe-control example (J. Stam, "An Exact
+Bitwise Reversible Integrator", section "Application: Reversible Adjoint /
+Neural ODEs"): atoms ``0-1-2-...-(n-1)`` in index order, each linked to the
+next by a harmonic spring, all pulled down along -z by uniform gravity.
+Pin the chain by fixing atom 0 (``ase.constraints.FixAtoms([0])``, which
+:class:`~ase_reversible.ReversibleVerlet` applies exactly); with stiff
+springs it behaves as a multiple pendulum and, from two links on, is
+chaotic.  :func:`make_chain` builds one.
+
+Energy, with ``d_l = x[l+1] - x[l]`` the ``l``-th link and ``r_l = |d_l|``::
+
+    E = sum_l k/2 (r_l - L)**2  +  sum_i m_i g z_i
+
+``k``: ``stiffness`` (eV/Å²), ``L``: ``rest_length`` (Å), ``m_i``: the
+atoms' masses (amu), ``g``: ``gravity`` (eV/(Å amu), i.e. Å per ASE time
+unit squared: an ASE acceleration), ``z_i``: height (Å, zero at z = 0).
+
+The model is differentiable to any order, so besides energy and forces the
+calculator gives the exact Hessian-vector product
+(:meth:`PendulumChain.hessian_vector_product`) the reversible adjoint uses.
+Links are plain differences of positions: periodic boundary conditions are
+ignored (a chain needs no images).
+
+Array names follow :mod:`ase_reversible.lennardjones`: a suffix gives the
+shape -- ``_nc``: ``[n_atoms, 3]``, ``_lc``: ``[n_links, 3]``, ``_l``:
+``[n_links]`` with ``n_links = n_atoms - 1`` -- and link ``l`` joins atoms
+``l`` and ``l + 1``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from ase import Atoms
+from ase.calculators.calculator import Calculator, all_changes
+from ase.constraints import FixAtoms
+
+
+class PendulumChain(Calculator):
+    """Harmonic springs between consecutive atoms, plus uniform gravity.
+
+    Parameters
+    ----------
+    stiffness : float
+        Spring constant ``k`` of every link, eV/Å² (> 0).  Default 1000:
+        with 1 amu beads no mode is faster than ``2 sqrt(k/m)`` = 63 rad
+        per ASE time unit (see :meth:`hessian_vector_product`), resolved
+        by a step of 0.0125 (0.13 fs).
+    rest_length : float
+        Length ``L`` at which a link exerts no force, Å (>= 0).  Default 1.
+    gravity : float
+        Downward (-z) acceleration ``g``, eV/(Å amu) (ASE units; >= 0).
+        Each atom feels ``-m g`` along z, with its mass from the atoms.
+        Default 1: a 1 Å link swings with period ``2 pi sqrt(L/g)``, 6.3
+        time units (64 fs).
+
+    Gives ``energy`` (= ``free_energy``), ``energies`` (each link's energy
+    split equally between its two atoms, plus the atom's own ``m g z``)
+    and ``forces``; and :meth:`hessian_vector_product`.
+    """
+
+    implemented_properties = ['energy', 'free_energy', 'energies', 'forces']
+    default_parameters = {'stiffness': 1000.0, 'rest_length': 1.0,
+                          'gravity': 1.0}
+    nolabel = True
+
+    #: The forces are a closed-form function of the positions (and masses):
+    #: no neighbour list, no cache, no history, so ReversibleVerlet can
+    #: trust them without a probe.
+    forces_are_pure = True
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self._check_parameters()
+
+    def set(self, **kwargs):
+        changed = super().set(**kwargs)
+        if changed:
+            self._check_parameters()
+        return changed
+
+    def _check_parameters(self):
+        p = self.parameters
+        for name, strict in (('stiffness', True), ('rest_length', False),
+                             ('gravity', False)):
+            value = p[name]
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise TypeError(f'{name} must be a number, got '
+                                f'{value!r}') from None
+            if not (math.isfinite(value) and (value > 0 if strict
+                                              else value >= 0)):
+                bound = 'positive' if strict else 'non-negative'
+                raise ValueError(f'{name} must be a finite, {bound} number, '
+                                 f'got {value!r}')
+            p[name] = value
+
+    # -- ASE calculator interface ---------------------------------------
+
+    def check_state(self, atoms, tol=1e-15):
+        """What changed since the last calculation, compared exactly.
+
+        The results depend on positions and masses only.  ASE's default
+        comparison ignores masses (which gravity needs), accepts positions
+        within ``tol`` Å as unchanged (stale forces for a position quantum
+        below that) and costs more than this model's forces.
+        """
+        old = self.atoms
+        if old is None or len(old) != len(atoms):
+            return list(all_changes)
+        changes = []
+        if not np.array_equal(old.positions, atoms.positions):
+            changes.append('positions')
+        if not np.array_equal(old.get_masses(), atoms.get_masses()):
+            changes.append('masses')
+        if not np.array_equal(old.numbers, atoms.numbers):
+            changes.append('numbers')
+        return changes
+
+    def calculate(self, atoms=None, properties=('energy',),
+                  system_changes=all_changes):
+        super().calculate(atoms, properties, system_changes)
+        atoms = self.atoms
+        k = self.parameters['stiffness']
+        g = self.parameters['gravity']
+        x_nc = atoms.positions
+        m_n = atoms.get_masses()
+        d_lc, r_l = _links(x_nc)
+        stretch_l = r_l - self.parameters['rest_length']
+        u_l = 0.5 * k * stretch_l**2
+        # A stretched link pulls its first atom towards the second:
+        # F_l = -dE/dx_l = k (r - L) d / r.
+        t_lc = _tension(k * stretch_l, r_l, d_lc)
+        f_nc = _onto_atoms(t_lc, len(atoms))
+        f_nc[:, 2] -= m_n * g
+        height_n = m_n * g * x_nc[:, 2]
+        energies_n = height_n.copy()
+        energies_n[:-1] += 0.5 * u_l
+        energies_n[1:] += 0.5 * u_l
+        energy = float(np.sum(u_l) + np.sum(height_n))
+        self.results['energy'] = self.results['free_energy'] = energy
+        self.results['energies'] = energies_n
+        self.results['forces'] = f_nc
+
+    # -- derivatives ------------------------------------------------------
+
+    def hessian_vector_product(self, atoms, v_nc):
+        """``H v``, ``H`` the Hessian of the energy, eV/Å² x (unit of v).
+
+        ``v_nc`` is ``[n_atoms, 3]``, the result too, at the atoms' current
+        positions.  Gravity is linear in the positions and drops out.
+        Each link couples its two atoms through the 3x3 block ``K = k (1 -
+        L/r) I + k L d d^T / r³``, the derivative of its pull on its first
+        atom with respect to ``d``.  Its eigenvalues, ``k`` and ``k (1 -
+        L/r)``, are at most ``k`` in magnitude while every link is longer
+        than ``L/2``: then no mode of a chain of beads of mass ``m`` is
+        faster than ``2 sqrt(k/m)``, whatever its pose or speed.
+        """
+        v_nc = np.asarray(v_nc, dtype=float)
+        if v_nc.shape != (len(atoms), 3):
+            raise ValueError(f'v_nc must have shape ({len(atoms)}, 3), got '
+                             f'{v_nc.shape}')
+        k = self.parameters['stiffness']
+        rest = self.parameters['rest_length']
+        d_lc, r_l = _links(atoms.positions)
+        dv_lc = v_nc[1:] - v_nc[:-1]
+        # With u' = k (r - L) and u'' = k: the tension k (r - L) d / r
+        # changes along dv by (u'/r) dv + (u'' - u'/r) (d.dv) d / r².
+        along_l = k * rest / r_l**3 * np.einsum('lc,lc->l', d_lc, dv_lc)
+        kdv_lc = (k * (1.0 - rest / r_l))[:, None] * dv_lc \
+            + along_l[:, None] * d_lc
+        # K dv is the change of the pull on the first atom of the link,
+        # i.e. -(H v) there; the second atom gets the opposite.
+        return -_onto_atoms(kdv_lc, len(atoms))
+
+
+def _links(x_nc):
+    """Link vectors ``d_lc = x[l+1] - x[l]`` (Å) and lengths ``r_l``."""
+    d_lc = x_nc[1:] - x_nc[:-1]
+    r_l = np.sqrt(np.einsum('lc,lc->l', d_lc, d_lc))
+    if np.any(r_l == 0.0):
+        first = int(np.argmin(r_l))
+        raise ValueError(f'Atoms {first} and {first + 1} coincide: a link '
+                         'of zero length has no direction.')
+    return d_lc, r_l
+
+
+def _tension(pull_l, r_l, d_lc):
+    """``pull_l d / r``: the force of each link on its first atom, eV/Å."""
+    return (pull_l / r_l)[:, None] * d_lc
+
+
+def _onto_atoms(t_lc, n):
+    """``[n, 3]``: ``+t`` on each link's first atom, ``-t`` on its second.
+
+    Slices, not a scatter: each atom gets at most one term from each side,
+    always added in the same order, so the result is reproducible bit for
+    bit.
+    """
+    out_nc = np.zeros((n, 3))
+    out_nc[:-1] += t_lc
+    out_nc[1:] -= t_lc
+    return out_nc
+
+
+def make_chain(n_links, link_length=1.0, mass=1.0, angle=90.0, symbol='X'):
+    """A straight chain from the origin in the x-z plane, pinned there.
+
+    Parameters
+    ----------
+    n_links : int
+        Number of links (>= 1); the chain has ``n_links + 1`` atoms, atom
+        0 at the origin.
+    link_length : float
+        Distance between neighbours, Å; use it as ``rest_length``.
+    mass : float or array_like ``[n_links + 1]``
+        amu.
+    angle : float
+        Direction of the chain in the x-z plane, degrees from straight
+        down (-z) towards +x: 0 hangs at rest, 90 is horizontal.
+    symbol : str
+        Chemical symbol of the beads (``'X'``: a dummy; only the masses
+        matter to :class:`PendulumChain`).
+
+    Returns
+    -------
+    ase.Atoms
+        Zero momenta, ``FixAtoms([0])``, ``pbc=False`` and a cubic cell
+        centred on the pin, big enough to hold the chain in any pose (for
+        viewers and file formats that want one).
+    """
+    n_links = int(n_links)
+    if n_links < 1:
+        raise ValueError(f'A chain needs at least one link, got {n_links}')
+    link_length = float(link_length)
+    if not (math.isfinite(link_length) and link_length > 0):
+        raise ValueError(f'link_length must be positive (Å), got '
+                         f'{link_length!r}')
+    theta = math.radians(angle)
+    direction_c = np.array([math.sin(theta), 0.0, -math.cos(theta)])
+    # cos(pi/2) is 6e-17, not 0: make horizontal and vertical chains exact.
+    direction_c[np.abs(direction_c) < 1e-15] = 0.0
+    s_n = link_length * np.arange(n_links + 1)
+    atoms = Atoms([symbol] * (n_links + 1),
+                  positions=s_n[:, None] * direction_c, pbc=False)
+    atoms.set_masses(np.broadcast_to(np.asarray(mass, dtype=float),
+                                     (n_links + 1,)).copy())
+    reach = n_links * link_length + 1.0
+    atoms.set_cell(2 * reach * np.eye(3))
+    atoms.set_celldisp([-reach, -reach, -reach])
+    atoms.set_momenta(np.zeros((n_links + 1, 3)))
+    atoms.set_constraint(FixAtoms([0]))
+    return atoms
