@@ -140,7 +140,10 @@ class Adjoint:
         w_nc = self._w_nc
         w_nc[:] = self.ap_nc
         self._project(w_nc)
-        hv_nc = np.asarray(self._hvp(atoms, w_nc), dtype=float)
+        if not w_nc.any():
+            return  # H 0 = 0 (a loss on positions only starts this way)
+        # A copy: a user's product may keep or modify its argument.
+        hv_nc = np.asarray(self._hvp(atoms, w_nc.copy()), dtype=float)
         if hv_nc.shape != w_nc.shape:
             raise ValueError(f'The Hessian-vector product has shape '
                              f'{hv_nc.shape}, expected {w_nc.shape}')

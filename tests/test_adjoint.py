@@ -447,3 +447,13 @@ def test_gradients_unpack_as_a_pair_and_name_their_parts():
     gx, gp = g
     assert gx is g.positions and gp is g.momenta
     assert set(g.parameters) == {'epsilon', 'sigma'}
+
+
+def test_no_product_is_spent_on_a_zero_momentum_adjoint():
+    # A loss on positions only: the first kick of the retrace meets
+    # a_p = 0, where H a_p = 0 needs no calculation.
+    atoms = argon(2, 60)
+    dyn = ReversibleVerlet(atoms, DT)
+    dyn.run(10)
+    g = dyn.backpropagate(10, np.ones((len(atoms), 3)))
+    assert g.hessian_vector_products == 10
