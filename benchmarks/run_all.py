@@ -28,7 +28,7 @@ from datetime import datetime
 from pathlib import Path
 
 SECTIONS = ('step_cost', 'savings', 'work_precision', 'reversal_error',
-            'stress', 'gradient_accuracy')
+            'stress', 'gradient_accuracy', 'adjoint')
 
 
 def _load(name):

@@ -1,0 +1,844 @@
+"""The reversible adjoint: its memory against the number of steps, and the
+cost of a gradient in force evaluations and time.
+
+A section of ``run_all.py``::
+
+    python benchmarks/run_all.py --only adjoint           # ~4 minutes
+    python benchmarks/run_all.py --quick --only adjoint   # ~10 s
+
+Memory.  Each point is a fresh Python process (``--memory-worker``), so
+the peaks of different points cannot mix.  The process builds a small
+argon cluster (Ar13 icosahedron, this package's LennardJones, 5 fs), kept
+cold so that it stays near its minimum and the gradient does not grow
+exponentially over 10^5 steps (a warm cluster is chaotic), and without net
+momentum so that it stays in its cell (see argon_cluster), constructs a
+``ReversibleVerlet``, and only then starts ``tracemalloc``, so the traced
+peak covers the run and whatever the gradient computation keeps, not the
+imports.  Two kinds of worker:
+
+- ``reversible``: ``dyn.run(N)`` then ``dyn.backpropagate(N, ...)``, and
+  ``np.array_equal`` of the positions and momenta with the start.
+- ``stored``: a stored-trajectory adjoint, the usual alternative.  The same
+  integrator runs forward with an observer that appends copies of the
+  positions and momenta at every step to a list; the adjoint is then
+  integrated backwards over the stored positions with the calculator's
+  Hessian-vector product (:func:`stored_adjoint`).  Its gradient is
+  compared with the reversible one of the same N.
+
+Besides the traced peak each worker reports the process's peak resident
+set size (``ru_maxrss``) before the measured part and at its end, and
+tracemalloc's own memory (which the RSS includes).  The workers run two
+at a time (they time nothing that is compared).
+
+Cost.  In this process, for each case: a thermalised system, a
+``ReversibleVerlet`` with the case's scheme and order, warm-up steps
+(which also choose N, the steps per block); then rounds of ``run(N)``
+followed by ``backpropagate(N, ...)``, which puts the atoms back at the
+start of the round bit for bit (checked every round), so every round
+repeats exactly the same work, forward and backward interleaved.  The
+first rounds count: the calculator's ``get_forces`` and
+``get_potential_energy`` are wrapped on the instance to count (and time)
+the calls that compute (``calculation_required`` true), and the
+Hessian-vector products go through a counting, timing wrapper, so force
+calls made inside a finite-difference product are told apart from those of
+the retrace.  The other rounds are timed without any wrapper; times are
+medians over rounds.
+"""
+
+from __future__ import annotations
+
+import common  # noqa: F401  (first: pins BLAS threads before numpy)
+
+import gc
+import json
+import resource
+import statistics
+import subprocess
+import sys
+import time
+import tracemalloc
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from ase import units
+from ase.build import bulk
+from ase.cluster import Icosahedron
+from ase.md.velocitydistribution import Stationary
+
+from ase_reversible import LennardJones, ReversibleVerlet
+from ase_reversible.hessian import hvp_for
+
+TITLE = 'Gradients by the reversible adjoint'
+MEMORY_PLOT = 'adjoint_memory.png'
+COST_PLOT = 'adjoint_cost.png'
+
+TIMESTEP_FS = 5.0
+TIMESTEP = TIMESTEP_FS * units.fs
+AR_EPSILON, AR_SIGMA, AR_LATTICE = 0.0104, 3.4, 5.26
+SEED = 0
+
+#: The memory system: Ar13 icosahedron, cold.
+MEMORY_SHELLS, MEMORY_TEMPERATURE_K = 2, 5.0
+MEMORY_STEPS = {False: (1000, 10_000, 100_000), True: (100, 1000)}
+MEMORY_KINDS = ('reversible', 'stored')
+#: Memory workers running at once.
+MEMORY_PARALLEL = 2
+
+AR_COST_SHELLS, AR_COST_TEMPERATURE_K = 4, 60.0   # Ar147
+CU_REPEAT, CU_TEMPERATURE_K = (4, 4, 4), 300.0     # Cu256, periodic
+
+
+@dataclass(frozen=True)
+class CostCase:
+    label: str
+    system: str        # 'ar147' or 'cu256'
+    calculator: str    # 'lj', 'emt', 'asap3'
+    hvp: str           # as passed to backpropagate
+    scheme: str = 'velocity'
+    order: int = 2
+
+
+COST_CASES = (
+    CostCase('Ar147, LennardJones, analytic', 'ar147', 'lj', 'analytic'),
+    CostCase('Ar147, LennardJones, analytic', 'ar147', 'lj', 'analytic',
+             scheme='position'),
+    CostCase('Ar147, LennardJones, analytic', 'ar147', 'lj', 'analytic',
+             order=4),
+    CostCase('Ar147, LennardJones, finite differences', 'ar147', 'lj',
+             'finite-difference'),
+    CostCase('Cu256, ASE EMT, finite differences', 'cu256', 'emt', 'auto'),
+    CostCase('Cu256, asap3 EMT, finite differences', 'cu256', 'asap3',
+             'auto'),
+)
+
+
+@dataclass(frozen=True)
+class Settings:
+    rounds: int           # timed rounds
+    counting_rounds: int  # rounds with every call counted, before those
+    block_seconds: float  # target wall time of one forward block
+    min_steps: int
+    max_steps: int
+    warmup_steps: int
+
+
+FULL = Settings(rounds=7, counting_rounds=3, block_seconds=0.5,
+                min_steps=5, max_steps=2000, warmup_steps=5)
+QUICK = Settings(rounds=2, counting_rounds=1, block_seconds=0.05,
+                 min_steps=3, max_steps=200, warmup_steps=3)
+
+
+# -- systems ------------------------------------------------------------------
+
+def argon_cluster(shells, temperature_K, stationary=False):
+    atoms = Icosahedron('Ar', shells, latticeconstant=AR_LATTICE)
+    atoms.center(vacuum=10.0)
+    common.thermalised(atoms, temperature_K, SEED)
+    if stationary:
+        # No net momentum: otherwise the cluster drifts through and out of
+        # its cell over a long run, and the temporaries of the neighbour
+        # search, which span the atoms' extent, grow with the drift.
+        Stationary(atoms)
+    atoms.calc = LennardJones(epsilon=AR_EPSILON, sigma=AR_SIGMA)
+    return atoms
+
+
+def copper_crystal(calculator):
+    atoms = bulk('Cu', 'fcc', cubic=True) * CU_REPEAT
+    common.thermalised(atoms, CU_TEMPERATURE_K, SEED)
+    if calculator == 'emt':
+        from ase.calculators.emt import EMT
+        atoms.calc = EMT()
+    else:
+        import asap3
+        atoms.calc = asap3.EMT()
+    return atoms
+
+
+def loss_gradient(n_atoms):
+    """dL/dx and dL/dp of a fixed random linear loss on the final state."""
+    rng = np.random.default_rng(SEED + 1)
+    return rng.standard_normal((n_atoms, 3)), rng.standard_normal((n_atoms, 3))
+
+
+def _max_rss_bytes():
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return rss if sys.platform == 'darwin' else rss * 1024  # Linux: KiB
+
+
+# -- memory -------------------------------------------------------------------
+
+def stored_adjoint(atoms, frames, masses_n1, h, grad_x, grad_p):
+    """The adjoint of kick-drift-kick over stored positions ``frames``.
+
+    ``frames[k]`` is the positions after step k (``frames[0]`` the start).
+    The same arithmetic as :class:`ase_reversible.adjoint.Adjoint` in the
+    same order (the two kicks at one position merged into one product),
+    so a difference from ``backpropagate`` can only come from the
+    positions the products are taken at.  Returns ``(dL/dx0, dL/dp0,
+    products)``.
+    """
+    hvp = atoms.calc.hessian_vector_product
+    ax_nc, ap_nc = np.array(grad_x, dtype=float), np.array(grad_p, dtype=float)
+    w_nc = np.empty_like(ax_nc)
+    products = 0
+
+    def kicks(k, ch):
+        nonlocal products
+        atoms.positions = frames[k]
+        w_nc[:] = ap_nc
+        ax_nc[:] -= ch * np.asarray(hvp(atoms, w_nc), dtype=float)
+        products += 1
+
+    for k in range(len(frames) - 1, 0, -1):
+        # At x_k: the last kick of step k (and the first of step k + 1).
+        kicks(k, 0.5 * h if k == len(frames) - 1 else h)
+        # The drift of step k.
+        np.divide(ax_nc, masses_n1, out=w_nc)
+        w_nc *= h
+        ap_nc += w_nc
+    kicks(0, 0.5 * h)
+    return ax_nc, ap_nc, products
+
+
+def memory_worker(kind, steps):
+    """One memory point, in a process of its own; prints a JSON line."""
+    atoms = argon_cluster(MEMORY_SHELLS, MEMORY_TEMPERATURE_K,
+                          stationary=True)
+    dyn = ReversibleVerlet(atoms, TIMESTEP)
+    x0_nc, p0_nc = atoms.get_positions(), atoms.get_momenta()
+    masses_n1 = atoms.get_masses()[:, None]
+    grad_x, grad_p = loss_gradient(len(atoms))
+    gc.collect()
+    rss_before = _max_rss_bytes()
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    result = {'kind': kind, 'steps': steps, 'atoms': len(atoms)}
+    com0_c = atoms.get_center_of_mass()
+    if kind == 'reversible':
+        dyn.run(steps)
+        t1 = time.perf_counter()
+        result['centre_of_mass_moved'] = float(np.linalg.norm(
+            atoms.get_center_of_mass() - com0_c))
+        g = dyn.backpropagate(steps, grad_x, grad_p)
+        gx_nc, gp_nc = g
+        result['products'] = g.hessian_vector_products
+        result['exact_return'] = bool(
+            np.array_equal(atoms.positions, x0_nc)
+            and np.array_equal(atoms.get_momenta(), p0_nc))
+        result['stored_bytes'] = 0
+    elif kind == 'stored':
+        frames, momenta = [], []
+
+        def store():
+            frames.append(atoms.positions.copy())
+            momenta.append(atoms.get_momenta())  # a copy
+
+        dyn.attach(store, interval=1)  # also called before the first step
+        dyn.run(steps)
+        t1 = time.perf_counter()
+        result['centre_of_mass_moved'] = float(np.linalg.norm(
+            atoms.get_center_of_mass() - com0_c))
+        gx_nc, gp_nc, result['products'] = stored_adjoint(
+            atoms, frames, masses_n1, TIMESTEP, grad_x, grad_p)
+        result['frames'] = len(frames)
+        result['stored_bytes'] = sum(a.nbytes for a in frames + momenta)
+        result['exact_return'] = None
+    else:
+        raise ValueError(kind)
+    t2 = time.perf_counter()
+    current, peak = tracemalloc.get_traced_memory()
+    result.update(
+        traced_peak_bytes=peak, traced_end_bytes=current,
+        tracemalloc_own_bytes=tracemalloc.get_tracemalloc_memory(),
+        forward_seconds=t1 - t0, gradient_seconds=t2 - t1)
+    tracemalloc.stop()
+    result.update(max_rss_before_bytes=rss_before,
+                  max_rss_bytes=_max_rss_bytes(),
+                  gradient_positions=gx_nc.tolist(),
+                  gradient_momenta=gp_nc.tolist())
+    print(json.dumps(result), flush=True)
+
+
+def _run_memory_worker(kind, steps):
+    started = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, str(Path(__file__).resolve()), '--memory-worker',
+         kind, str(steps)], capture_output=True, text=True, cwd=common.ROOT)
+    if proc.returncode != 0:
+        raise RuntimeError(f'memory worker {kind} {steps} failed:\n'
+                           + proc.stderr[-3000:])
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    result['process_seconds'] = time.perf_counter() - started
+    return result
+
+
+def measure_memory(quick):
+    steps = MEMORY_STEPS[quick]
+    jobs = sorted(((kind, n) for n in steps for kind in MEMORY_KINDS),
+                  key=lambda job: -job[1])  # longest first
+    with ThreadPoolExecutor(MEMORY_PARALLEL) as pool:
+        futures = {job: pool.submit(_run_memory_worker, *job) for job in jobs}
+        raw = {job: f.result() for job, f in futures.items()}
+    points = []
+    for n in steps:
+        ours, stored = raw['reversible', n], raw['stored', n]
+        g_ours = np.array([ours.pop('gradient_positions'),
+                           ours.pop('gradient_momenta')])
+        g_stored = np.array([stored.pop('gradient_positions'),
+                             stored.pop('gradient_momenta')])
+        scale = float(np.abs(g_ours).max())
+        points.append({
+            'steps': n, 'reversible': ours, 'stored': stored,
+            'gradients_bitwise_equal': bool(np.array_equal(g_ours, g_stored)),
+            'gradient_max_relative_difference':
+                float(np.abs(g_ours - g_stored).max() / scale),
+            'gradient_max_abs': scale,
+        })
+    return {'system': {'cluster': f'Ar{points[0]["reversible"]["atoms"]} '
+                                  'icosahedron',
+                       'temperature_K': MEMORY_TEMPERATURE_K,
+                       'calculator': 'ase_reversible.LennardJones '
+                                     f'(epsilon={AR_EPSILON}, '
+                                     f'sigma={AR_SIGMA})',
+                       'timestep_fs': TIMESTEP_FS, 'seed': SEED},
+            'parallel_workers': MEMORY_PARALLEL,
+            'points': points}
+
+
+# -- cost ---------------------------------------------------------------------
+
+class CallCounter:
+    """Counts the force and energy calls that compute, on one calculator."""
+
+    def __init__(self, calc):
+        self.calc = calc
+        self.in_hvp = False
+        self.forces = {'direct': 0, 'hvp': 0}
+        self.force_seconds = 0.0
+        self.energies = 0
+        self._get_forces = calc.get_forces
+        self._get_energy = calc.get_potential_energy
+        calc.get_forces = self.get_forces
+        calc.get_potential_energy = self.get_potential_energy
+
+    def get_forces(self, atoms=None, *args, **kwargs):
+        if not self.calc.calculation_required(atoms, ['forces']):
+            return self._get_forces(atoms, *args, **kwargs)
+        self.forces['hvp' if self.in_hvp else 'direct'] += 1
+        t0 = time.perf_counter()
+        try:
+            return self._get_forces(atoms, *args, **kwargs)
+        finally:
+            self.force_seconds += time.perf_counter() - t0
+
+    def get_potential_energy(self, atoms=None, *args, **kwargs):
+        if self.calc.calculation_required(atoms, ['energy']):
+            self.energies += 1
+        return self._get_energy(atoms, *args, **kwargs)
+
+    def reset(self):
+        self.forces = {'direct': 0, 'hvp': 0}
+        self.force_seconds = 0.0
+        self.energies = 0
+
+    def remove(self):
+        del self.calc.get_forces
+        del self.calc.get_potential_energy
+
+
+class CountingHVP:
+    """Wraps a Hessian-vector product: counts, times, flags force calls."""
+
+    def __init__(self, inner, counter):
+        self.inner, self.counter = inner, counter
+        self.calls, self.seconds = 0, 0.0
+
+    def __call__(self, atoms, v_nc):
+        self.counter.in_hvp = True
+        t0 = time.perf_counter()
+        try:
+            return self.inner(atoms, v_nc)
+        finally:
+            self.seconds += time.perf_counter() - t0
+            self.counter.in_hvp = False
+            self.calls += 1
+
+
+def build_cost_case(case):
+    if case.system == 'ar147':
+        atoms = argon_cluster(AR_COST_SHELLS, AR_COST_TEMPERATURE_K)
+    else:
+        atoms = copper_crystal(case.calculator)
+    dyn = ReversibleVerlet(atoms, TIMESTEP, scheme=case.scheme,
+                           order=case.order)
+    return atoms, dyn
+
+
+def choose_steps(dyn, settings):
+    """Steps per forward block of about ``block_seconds`` (warm-up too)."""
+    steps = 1
+    while True:
+        t0 = time.perf_counter()
+        dyn.run(steps)
+        elapsed = time.perf_counter() - t0
+        if elapsed > settings.block_seconds / 5 or steps >= settings.max_steps:
+            break
+        steps *= 2
+    wanted = round(settings.block_seconds * steps / elapsed)
+    return max(settings.min_steps, min(settings.max_steps, wanted))
+
+
+def counted_round(dyn, atoms, case, steps, grad_x, grad_p):
+    """One run(steps) + backpropagate(steps) with every call counted."""
+    counter = CallCounter(atoms.calc)
+    purity = dyn.force_purity
+    clean0 = getattr(purity, 'clean_recomputations', 0)
+    try:
+        t0 = time.perf_counter()
+        dyn.run(steps)
+        t1 = time.perf_counter()
+        forward = {'force_calls': counter.forces['direct'],
+                   'energy_only_calls': counter.energies,
+                   'force_seconds': counter.force_seconds,
+                   'seconds': t1 - t0}
+        clean1 = getattr(purity, 'clean_recomputations', 0)
+        counter.reset()
+        hvp = CountingHVP(hvp_for(atoms.calc, case.hvp), counter)
+        g = dyn.backpropagate(steps, grad_x, grad_p, hvp=hvp)
+        backward = {'force_calls_retrace': counter.forces['direct'],
+                    'force_calls_in_products': counter.forces['hvp'],
+                    'energy_only_calls': counter.energies,
+                    'products': hvp.calls,
+                    'products_reported': g.hessian_vector_products,
+                    'product_seconds': hvp.seconds,
+                    'force_seconds': counter.force_seconds,
+                    'seconds': time.perf_counter() - t1}
+        clean2 = getattr(purity, 'clean_recomputations', 0)
+    finally:
+        counter.remove()
+    forward['clean_recomputations'] = clean1 - clean0
+    backward['clean_recomputations'] = clean2 - clean1
+    return {'forward': forward, 'backward': backward,
+            'hvp_class': type(hvp.inner).__name__}
+
+
+def measure_cost_case(case, settings):
+    atoms, dyn = build_cost_case(case)
+    dyn.run(settings.warmup_steps)
+    steps = choose_steps(dyn, settings)
+    grad_x, grad_p = loss_gradient(len(atoms))
+    x0_nc, p0_nc = atoms.get_positions(), atoms.get_momenta()
+
+    def back_at_start():
+        return bool(np.array_equal(atoms.positions, x0_nc)
+                    and np.array_equal(atoms.get_momenta(), p0_nc))
+
+    # Counting rounds first (the first is also a warm-up of a whole round).
+    counted = []
+    exact = []
+    for _ in range(settings.counting_rounds):
+        counted.append(counted_round(dyn, atoms, case, steps, grad_x,
+                                     grad_p))
+        exact.append(back_at_start())
+    forward_wall, backward_wall, forward_cpu, backward_cpu = [], [], [], []
+    for _ in range(settings.rounds):
+        w0, c0 = time.perf_counter(), time.process_time()
+        dyn.run(steps)
+        w1, c1 = time.perf_counter(), time.process_time()
+        dyn.backpropagate(steps, grad_x, grad_p, hvp=case.hvp)
+        w2, c2 = time.perf_counter(), time.process_time()
+        exact.append(back_at_start())
+        forward_wall.append((w1 - w0) / steps)
+        backward_wall.append((w2 - w1) / steps)
+        forward_cpu.append((c1 - c0) / steps)
+        backward_cpu.append((c2 - c1) / steps)
+    fwd = statistics.median(forward_wall)
+    bwd = statistics.median(backward_wall)
+
+    def total(direction, key):
+        return sum(r[direction][key] for r in counted)
+
+    covered = len(counted) * steps  # steps covered by the counting rounds
+    per_force = [r['forward']['force_seconds'] / r['forward']['force_calls']
+                 for r in counted if r['forward']['force_calls']]
+    per_product = [r['backward']['product_seconds']
+                   / r['backward']['products']
+                   for r in counted if r['backward']['products']]
+    return {
+        **asdict(case), 'atoms': len(atoms), 'steps_per_block': steps,
+        'rounds': settings.rounds, 'counting_rounds': len(counted),
+        'hvp_class': counted[0]['hvp_class'],
+        'force_purity': dyn.force_purity.mode,
+        'per_step': {
+            'forward_force_calls': total('forward', 'force_calls') / covered,
+            'forward_energy_only_calls':
+                total('forward', 'energy_only_calls') / covered,
+            'forward_clean_recomputations':
+                total('forward', 'clean_recomputations') / covered,
+            'backward_force_calls_retrace':
+                total('backward', 'force_calls_retrace') / covered,
+            'backward_force_calls_in_products':
+                total('backward', 'force_calls_in_products') / covered,
+            'backward_products': total('backward', 'products') / covered,
+            'backward_energy_only_calls':
+                total('backward', 'energy_only_calls') / covered,
+            'backward_clean_recomputations':
+                total('backward', 'clean_recomputations') / covered,
+        },
+        'products_per_block': [r['backward']['products'] for r in counted],
+        'products_reported_per_block':
+            [r['backward']['products_reported'] for r in counted],
+        'product_over_force_call_time':
+            statistics.median(per_product) / statistics.median(per_force)
+            if per_product and per_force else None,
+        'backward_share_in_products': statistics.median(
+            r['backward']['product_seconds'] / r['backward']['seconds']
+            for r in counted),
+        'counted_rounds': counted,
+        'exact_return_every_round': all(exact), 'rounds_checked': len(exact),
+        'forward_ms_per_step': 1e3 * fwd, 'backward_ms_per_step': 1e3 * bwd,
+        'backward_over_forward': bwd / fwd,
+        'spread': max((max(v) - min(v)) / statistics.median(v)
+                      for v in (forward_wall, backward_wall)),
+        'wall_over_cpu': max(fwd / statistics.median(forward_cpu),
+                             bwd / statistics.median(backward_cpu)),
+        'samples': {'forward_wall': forward_wall,
+                    'backward_wall': backward_wall,
+                    'forward_cpu': forward_cpu, 'backward_cpu': backward_cpu},
+    }
+
+
+def measure_cost(quick):
+    settings = QUICK if quick else FULL
+    cases = []
+    for case in COST_CASES:
+        print(f'  cost: {case_name(asdict(case))}', flush=True)
+        cases.append(measure_cost_case(case, settings))
+    return {'settings': asdict(settings), 'cases': cases}
+
+
+# -- run ----------------------------------------------------------------------
+
+def run(quick, figures):
+    print('  memory workers', flush=True)
+    memory = measure_memory(quick)
+    cost = measure_cost(quick)
+    results = {'timestep_fs': TIMESTEP_FS, 'memory': memory, 'cost': cost,
+               'cost_systems': {
+                   'ar147': f'Ar147 icosahedron, free boundaries, '
+                            f'{AR_COST_TEMPERATURE_K:g} K, '
+                            'ase_reversible.LennardJones '
+                            f'(epsilon={AR_EPSILON}, sigma={AR_SIGMA})',
+                   'cu256': 'Cu256 fcc crystal (4x4x4 cubic cells), '
+                            f'periodic, {CU_TEMPERATURE_K:g} K'}}
+    results['plots'] = [_plot_memory(memory, figures),
+                        _plot_cost(cost, figures)]
+    return results
+
+
+# -- plots --------------------------------------------------------------------
+
+def _plot_memory(memory, figures):
+    plt = common.pyplot()
+    points = memory['points']
+    n = [p['steps'] for p in points]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    ax = axes[0]
+    ax.loglog(n, [p['reversible']['traced_peak_bytes'] / 2**20
+                  for p in points], 'o-', color='C0',
+              label='ReversibleVerlet: run + backpropagate')
+    ax.loglog(n, [p['stored']['traced_peak_bytes'] / 2**20 for p in points],
+              's-', color='C3', label='stored trajectory: run + adjoint')
+    ax.loglog(n, [p['stored']['stored_bytes'] / 2**20 for p in points], ':',
+              color='C3', label='  of which array data stored')
+    ax.set_xlabel('steps N')
+    ax.set_ylabel('tracemalloc peak (MiB)')
+    ax.grid(True, which='major', alpha=0.3)
+    ax.legend(loc='upper left', fontsize=8)
+    ax = axes[1]
+    for kind, label, marker, color in (
+            ('reversible', 'ReversibleVerlet', 'o-', 'C0'),
+            ('stored', 'stored trajectory', 's-', 'C3')):
+        ax.semilogx(n, [p[kind]['max_rss_bytes'] / 2**20 for p in points],
+                    marker, color=color, label=f'{label}: peak')
+        ax.semilogx(n, [p[kind]['max_rss_before_bytes'] / 2**20
+                        for p in points], marker[0] + ':', color=color,
+                    alpha=0.5, label=f'{label}: before the run')
+    ax.set_xlabel('steps N')
+    ax.set_ylabel('peak resident set size (MiB)')
+    ax.grid(True, which='major', alpha=0.3)
+    ax.legend(loc='upper left', fontsize=8)
+    s = memory['system']
+    fig.suptitle(f"{s['cluster']}, {s['temperature_K']:g} K, "
+                 f"{s['timestep_fs']:g} fs: memory of a gradient through "
+                 'N steps (one process per point)')
+    fig.tight_layout()
+    fig.savefig(figures / MEMORY_PLOT, dpi=110)
+    plt.close(fig)
+    return MEMORY_PLOT
+
+
+def _plot_cost(cost, figures):
+    plt = common.pyplot()
+    cases = cost['cases']
+    labels = [case_name(c) for c in cases]
+    ratio = np.array([c['backward_over_forward'] for c in cases])
+    share = np.array([c['backward_share_in_products'] for c in cases])
+    y = np.arange(len(cases))[::-1]
+    fig, ax = plt.subplots(figsize=(9, 0.5 * len(cases) + 1.8))
+    ax.barh(y, ratio * (1 - share), color='C0',
+            label='retrace and adjoint bookkeeping')
+    ax.barh(y, ratio * share, left=ratio * (1 - share), color='C1',
+            label='Hessian-vector products')
+    for yi, r in zip(y, ratio):
+        ax.annotate(f'{r:.2f}', (r, yi), xytext=(3, 0),
+                    textcoords='offset points', va='center', fontsize=8)
+    ax.axvline(1, color='grey', lw=0.5)
+    ax.set_yticks(y)
+    ax.set_yticklabels(labels, fontsize=8)
+    ax.set_xlabel('backpropagate time per step, in forward steps')
+    ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.16), ncol=2,
+              fontsize=8, frameon=False)
+    ax.set_xlim(0, ratio.max() * 1.15)
+    fig.tight_layout()
+    fig.savefig(figures / COST_PLOT, dpi=110)
+    plt.close(fig)
+    return COST_PLOT
+
+
+# -- render -------------------------------------------------------------------
+
+def case_name(case):
+    extra = [f"{case['scheme']} scheme"]
+    if case['order'] != 2:
+        extra.append(f"order {case['order']}")
+    return f"{case['label']} ({', '.join(extra)})"
+
+
+def _mib(b):
+    return f'{b / 2**20:.3g}'
+
+
+def _kib(b):
+    return f'{b / 2**10:.4g}'
+
+
+def memory_table(points):
+    rows = []
+    for p in points:
+        ours, st = p['reversible'], p['stored']
+        rows.append([
+            f"{p['steps']:,}",
+            _kib(ours['traced_peak_bytes']),
+            f"{_mib(ours['max_rss_bytes'])} "
+            f"(+{_mib(ours['max_rss_bytes'] - ours['max_rss_before_bytes'])})",
+            str(ours['exact_return']),
+            _kib(st['traced_peak_bytes']), _kib(st['stored_bytes']),
+            f"{_mib(st['max_rss_bytes'])} "
+            f"(+{_mib(st['max_rss_bytes'] - st['max_rss_before_bytes'])})",
+            _kib(st['tracemalloc_own_bytes']),
+            'bitwise' if p['gradients_bitwise_equal']
+            else f"{p['gradient_max_relative_difference']:.2g}",
+        ])
+    return common.markdown_table(
+        ['N', 'reversible: traced peak (KiB)',
+         'reversible: peak RSS (MiB, + growth)', 'reversible: back at start',
+         'stored: traced peak (KiB)', 'stored: array data (KiB)',
+         'stored: peak RSS (MiB, + growth)',
+         "stored: tracemalloc's own (KiB)",
+         'gradients equal (else max rel. difference)'], rows)
+
+
+def memory_observations(memory):
+    points = memory['points']
+    first, last = points[0], points[-1]
+    ours = [p['reversible']['traced_peak_bytes'] for p in points]
+    stored = [p['stored']['traced_peak_bytes'] for p in points]
+    n = [p['steps'] for p in points]
+    # Bytes per step of the stored trajectory, from the two longest runs.
+    slope = (stored[-1] - stored[-2]) / (n[-1] - n[-2])
+    payload = last['stored']['stored_bytes'] / last['stored']['frames']
+    rss = [p[kind]['max_rss_bytes'] - p[kind]['max_rss_before_bytes']
+           for p in (last,) for kind in MEMORY_KINDS]
+    lines = [
+        f"- ReversibleVerlet's traced peak went from {_kib(ours[0])} KiB at "
+        f"N = {n[0]:,} to {_kib(ours[-1])} KiB at N = {n[-1]:,} (x"
+        f"{ours[-1] / ours[0]:.3g} for x{n[-1] / n[0]:.3g} the steps). At "
+        f"N = {n[-1]:,} the process's peak RSS grew by {_mib(rss[0])} MiB "
+        f"during the run and gradient ({_mib(rss[1])} MiB for the stored "
+        'trajectory).',
+        f"- The stored trajectory's traced peak grew by {slope:.4g} bytes per "
+        f"step between the two longest runs (array data: {payload:.4g} bytes "
+        f"per step), to {stored[-1] / ours[-1]:.3g} times ReversibleVerlet's "
+        f"at N = {n[-1]:,}.",
+    ]
+    if slope > 0:
+        crossover = ours[-1] / slope
+        lines.append(f"- At that rate the stored trajectory alone passes "
+                     f"ReversibleVerlet's whole traced peak after about "
+                     f"{crossover:,.0f} steps.")
+    exact = all(p['reversible']['exact_return'] for p in points)
+    lines.append(f"- backpropagate left the atoms bitwise at the start at "
+                 f"every N: {exact}.")
+    equal = [p['steps'] for p in points if p['gradients_bitwise_equal']]
+    if len(equal) == len(points):
+        lines.append('- The gradients of the two adjoints were bitwise '
+                     'equal at every N: the retrace took every '
+                     'Hessian-vector product at exactly the stored '
+                     'positions.')
+    else:
+        worst = max(p['gradient_max_relative_difference'] for p in points)
+        lines.append(f"- The gradients of the two adjoints were bitwise equal "
+                     f"at N = {', '.join(f'{s:,}' for s in equal) or 'none'};"
+                     f" largest relative difference {worst:.2g}.")
+    moved = max(p['reversible']['centre_of_mass_moved'] for p in points)
+    lines.append('- Largest gradient component: '
+                 + ', '.join(f"{p['gradient_max_abs']:.3g} (N = "
+                             f"{p['steps']:,})" for p in points)
+                 + f'. The centre of mass had moved by at most {moved:.2g} Å '
+                 'at the turning point.')
+    return '\n'.join(lines)
+
+
+def cost_table(cases):
+    rows = []
+    for c in cases:
+        ps = c['per_step']
+        rows.append([
+            case_name(c), c['hvp_class'], c['atoms'], c['steps_per_block'],
+            f"{ps['forward_force_calls']:.3g}",
+            f"{ps['backward_force_calls_retrace']:.3g}",
+            f"{ps['backward_products']:.3g}",
+            f"{ps['backward_force_calls_in_products']:.3g}",
+            f"{c['forward_ms_per_step']:.3g}",
+            f"{c['backward_ms_per_step']:.3g}",
+            f"**{c['backward_over_forward']:.2f}**",
+            f"{c['backward_share_in_products']:.0%}",
+            f"{c['product_over_force_call_time']:.2g}",
+            f"{c['spread']:.0%}", f"{c['wall_over_cpu']:.2f}",
+            str(c['exact_return_every_round']),
+        ])
+    return common.markdown_table(
+        ['case', 'Hessian-vector product', 'atoms', 'N',
+         'forward: force calls / step', 'backward: retrace force calls / step',
+         'backward: products / step',
+         'backward: force calls in products / step',
+         'forward ms / step', 'backward ms / step',
+         'backward / forward (forward steps per step)',
+         'backward time in products', 'one product in force calls (time)',
+         'round spread', 'wall / CPU', 'back at start every round'], rows)
+
+
+def cost_observations(cases):
+    lines = []
+    for c in cases:
+        ps, n = c['per_step'], c['steps_per_block']
+        backward_calls = (ps['backward_force_calls_retrace']
+                          + ps['backward_force_calls_in_products'])
+        products = sorted(set(c['products_per_block']))
+        line = (f"- {case_name(c)}: per step, forward "
+                f"{ps['forward_force_calls']:.3g} force calls; backward "
+                f"{backward_calls:.3g} force calls (retrace "
+                f"{ps['backward_force_calls_retrace']:.3g}, in products "
+                f"{ps['backward_force_calls_in_products']:.3g}) and "
+                f"{ps['backward_products']:.3g} products "
+                f"({' or '.join(map(str, products))} for {n} steps). A "
+                f"backward step took {c['backward_over_forward']:.2f} "
+                "forward steps' time.")
+        if c['force_purity'] == 'guarded':
+            line += (f" Guarded purity: "
+                     f"{ps['forward_clean_recomputations']:.3g} clean "
+                     f"recomputations per step forward, "
+                     f"{ps['backward_clean_recomputations']:.3g} backward "
+                     '(included in the force calls).')
+        if ps['forward_energy_only_calls'] or ps['backward_energy_only_calls']:
+            line += (f" Energy-only calls (the energy check) per step: "
+                     f"{ps['forward_energy_only_calls']:.3g} forward, "
+                     f"{ps['backward_energy_only_calls']:.3g} backward.")
+        lines.append(line)
+    return '\n'.join(lines)
+
+
+def render(results):
+    memory, cost = results['memory'], results['cost']
+    s, cs = memory['system'], cost['settings']
+    plots = results['plots']
+    systems = '\n'.join(f'- {v}' for v in results['cost_systems'].values())
+    return f"""\
+`ReversibleVerlet.backpropagate(N, dL/dx, dL/dp)` integrates the adjoint
+back along the exact forward path by running the N steps back, instead of
+storing the N states (`benchmarks/adjoint.py`). Time step
+{results['timestep_fs']:g} fs, default settings unless stated.
+
+### Memory against the number of steps
+
+{s['cluster']} at {s['temperature_K']:g} K (seed {s['seed']}; cold so the
+gradient stays moderate over long runs, net momentum removed so the cluster
+stays in its cell), {s['calculator']}. Every point is a
+fresh process; `tracemalloc` starts after the imports and the integrator's
+construction, so its peak covers the forward run and the gradient.
+
+- **reversible**: `dyn.run(N)`, then `dyn.backpropagate(N, dL/dx, dL/dp)`
+  for a fixed random linear loss on the final state; then `np.array_equal`
+  of positions and momenta with the start.
+- **stored**: the same integrator runs N steps with an observer appending
+  copies of the positions and momenta to a list at every step (what a
+  stored-trajectory adjoint keeps), then the same adjoint arithmetic runs
+  backwards over the stored positions with the calculator's
+  Hessian-vector product (`stored_adjoint`).
+
+Peak RSS is `ru_maxrss` at the end (in brackets: its growth over its value
+before the run); it includes the imported libraries and, for these runs,
+tracemalloc's own bookkeeping, shown for the stored runs in its own column.
+The workers ran {memory['parallel_workers']} at a time.
+
+![Peak memory against steps]\
+(benchmarks/{plots[0]})
+
+{memory_table(memory['points'])}
+
+{memory_observations(memory)}
+
+### Cost of a gradient
+
+{systems}
+
+Per case: rounds of N steps (N chosen so a forward block takes about
+{cs['block_seconds']:g} s, at least {cs['min_steps']}), each `run(N)`
+followed by `backpropagate(N, ...)`, which returns the atoms to the start
+of the round, so every round repeats the same work.
+{cs['counting_rounds']} counting round(s) first: the calls of the
+calculator's `get_forces` / `get_potential_energy` that computed
+(`calculation_required`), with force calls made inside a Hessian-vector
+product counted apart, and the products through a counting wrapper; calls
+per step are totals over these rounds / steps. From the same rounds
+(medians): "backward time in products", the products' share of the
+backward time, and "one product in force calls", the time of a product
+over that of a forward force call. Then {cs['rounds']} timed rounds
+without wrappers: medians of time per step; "round spread" is the larger
+(max − min) / median of forward and backward; "wall / CPU" near 1.00
+means the process had the CPU to itself. Products: 'analytic' is the
+calculator's `hessian_vector_product`; the EMT calculators have none, so
+'auto' takes `FiniteDifferenceHVP` (two force calls per product).
+
+![Backward time per step in forward steps]\
+(benchmarks/{plots[1]})
+
+{cost_table(cost['cases'])}
+
+{cost_observations(cost['cases'])}
+"""
+
+
+if __name__ == '__main__':
+    if sys.argv[1:2] == ['--memory-worker']:
+        memory_worker(sys.argv[2], int(sys.argv[3]))
+    else:
+        import tempfile
+        quick = '--quick' in sys.argv
+        with tempfile.TemporaryDirectory() as tmp:
+            results = run(quick, Path(tmp))
+            print(render(results))
