@@ -38,6 +38,8 @@ from ase import Atoms
 from ase.calculators.calculator import Calculator, all_changes
 from ase.constraints import FixAtoms
 
+from .purity import exact_system_changes
+
 
 class PendulumChain(Calculator):
     """Harmonic springs between consecutive atoms, plus uniform gravity.
@@ -104,22 +106,11 @@ class PendulumChain(Calculator):
     def check_state(self, atoms, tol=1e-15):
         """What changed since the last calculation, compared exactly.
 
-        The results depend on positions and masses only.  ASE's default
-        comparison ignores masses (which gravity needs), accepts positions
-        within ``tol`` Å as unchanged (stale forces for a position quantum
-        below that) and costs more than this model's forces.
+        The results depend on positions and masses only; ASE's default
+        comparison ignores masses, which gravity needs.
         """
-        old = self.atoms
-        if old is None or len(old) != len(atoms):
-            return list(all_changes)
-        changes = []
-        if not np.array_equal(old.positions, atoms.positions):
-            changes.append('positions')
-        if not np.array_equal(old.get_masses(), atoms.get_masses()):
-            changes.append('masses')
-        if not np.array_equal(old.numbers, atoms.numbers):
-            changes.append('numbers')
-        return changes
+        return exact_system_changes(self.atoms, atoms,
+                                    ('positions', 'masses', 'numbers'))
 
     def calculate(self, atoms=None, properties=('energy',),
                   system_changes=all_changes):

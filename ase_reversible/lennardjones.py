@@ -34,6 +34,8 @@ from ase.calculators.calculator import Calculator, all_changes
 from ase.neighborlist import neighbor_list
 from ase.stress import full_3x3_to_voigt_6_stress
 
+from .purity import exact_system_changes
+
 
 class LennardJones(Calculator):
     """Smoothly cut-off Lennard-Jones pair potential, one species.
@@ -107,26 +109,9 @@ class LennardJones(Calculator):
     # -- ASE calculator interface ---------------------------------------
 
     def check_state(self, atoms, tol=1e-15):
-        """What changed since the last calculation, compared exactly.
-
-        ASE's default treats positions within 1e-15 Å as unchanged, which
-        a fine fixed-point grid can move by; and its ``allclose`` costs
-        more than the whole force calculation of a small cluster.
-        """
-        old = self.atoms
-        if old is None:
-            return list(all_changes)
-        changes = []
-        if not np.array_equal(old.arrays['positions'],
-                              atoms.arrays['positions']):
-            changes.append('positions')
-        if not np.array_equal(old.arrays['numbers'], atoms.arrays['numbers']):
-            changes.append('numbers')
-        if not np.array_equal(old.cell.array, atoms.cell.array):
-            changes.append('cell')
-        if not np.array_equal(old.pbc, atoms.pbc):
-            changes.append('pbc')
-        return changes
+        """What changed since the last calculation, compared exactly."""
+        return exact_system_changes(self.atoms, atoms,
+                                    ('positions', 'numbers', 'cell', 'pbc'))
 
     def calculate(self, atoms=None, properties=('energy',),
                   system_changes=all_changes):
