@@ -13,6 +13,7 @@ from .errors import (ImpureForcesError, NonFiniteForcesError,
 from .adjoint import Gradients
 from .chain import PendulumChain
 from .fixedpoint import FixedPointState, Grid
+from .gravity import SoftenedGravity
 from .hessian import AnalyticHVP, FiniteDifferenceHVP
 from .lennardjones import LennardJones
 from .purity import probe_purity
@@ -21,7 +22,8 @@ from .verlet import AnchorMovedWarning, ReversibleVerlet
 __version__ = '0.1.0'
 
 __all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
-           'Gradients', 'LennardJones', 'PendulumChain', 'AnalyticHVP', 'FiniteDifferenceHVP',
+           'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',
+           'AnalyticHVP', 'FiniteDifferenceHVP',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
            'NonFiniteForcesError', 'ImpureForcesError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

@@ -1,0 +1,212 @@
+"""Softened pairwise gravity: the force of the paper's collapsing ring.
+
+Every pair of atoms attracts with Newton's law, its singularity smoothed
+over a length ``eps`` (Plummer softening)::
+
+    E = - sum_{i<j} G m_i m_j / sqrt(r_ij**2 + eps**2)
+
+so the pull of ``j`` on ``i`` is ``G m_i m_j d / (r**2 + eps**2)**1.5``
+with ``d = x_j - x_i``.  Without ``eps`` two atoms meeting head on would
+feel unbounded forces; with it, a close pass is a smooth swing that a time
+step of a fraction of ``sqrt(eps**3 / (G m))`` resolves.
+
+Units are ASE's: ``G`` in eV Å / amu², ``eps`` in Å, masses from the atoms
+(amu).  With ``G = 1``, a 1 amu atom at 1 Å from another is accelerated at
+1 Å per ASE time unit squared.  Periodic images are ignored: gravity has
+no cut-off, and a ring or cluster in vacuum needs none.
+
+Every pair is summed, each once, in the fixed order of
+:func:`numpy.triu_indices`, and pair terms go onto the atoms with
+:func:`numpy.bincount`: the forces are a pure function of the positions,
+reproducible bit for bit, so :class:`~ase_reversible.ReversibleVerlet`
+trusts them without a probe.  The cost is O(n_atoms²), fine up to a few
+hundred atoms.
+
+Array names: ``_nc`` is ``[n_atoms, 3]``, ``_n`` is ``[n_atoms]``, ``_pc``
+and ``_p`` are ``[n_pairs, 3]`` and ``[n_pairs]``; ``i_p < j_p`` are the
+two atoms of each pair and ``d_pc = x[j] - x[i]``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from ase.calculators.calculator import Calculator, all_changes
+
+from .purity import exact_system_changes
+
+
+class SoftenedGravity(Calculator):
+    """Newtonian attraction between every pair of atoms, softened.
+
+    Parameters
+    ----------
+    G : float
+        Gravitational constant, eV Å / amu² (> 0).  Default 1.
+    softening : float
+        Plummer length ``eps``, Å (> 0).  Default 0.5.
+
+    Gives ``energy`` (= ``free_energy``), ``energies`` (each pair's energy
+    split equally between its atoms) and ``forces``, eV/Å; and the exact
+    :meth:`hessian_vector_product` for
+    :meth:`~ase_reversible.ReversibleVerlet.backpropagate`.
+    """
+
+    implemented_properties = ['energy', 'free_energy', 'energies', 'forces']
+    default_parameters = {'G': 1.0, 'softening': 0.5}
+    nolabel = True
+
+    #: A closed-form sum over all pairs in a fixed order: no neighbour
+    #: list, no history.
+    forces_are_pure = True
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self._check_parameters()
+        self._pairs = (0, np.empty(0, int), np.empty(0, int))
+
+    def set(self, **kwargs):
+        changed = super().set(**kwargs)
+        if changed:
+            self._check_parameters()
+        return changed
+
+    def _check_parameters(self):
+        for name in ('G', 'softening'):
+            value = self.parameters[name]
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise TypeError(f'{name} must be a number, got '
+                                f'{value!r}') from None
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f'{name} must be a finite, positive number, '
+                                 f'got {value!r}')
+            self.parameters[name] = value
+
+    # -- ASE calculator interface ---------------------------------------
+
+    def check_state(self, atoms, tol=1e-15):
+        """What changed since the last calculation, compared exactly."""
+        return exact_system_changes(self.atoms, atoms,
+                                    ('positions', 'masses', 'numbers'))
+
+    def calculate(self, atoms=None, properties=('energy',),
+                  system_changes=all_changes):
+        super().calculate(atoms, properties, system_changes)
+        atoms = self.atoms
+        n = len(atoms)
+        i_p, j_p, d_pc, s_p, gmm_p = self._pair_terms(atoms)
+        inv_root_p = 1.0 / np.sqrt(s_p)
+        u_p = -gmm_p * inv_root_p
+        t_pc = (gmm_p * inv_root_p / s_p)[:, None] * d_pc
+        self.results['forces'] = _onto_atoms(t_pc, i_p, j_p, n)
+        energies_n = 0.5 * (np.bincount(i_p, u_p, minlength=n)
+                            + np.bincount(j_p, u_p, minlength=n))
+        energy = float(np.sum(u_p))
+        self.results['energy'] = self.results['free_energy'] = energy
+        self.results['energies'] = energies_n
+
+    # -- derivatives ------------------------------------------------------
+
+    def hessian_vector_product(self, atoms, v_nc):
+        """``H v`` at the atoms' positions, eV/Å² x (unit of ``v``).
+
+        ``v_nc`` and the result are ``[n_atoms, 3]``.  The pull of a pair
+        on its first atom, ``t = w d`` with ``w = G m m s**-1.5`` and ``s =
+        r**2 + eps**2``, changes along ``dv = v_j - v_i`` by ``w dv - 3 G m
+        m s**-2.5 (d . dv) d``; ``H v`` is minus the change of the forces.
+        """
+        v_nc = np.asarray(v_nc, dtype=float)
+        if v_nc.shape != (len(atoms), 3):
+            raise ValueError(f'v_nc must have shape ({len(atoms)}, 3), got '
+                             f'{v_nc.shape}')
+        i_p, j_p, d_pc, s_p, gmm_p = self._pair_terms(atoms)
+        dv_pc = v_nc[j_p] - v_nc[i_p]
+        w_p = gmm_p / (s_p * np.sqrt(s_p))
+        along_p = 3.0 * w_p / s_p * np.einsum('pc,pc->p', d_pc, dv_pc)
+        kdv_pc = w_p[:, None] * dv_pc - along_p[:, None] * d_pc
+        return -_onto_atoms(kdv_pc, i_p, j_p, len(atoms))
+
+    def _pair_terms(self, atoms):
+        n = len(atoms)
+        if self._pairs[0] != n:
+            self._pairs = (n, *np.triu_indices(n, k=1))
+        _, i_p, j_p = self._pairs
+        x_nc = atoms.positions
+        m_n = atoms.get_masses()
+        d_pc = x_nc[j_p] - x_nc[i_p]
+        eps = self.parameters['softening']
+        s_p = np.einsum('pc,pc->p', d_pc, d_pc) + eps * eps
+        gmm_p = self.parameters['G'] * m_n[i_p] * m_n[j_p]
+        return i_p, j_p, d_pc, s_p, gmm_p
+
+
+def _onto_atoms(t_pc, i_p, j_p, n):
+    """``[n, 3]``: ``+t`` onto each pair's first atom, ``-t`` onto its second.
+
+    :func:`numpy.bincount` adds in pair order, so the sums are the same
+    bits whenever the pair terms are.
+    """
+    out_nc = np.empty((n, 3))
+    for c in range(3):
+        out_nc[:, c] = (np.bincount(i_p, t_pc[:, c], minlength=n)
+                        - np.bincount(j_p, t_pc[:, c], minlength=n))
+    return out_nc
+
+
+def make_ring(n_atoms, radius=10.0, mass=1.0, symbol='X', spin=0.0,
+              jitter=0.0, seed=0):
+    """Atoms evenly spaced on a circle in the x-y plane, centred on 0.
+
+    Parameters
+    ----------
+    n_atoms : int
+        Number of atoms (>= 2).
+    radius : float
+        Å.
+    mass : float
+        amu, every atom.
+    symbol : str
+        Chemical symbol (``'X'``, a dummy: only masses matter to
+        :class:`SoftenedGravity`).
+    spin : float
+        Tangential speed, Å per ASE time unit, anticlockwise seen from +z.
+    jitter : float
+        Random in-plane displacement of each atom, at most this many Å
+        along x and y, so the collapse is not perfectly symmetric.
+    seed : int
+        For the jitter.
+
+    Returns
+    -------
+    ase.Atoms
+        ``pbc=False``, a cubic cell of side ``4 * radius`` centred on the
+        ring (for viewers), momenta set, z = 0 for every atom (the motion
+        stays in the plane exactly: the forces have no z component).
+    """
+    from ase import Atoms
+    n_atoms = int(n_atoms)
+    if n_atoms < 2:
+        raise ValueError(f'A ring needs at least 2 atoms, got {n_atoms}')
+    radius = float(radius)
+    if not (math.isfinite(radius) and radius > 0):
+        raise ValueError(f'radius must be positive (Å), got {radius!r}')
+    phi_n = 2 * np.pi * np.arange(n_atoms) / n_atoms
+    x_nc = np.zeros((n_atoms, 3))
+    x_nc[:, 0] = radius * np.cos(phi_n)
+    x_nc[:, 1] = radius * np.sin(phi_n)
+    if jitter:
+        rng = np.random.default_rng(seed)
+        x_nc[:, :2] += rng.uniform(-jitter, jitter, (n_atoms, 2))
+    atoms = Atoms([symbol] * n_atoms, positions=x_nc, pbc=False)
+    atoms.set_masses(np.full(n_atoms, float(mass)))
+    v_nc = np.zeros((n_atoms, 3))
+    v_nc[:, 0] = -spin * np.sin(phi_n)
+    v_nc[:, 1] = spin * np.cos(phi_n)
+    atoms.set_momenta(atoms.get_masses()[:, None] * v_nc)
+    side = 4 * radius
+    atoms.set_cell(side * np.eye(3))
+    atoms.set_celldisp([-side / 2] * 3)
+    return atoms
