@@ -13,6 +13,7 @@ from .errors import (ImpureForcesError, NonFiniteForcesError,
 from .adjoint import Gradients
 from .chain import PendulumChain
 from .fixedpoint import FixedPointState, Grid
+from .flipbook import Flipbook
 from .gravity import SoftenedGravity
 from .hessian import AnalyticHVP, FiniteDifferenceHVP
 from .lennardjones import LennardJones
@@ -23,7 +24,7 @@ __version__ = '0.1.0'
 
 __all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
            'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',
-           'AnalyticHVP', 'FiniteDifferenceHVP',
+           'Flipbook', 'AnalyticHVP', 'FiniteDifferenceHVP',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
            'NonFiniteForcesError', 'ImpureForcesError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']
