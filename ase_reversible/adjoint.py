@@ -69,10 +69,12 @@ class Gradients(tuple):
 
     @property
     def positions(self):
+        """dL/d(positions) ``[n_atoms, 3]``, (loss unit) / Å."""
         return self[0]
 
     @property
     def momenta(self):
+        """dL/d(momenta) ``[n_atoms, 3]``, (loss unit) / (amu Å / ASE time)."""
         return self[1]
 
 
@@ -115,7 +117,10 @@ class Adjoint:
         self._pending = 0.0  # sum of c h over kicks not yet applied
 
     def kick(self, ch):
-        """The adjoint of a forward kick ``p += ch P F(x)``, at x."""
+        """The adjoint of a forward kick ``p += ch P F(x)``, at x.
+
+        ``ch``: the kick's coefficient times the time step, ASE time units.
+        """
         # Deferred: the next drift or the end applies it, merged with any
         # other kick at these positions.
         self._pending += ch
@@ -123,8 +128,8 @@ class Adjoint:
     def drift(self, ch, atoms):
         """The adjoint of a forward drift ``x += ch P p / m``.
 
-        Call before undoing that drift: pending kicks act at the positions
-        the drift leads to.
+        ``ch`` in ASE time units.  Call before undoing that drift: pending
+        kicks act at the positions the drift leads to.
         """
         self.flush(atoms)
         w_nc = np.divide(self.ax_nc, self._m_n1, out=self._w_nc)
@@ -154,6 +159,12 @@ class Adjoint:
             self.grad_parameters[name] += ch * float(np.vdot(df_nc, w_nc))
 
     def result(self):
+        """The gradients at the current state, as :class:`Gradients`.
+
+        Copies of ``dL/dx`` and of the projected ``dL/dp``, each
+        ``[n_atoms, 3]``, with the parameter gradients and the number of
+        products.
+        """
         ap_nc = self.ap_nc.copy()
         self._project(ap_nc)
         return Gradients(self.ax_nc.copy(), ap_nc, self.grad_parameters,

@@ -79,6 +79,8 @@ class PendulumChain(Calculator):
         self._check_parameters()
 
     def set(self, **kwargs):
+        """Change parameters (``stiffness=...``, ...); checks them and drops
+        cached results.  Returns the changed parameters (dict)."""
         changed = super().set(**kwargs)
         if changed:
             self._check_parameters()
@@ -114,6 +116,12 @@ class PendulumChain(Calculator):
 
     def calculate(self, atoms=None, properties=('energy',),
                   system_changes=all_changes):
+        """ASE's calculator hook: fills ``self.results``.
+
+        ``energy`` and ``free_energy`` (eV), ``energies`` ``[n_atoms]``
+        (eV) and ``forces`` ``[n_atoms, 3]`` (eV/Å).  Raises ValueError if
+        two neighbours coincide.
+        """
         super().calculate(atoms, properties, system_changes)
         atoms = self.atoms
         k = self.parameters['stiffness']

@@ -30,6 +30,7 @@ class Composition(NamedTuple):
     Attributes
     ----------
     name : str
+        A key of :data:`COMPOSITIONS`, or ``'custom'``.
     order : int
         Order of the composed method when ``S`` is of order 2.
     fractions : tuple of float
@@ -99,6 +100,12 @@ def composition_for(order=2, composition=None) -> Composition:
     composition : str or sequence of float, optional
         A name from :data:`COMPOSITIONS` of that order, or custom fractions
         (a palindrome summing to 1; its order is taken on trust).
+
+    Returns
+    -------
+    Composition
+        Raises ValueError for an unknown order or name, a name of another
+        order, or fractions that are not a palindrome summing to 1.
     """
     if isinstance(order, bool) or not isinstance(order, int) \
             or order not in DEFAULT_FOR_ORDER:
@@ -131,6 +138,9 @@ def composition_for(order=2, composition=None) -> Composition:
 
 def substeps(base, composition: Composition):
     """Sub-steps ``(kind, fraction)`` of a composed step, merged.
+
+    Returns a tuple of ``(kind, fraction)`` pairs, ``kind`` being
+    ``'kick'`` or ``'drift'`` and ``fraction`` that of the time step.
 
     ``base`` is the second-order scheme's palindrome of ``(kind,
     fraction)``, e.g. kick 1/2, drift 1, kick 1/2.  Each stage scales it by

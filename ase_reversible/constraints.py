@@ -30,7 +30,8 @@ def _no_projection(y_nc):
 def constraint_projection(atoms):
     """In-place projection ``project(y_nc)`` for the atoms' constraints.
 
-    ``y_nc`` is an increment ``[n_atoms, 3]``.  Raises
+    Returns a callable that projects an increment ``y_nc`` ``[n_atoms, 3]``
+    (any unit) in place and returns None.  Raises
     :class:`UnsupportedConstraintError` for constraints that are not linear
     projections.
     """

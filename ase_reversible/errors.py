@@ -11,20 +11,44 @@ class ReversibilityError(Exception):
 
 
 class QuantumRangeError(ReversibilityError, OverflowError):
-    """A position or momentum would leave the range of the fixed-point grid."""
+    """A position or momentum would leave the range of the fixed-point grid.
+
+    Raised by a step (the step is not taken) or by the constructor (an
+    input beyond the range of the quanta given).  An increment out of range
+    usually means a blow-up (smaller time step); a value out of range, a
+    system that outgrew its grid (coarser quantum).
+    """
 
 
 class NonFiniteForcesError(ReversibilityError, FloatingPointError):
-    """The calculator returned NaN or infinite forces."""
+    """The calculator returned NaN or infinite forces.
+
+    Raised by a step, which is not taken (overlapping atoms, a calculator
+    failure).
+    """
 
 
 class UnstableIntegrationError(ReversibilityError, RuntimeError):
-    """The total energy drifted beyond its tolerance: the run is blowing up."""
+    """The total energy drifted beyond its tolerance: the run is blowing up.
+
+    Raised by the energy check before a step (``energy_check``,
+    ``energy_tolerance`` of ReversibleVerlet); the usual cure is a smaller
+    time step.
+    """
 
 
 class ImpureForcesError(ReversibilityError, RuntimeError):
-    """The calculator's forces are not a pure function of the positions."""
+    """The calculator's forces are not a pure function of the positions.
+
+    Raised by the constructor when ``force_purity='auto'`` probes an
+    unknown calculator (:func:`~ase_reversible.probe_purity`) and sees its
+    forces change at identical positions.
+    """
 
 
 class UnsupportedConstraintError(ReversibilityError, ValueError):
-    """A constraint that cannot be applied exactly in fixed point."""
+    """A constraint that cannot be applied exactly in fixed point.
+
+    Raised by the constructor; FixAtoms, FixCartesian, FixedPlane and
+    FixedLine are supported.
+    """

@@ -88,6 +88,7 @@ class Grid:
         return _FLIMIT * self.momentum_quantum
 
     def todict(self) -> dict:
+        """``{'position_quantum': ..., 'momentum_quantum': ...}`` (floats)."""
         return {'position_quantum': self.position_quantum,
                 'momentum_quantum': self.momentum_quantum}
 
@@ -104,7 +105,11 @@ def check_quantum(q, name='quantum') -> float:
 
 
 def quantum_for(max_abs: float) -> float:
-    """Smallest power-of-two quantum whose range exceeds ``max_abs``."""
+    """Smallest power-of-two quantum whose range exceeds ``max_abs``.
+
+    The range is ``LIMIT * quantum``; ``max_abs`` and the result share a
+    unit (Å for positions, amu Å / ASE time unit for momenta).
+    """
     if not (math.isfinite(max_abs) and max_abs > 0):
         raise ValueError(f'range must be positive and finite, got {max_abs!r}')
     exponent = math.frexp(max_abs)[1]  # max_abs < 2**exponent
@@ -115,8 +120,9 @@ def choose_position_quantum(positions_nc, cell, pbc,
                             room: float = POSITION_ROOM) -> float:
     """Position quantum (Å) for a system, leaving ``room`` times its size.
 
-    The size is the largest |coordinate| of the atoms or of the periodic
-    cell vectors' span, and at least 1 Å.  With the default room of 1024 a
+    ``positions_nc`` is ``[n_atoms, 3]`` (Å), ``cell`` ``[3, 3]`` (Å), ``pbc``
+    three booleans.  The size is the largest |coordinate| of the atoms or
+    of the periodic cell vectors' span, and at least 1 Å.  With the default room of 1024 a
     20 Å system gets a quantum of 2**-38 Å (3.6e-12 Å) and can spread to
     about 3e4 Å before an atom leaves the range.
     """
@@ -135,7 +141,8 @@ def choose_momentum_quantum(masses_n, momenta_nc,
                             MOMENTUM_TEMPERATURE_FLOOR) -> float:
     """Momentum quantum (ASE units) leaving ``room`` times the momentum scale.
 
-    The scale is the largest |momentum| component or the thermal momentum
+    ``masses_n`` is ``[n_atoms]`` (amu), ``momenta_nc`` ``[n_atoms, 3]``
+    (amu Å / ASE time unit).  The scale is the largest |momentum| component or the thermal momentum
     ``sqrt(m kB T)`` of the heaviest atom at ``temperature_floor`` K,
     whichever is larger.  For argon near 100 K this gives 2**-44
     (5.7e-14 amu Å / ASE time), a resolution of ~1e-13 of a thermal momentum.
@@ -149,7 +156,9 @@ def choose_momentum_quantum(masses_n, momenta_nc,
 def encode(values, quantum: float, what: str) -> np.ndarray:
     """Snap float ``values`` to the grid: int64 ``rint(values / quantum)``.
 
-    Moves each value by at most half a quantum.  Raises
+    ``values``: an array of any shape, in the unit of ``quantum``; the
+    result has the same shape.  Moves each value by at most half a
+    quantum.  ``what`` names the values in error messages.  Raises
     :class:`QuantumRangeError` for values outside the range.
     """
     with np.errstate(over='ignore', invalid='ignore'):
@@ -160,7 +169,10 @@ def encode(values, quantum: float, what: str) -> np.ndarray:
 
 
 def decode(ints, quantum: float, out=None) -> np.ndarray:
-    """Exact float64 image ``ints * quantum``."""
+    """Exact float64 image ``ints * quantum``, same shape as ``ints``.
+
+    Exact because the quantum is a power of two and ``|ints| < LIMIT``.
+    """
     return np.multiply(ints, quantum, out=out, dtype=np.float64)
 
 
@@ -211,7 +223,7 @@ class FixedPointArray:
     def add_integers(self, r: np.ndarray):
         """Add the integer-valued float array ``r`` (not modified).
 
-        Raises :class:`QuantumRangeError` and leaves the value unchanged if
+        ``r`` is float64 ``[n_atoms, 3]`` in quanta, already rounded.  Raises :class:`QuantumRangeError` and leaves the value unchanged if
         an element of ``r`` or of the sum is non-finite or out of range.
         """
         r_max = max(r.max(initial=0.0), -r.min(initial=0.0))

@@ -76,6 +76,7 @@ class AtomsView:
         return PLANES[self.plane]
 
     def __call__(self, ax, atoms):
+        """Draw ``atoms`` (positions in Å) on the matplotlib axes ``ax``."""
         a, b = self.axes()
         x_nc = atoms.positions
         if self.bonds is not None and len(self.bonds):
@@ -148,6 +149,7 @@ class Flipbook:
 
     @property
     def atoms(self):
+        """The atoms of the dynamics, at the current frame."""
         return self.dyn.atoms
 
     @property
@@ -272,6 +274,7 @@ class Flipbook:
         dynamics are left at the last frame.  Returns the path."""
         from PIL import Image
         images = []
+        self._heading = ''  # the first frame was not reached by this film
         for frame in frames:
             self.goto(frame)
             self.draw()

@@ -67,6 +67,7 @@ class SoftenedGravity(Calculator):
         self._pairs = (0, np.empty(0, int), np.empty(0, int))
 
     def set(self, **kwargs):
+        """Change ``G`` or ``softening`` (checked as in the constructor)."""
         changed = super().set(**kwargs)
         if changed:
             self._check_parameters()
@@ -94,6 +95,8 @@ class SoftenedGravity(Calculator):
 
     def calculate(self, atoms=None, properties=('energy',),
                   system_changes=all_changes):
+        """Energy (eV), per-atom energies (eV) and forces ``[n_atoms, 3]``
+        (eV/Å), all at once."""
         super().calculate(atoms, properties, system_changes)
         atoms = self.atoms
         n = len(atoms)

@@ -44,6 +44,8 @@ class AnalyticHVP:
     force_calls = 0
 
     def __call__(self, atoms, v_nc):
+        """``H v`` ``[n_atoms, 3]`` at the atoms' positions, eV/Å² x (unit
+        of ``v_nc``); ``v_nc`` is ``[n_atoms, 3]``."""
         return atoms.calc.hessian_vector_product(atoms, v_nc)
 
 
@@ -70,6 +72,12 @@ class FiniteDifferenceHVP:
         self.step = step
 
     def __call__(self, atoms, v_nc):
+        """``H v`` ``[n_atoms, 3]`` at the atoms' positions, eV/Å² x (unit
+        of ``v_nc``); ``v_nc`` is ``[n_atoms, 3]``.
+
+        Moves the atoms to ``x +- e v`` for two force calls and puts the
+        positions back bit for bit.
+        """
         scale = float(np.abs(v_nc).max(initial=0.0))
         if scale == 0.0:
             return np.zeros_like(v_nc)
@@ -93,7 +101,10 @@ def hvp_for(calc, choice='auto'):
 
     ``choice``: ``'auto'`` (analytic if the calculator has
     ``hessian_vector_product``, else finite differences), ``'analytic'``,
-    ``'finite-difference'``, or a callable ``hvp(atoms, v_nc)``.
+    ``'finite-difference'``, or a callable ``hvp(atoms, v_nc)``.  Returns
+    a callable ``hvp(atoms, v_nc) -> [n_atoms, 3]`` (eV/Å² x unit of
+    ``v_nc``): :class:`AnalyticHVP`, :class:`FiniteDifferenceHVP` or the
+    callable given.
     """
     analytic = callable(getattr(calc, 'hessian_vector_product', None))
     if callable(choice):

@@ -16,12 +16,22 @@ INFO_KEY = 'reversible'
 
 
 def write_record(atoms, grid, time: float) -> None:
-    """Store the grid and the simulated time (ASE units) in ``atoms.info``."""
+    """Store the grid and the simulated time (ASE units) in ``atoms.info``.
+
+    ``atoms.info[INFO_KEY]`` becomes ``{'position_quantum': ... (Å),
+    'momentum_quantum': ... (amu Å / ASE time unit), 'time': ... (ASE
+    time units)}``.
+    """
     atoms.info[INFO_KEY] = {**grid.todict(), 'time': float(time)}
 
 
 def read_record(atoms) -> dict | None:
-    """The record in ``atoms.info``, or None if absent or malformed."""
+    """The record in ``atoms.info``, or None if absent or malformed.
+
+    A dict of floats with the keys ``'position_quantum'``,
+    ``'momentum_quantum'`` and ``'time'`` (units as in
+    :func:`write_record`).
+    """
     record = atoms.info.get(INFO_KEY)
     if not isinstance(record, dict):
         return None

@@ -79,6 +79,8 @@ class LennardJones(Calculator):
         self._pairs = None    # (positions bytes, i_p, j_p, d_pc, r_p)
 
     def set(self, **kwargs):
+        """Change parameters (``epsilon=...``, ...); checks them and drops
+        cached pairs and results.  Returns the changed parameters (dict)."""
         changed = super().set(**kwargs)
         if changed:
             self._check_parameters()
@@ -109,12 +111,24 @@ class LennardJones(Calculator):
     # -- ASE calculator interface ---------------------------------------
 
     def check_state(self, atoms, tol=1e-15):
-        """What changed since the last calculation, compared exactly."""
+        """What changed since the last calculation, compared exactly.
+
+        A list of names from ``'positions'``, ``'numbers'``, ``'cell'``,
+        ``'pbc'``; ``tol`` is ignored (ASE's default would treat moves
+        below 1e-15 Å as none).
+        """
         return exact_system_changes(self.atoms, atoms,
                                     ('positions', 'numbers', 'cell', 'pbc'))
 
     def calculate(self, atoms=None, properties=('energy',),
                   system_changes=all_changes):
+        """ASE's calculator hook: fills ``self.results``.
+
+        ``energy`` and ``free_energy`` (eV), ``energies`` ``[n_atoms]``
+        (eV, each pair split equally), ``forces`` ``[n_atoms, 3]`` (eV/Å),
+        and ``stress`` (Voigt 6, eV/Å³) only if asked for (needs a cell of
+        three non-zero vectors).
+        """
         super().calculate(atoms, properties, system_changes)
         n = len(self.atoms)
         i_p, j_p, d_pc, r_p = self._pair_geometry(self.atoms)
@@ -159,6 +173,9 @@ class LennardJones(Calculator):
 
     def force_parameter_derivative(self, atoms, name):
         """``dF/d(name)`` ``[n_atoms, 3]`` at the atoms' positions.
+
+        For the reversible adjoint's ``parameters=`` (see
+        :attr:`differentiable_parameters`).
 
         ``name`` is ``'epsilon'`` (result in Å⁻¹) or ``'sigma'`` (eV/Å²);
         the cut-offs stay where they are.

@@ -63,12 +63,17 @@ class TrustedForces:
     force_noise = 0.0
 
     def forces(self, atoms) -> np.ndarray:
-        """Forces ``[n_atoms, 3]`` (eV/Å) at the atoms' current positions."""
+        """Forces ``[n_atoms, 3]`` (eV/Å) at the atoms' current positions.
+
+        ``md=True``: constraints are not applied (the integrator projects).
+        """
         return atoms.get_forces(md=True)
 
     def rounded_kick(self, atoms, f_nc, scale, project, out, scratch):
         """The kick in quanta, ``rint(project(scale * f_nc))``, into ``out``.
 
+        ``f_nc``: forces ``[n_atoms, 3]``, eV/Å; ``scale``: ``c h / q_p``
+        (quanta per eV/Å); ``project``: the in-place constraint projection.
         ``out`` and ``scratch`` are float arrays ``[n_atoms, 3]``; the
         caller adds ``out`` to the momentum counts.  Returns the forces the
         kick was computed from (``f_nc`` or a clean recomputation).
@@ -79,10 +84,16 @@ class TrustedForces:
         return f_nc
 
     def min_momentum_quantum(self, n_atoms, max_kick_time, extent=0.0):
-        """Lower bound on the momentum quantum this provider needs."""
+        """Lower bound on the momentum quantum this provider needs.
+
+        ``max_kick_time``: the largest |c h| of a kick, ASE time units;
+        ``extent``: the largest |coordinate|, Å.  Returns amu Å / ASE time
+        unit; 0 means no bound.
+        """
         return 0.0
 
     def todict(self):
+        """``{'mode': ...}`` and the provider's settings."""
         return {'mode': self.mode}
 
 
@@ -159,7 +170,9 @@ class GuardedForces(TrustedForces):
         return clean_nc
 
     def clean_forces(self, atoms):
-        """Forces from a neighbour list built at exactly these positions."""
+        """Forces ``[n_atoms, 3]`` (eV/Å) from a neighbour list built at
+        exactly these positions: the atoms are moved ``REBUILD_SHIFT`` Å away
+        and back, bit for bit."""
         x_nc = atoms.positions.copy()
         atoms.positions = x_nc + REBUILD_SHIFT
         try:
@@ -197,6 +210,7 @@ class GuardedForces(TrustedForces):
                 * _extent_factor(extent) / TARGET_CLEAN_RATE)
 
     def todict(self):
+        """``{'mode': 'guarded', 'force_noise': ...}`` (eV/Å)."""
         return {'mode': self.mode, 'force_noise': self.force_noise}
 
 
@@ -208,6 +222,7 @@ def probe_purity(atoms, trials: int = 2, displacement: float = 0.3,
                  seed: int = 0) -> float:
     """Largest force difference (eV/Å) at identical positions.
 
+    ``atoms`` needs a calculator.  Costs ``1 + 3 * trials`` force calls.
     Computes the forces, then, ``trials`` times: moves the atoms away (a
     random displacement of ``displacement`` Å rms plus a shift of
     ``REBUILD_SHIFT`` Å, so that neighbour lists are rebuilt), then close to
@@ -253,6 +268,12 @@ def force_provider(atoms, mode: str = 'auto',
         :func:`probe_purity`.
     force_noise : float, optional
         Noise bound for ``'guarded'`` (eV/Å).
+
+    Returns
+    -------
+    TrustedForces, SortedNeighborListForces or GuardedForces
+        Raises :class:`ImpureForcesError` if ``'auto'`` probes the
+        calculator and sees history noise.
     """
     calc = atoms.calc
     modes = ('auto', 'sorted', 'guarded', 'trust')
@@ -306,6 +327,10 @@ _SYSTEM_QUANTITIES = {
 
 def exact_system_changes(old, atoms, names):
     """Which of ``names`` differ between ``old`` and ``atoms``, bit for bit.
+
+    ``names`` from ``'positions'``, ``'numbers'``, ``'cell'``, ``'pbc'``,
+    ``'masses'``; returns a list of those that differ (all of ASE's
+    ``all_changes`` if ``old`` is None or has another number of atoms).
 
     For a calculator's ``check_state``.  ASE's default treats positions
     within 1e-15 Å as unchanged, which a fine fixed-point grid can move

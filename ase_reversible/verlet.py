@@ -35,7 +35,15 @@ SCHEMES = {
 
 
 class AnchorMovedWarning(UserWarning):
-    """The state was edited outside the integrator: reversal starts anew."""
+    """The state was edited outside the integrator: reversal starts anew.
+
+    Issued by :class:`ReversibleVerlet` at the next step (or
+    ``backpropagate``) when ``atoms.positions`` or the momenta differ from
+    what the integrator last wrote.  The edit is taken and snapped to the
+    grid; reversal then leads back to that point, not beyond.  Also issued
+    by the constructor when a restart record in ``atoms.info`` does not fit
+    the atoms (new quanta are chosen).
+    """
 
 
 class ReversibleVerlet(MolecularDynamics):
@@ -107,6 +115,42 @@ class ReversibleVerlet(MolecularDynamics):
     energy_tolerance : float, optional
         eV.  Default: the kinetic energy at the anchor or that of the atoms
         at 100 K, whichever is larger.
+    **kwargs
+        Passed to :class:`ase.md.md.MolecularDynamics`, e.g.
+        ``append_trajectory=True``.
+
+    Attributes
+    ----------
+    dt : float
+        The time step, ASE time units; its sign is the direction of time
+        (:meth:`reverse` negates it).
+    grid : Grid
+        The two quanta (Å; amu Å / ASE time unit) and their ranges.
+    scheme : str
+        ``'velocity'`` or ``'position'``.
+    composition : Composition
+        The composition in use: ``.name``, ``.order``, ``.stages`` (force
+        calls per step) and ``.fractions``.
+    energy_check : int
+        Steps between energy checks (0: off).
+    energy_tolerance : float or None
+        eV, as passed; None means the default described above.
+
+    Raises
+    ------
+    ValueError, TypeError
+        Bad arguments (time step, scheme, order, quanta, masses, non-finite
+        positions or momenta), before anything is changed or opened.
+    RuntimeError
+        The atoms have no calculator.
+    UnsupportedConstraintError
+        A constraint other than FixAtoms, FixCartesian, FixedPlane and
+        FixedLine.
+    ImpureForcesError
+        ``force_purity='auto'`` probed the calculator and its forces
+        depended on its history.
+    QuantumRangeError
+        A position or momentum lies outside the range of the quanta given.
     """
 
     def __init__(self, atoms, timestep, trajectory=None, logfile=None,
@@ -236,7 +280,12 @@ class ReversibleVerlet(MolecularDynamics):
         return adjoint.result()
 
     def reverse(self):
-        """Flip the direction of time: further steps retrace the path."""
+        """Flip the direction of time: further steps retrace the path.
+
+        Negates :attr:`dt`.  ``run(n); reverse(); run(n)`` ends bit for bit
+        where the first ``run`` started.  Returns the integrator, so
+        ``dyn.reverse().run(n)`` works.
+        """
         self.dt = -self.dt
         self._prepare_plan()
         # The way back may start outside the energy tolerance (a run that
@@ -246,25 +295,49 @@ class ReversibleVerlet(MolecularDynamics):
 
     @property
     def state(self) -> fp.FixedPointState:
-        """A copy of the exact state: int64 positions and momenta in quanta."""
+        """A copy of the exact state: int64 positions and momenta in quanta.
+
+        ``.ix_nc`` and ``.ip_nc``, int64 ``[n_atoms, 3]``; times
+        ``grid.position_quantum`` (Å) and ``grid.momentum_quantum`` (amu Å
+        / ASE time unit) they are exactly ``atoms.positions`` and
+        ``atoms.get_momenta()``.
+        """
         return fp.FixedPointState(self._x.ints.copy(), self._p.ints.copy())
 
     @property
     def force_purity(self):
-        """The force provider in use (mode, and statistics if guarded)."""
+        """The force provider in use (:mod:`ase_reversible.purity`).
+
+        ``.mode`` is ``'sorted'``, ``'guarded'`` or ``'trust'``; a guarded
+        provider also counts ``.clean_recomputations`` and keeps
+        ``.max_observed_noise`` (eV/Å).
+        """
         return self._purity
 
     def get_time(self):
-        """Simulated time in ASE units, continued from a restart record."""
+        """Simulated time in ASE time units, continued from a restart record.
+
+        Goes back when the integrator runs backwards (unlike ``nsteps``,
+        which counts every step taken).
+        """
         return self._time0 + self._step_index * abs(self.dt)
 
     def todict(self):
+        """ASE's description of the dynamics (written into trajectory
+        headers), plus ``scheme``, ``order``, ``composition``, the two
+        quanta and the ``force_purity`` mode."""
         return {**super().todict(), 'scheme': self.scheme,
                 'order': self.composition.order,
                 'composition': self.composition.name,
                 **self.grid.todict(), 'force_purity': self._purity.mode}
 
     def step(self):
+        """One time step (called by ``run``/``irun``; ``dt`` may be negative).
+
+        Takes any edit of the atoms first (:class:`AnchorMovedWarning`),
+        checks the energy at checkpoint steps, then applies the sub-steps.
+        If anything fails, the state is that before the step, bit for bit.
+        """
         self._sync()
         if self.energy_check and _is_check_step(self.nsteps,
                                                 self.energy_check):
