@@ -7,7 +7,7 @@ import math
 import warnings
 
 import numpy as np
-from ase import units
+from ase import Atoms, units
 from ase.md.md import MolecularDynamics
 
 from . import fixedpoint as fp
@@ -16,7 +16,7 @@ from .compositions import composition_for, substeps
 from .constraints import constraint_projection
 from .errors import (NonFiniteForcesError, QuantumRangeError,
                      UnstableIntegrationError)
-from .io import read_record, write_record
+from .io import INFO_KEY, read_record, write_record
 from .purity import force_provider
 
 DRIFT, KICK = 'drift', 'kick'
@@ -168,6 +168,12 @@ class ReversibleVerlet(MolecularDynamics):
             energy_check, energy_tolerance)
         self.composition = composition_for(order, composition)
         self._substeps = substeps(SCHEMES[scheme], self.composition)
+        if not isinstance(atoms, Atoms):
+            raise TypeError(
+                f'ReversibleVerlet integrates ase.Atoms at a fixed cell, got '
+                f'{type(atoms).__name__}: filters that move the cell '
+                '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
+                'pass the Atoms themselves.')
         if atoms.calc is None:
             raise RuntimeError('The atoms have no calculator: attach one '
                                '(atoms.calc = ...) before constructing '
@@ -469,15 +475,19 @@ class ReversibleVerlet(MolecularDynamics):
         record = read_record(atoms)
         time0 = 0.0
         if record is not None:
-            fits = _fits(atoms, record)
-            if fits:
+            mismatch = _record_mismatch(atoms, record)
+            if mismatch is None:
                 qx = record['position_quantum'] if qx is None else qx
                 qp = record['momentum_quantum'] if qp is None else qp
                 time0 = record['time']
             else:
-                warnings.warn('The restart record in atoms.info does not fit '
-                              'these atoms; choosing new quanta.',
-                              AnchorMovedWarning, stacklevel=3)
+                warnings.warn(
+                    f'The restart record in atoms.info does not fit these '
+                    f'atoms ({mismatch}); this is a new run: new quanta, '
+                    'time from 0. To resume a run exactly, start from an '
+                    'unedited trajectory frame; to silence this, remove the '
+                    f'record (atoms.info.pop({INFO_KEY!r})).',
+                    AnchorMovedWarning, stacklevel=3)
         if qx is None:
             qx = fp.choose_position_quantum(atoms.positions, atoms.cell,
                                             atoms.pbc)
@@ -606,12 +616,29 @@ def _check_timestep(timestep):
     return dt
 
 
-def _fits(atoms, record):
+def _record_mismatch(atoms, record):
+    """Why the restart record cannot be resumed from, or None if it can."""
     try:
         grid = fp.Grid(record['position_quantum'], record['momentum_quantum'])
     except ValueError:
-        return False
+        return 'its quanta are not valid'
     momenta = atoms.arrays.get('momenta')
-    return (np.abs(atoms.positions).max(initial=0) < 0.5 * grid.position_range
+    if not (np.abs(atoms.positions).max(initial=0) < 0.5 * grid.position_range
             and (momenta is None or np.abs(momenta).max(initial=0)
-                 < 0.5 * grid.momentum_range))
+                 < 0.5 * grid.momentum_range)):
+        return 'the atoms lie outside its range'
+    # A frame the integrator wrote holds whole numbers of quanta, exactly
+    # (division by a power of two is exact).  Anything else -- a thermostat
+    # run, new velocities, moved atoms -- was edited since it was written,
+    # and its time would be wrong.
+    if not (_on_grid(atoms.positions, grid.position_quantum)
+            and (momenta is None
+                 or _on_grid(momenta, grid.momentum_quantum))):
+        return ('the positions or momenta are not on its grid: they were '
+                'changed since the frame was written')
+    return None
+
+
+def _on_grid(values, quantum):
+    counts = values / quantum
+    return np.array_equal(np.rint(counts), counts)

@@ -58,6 +58,7 @@ from ase.cluster import Icosahedron
 from ase.optimize import BFGS
 
 from ase_reversible import LennardJones, ReversibleVerlet
+from ase_reversible.io import INFO_KEY
 
 #: Argon, eV and Å.
 EPSILON, SIGMA = 0.0104, 3.4
@@ -185,6 +186,7 @@ class Steering:
         atoms = self.atoms
         atoms.positions[:] = self.x0_nc
         atoms.set_momenta(np.reshape(p_flat, self.x0_nc.shape))
+        atoms.info.pop(INFO_KEY, None)  # a new run, not a restart
         # energy_check=0: the line search tries momenta far hotter than the
         # answer, whose runs may be inaccurate; such a run is still an
         # exact, reversible map with an exact gradient, and its large loss

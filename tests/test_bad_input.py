@@ -434,3 +434,15 @@ def test_bad_energy_check_settings_are_refused(kwargs, message):
     atoms.calc = asap_lj()
     with pytest.raises(ValueError, match=message):
         ReversibleVerlet(atoms, DT, **kwargs)
+
+
+def test_a_cell_filter_is_refused_with_advice():
+    from ase.calculators.emt import EMT
+    from ase.filters import FrechetCellFilter
+    from conftest import copper_bulk
+    atoms = copper_bulk((2, 2, 2), 300)
+    atoms.calc = EMT()
+    start = snapshot(atoms)
+    with pytest.raises(TypeError, match='pass the Atoms themselves'):
+        ReversibleVerlet(FrechetCellFilter(atoms), DT)
+    assert_same_state(atoms, start)

@@ -17,6 +17,11 @@ from PIL import Image
 
 EXAMPLES = Path(__file__).resolve().parent.parent / 'examples'
 
+# An example that re-anchors or restarts by accident shows something other
+# than what it says.
+pytestmark = pytest.mark.filterwarnings(
+    'error::ase_reversible.AnchorMovedWarning')
+
 OPTIMISATIONS = ['steer_argon', 'keyframe_chain']
 SCENES = ['ring_collapse', 'chaotic_chain']
 USER_SCRIPTS = ['argon_cluster', 'copper_surface']

@@ -80,3 +80,37 @@ def test_an_edit_between_runs_is_taken_and_reversal_anchors_there():
     dyn.reverse()
     dyn.run(300)
     assert_same_state(atoms, edited)
+
+
+def test_a_frame_edited_after_it_was_written_starts_a_new_run(tmp_path):
+    """Re-thermalising a frame makes it a new start, not a restart."""
+    from ase.md.langevin import Langevin
+    traj = tmp_path / 'md.traj'
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    ReversibleVerlet(atoms, DT, trajectory=str(traj), loginterval=10).run(40)
+    frame = read(traj, 3)
+    frame.calc = CALCULATORS['ase-lj']()
+    Langevin(frame, DT, temperature_K=60, friction=0.01, fixcm=False,
+             rng=np.random.default_rng(0)).run(5)
+    with pytest.warns(AnchorMovedWarning, match='not on its grid'):
+        dyn = ReversibleVerlet(frame, DT)
+    assert dyn.get_time() == 0.0
+    # Still exactly reversible from the new start.
+    start = snapshot(frame)
+    dyn.run(30)
+    dyn.reverse()
+    dyn.run(30)
+    assert_same_state(frame, start)
+
+
+def test_a_frame_with_new_velocities_starts_a_new_run(tmp_path):
+    traj = tmp_path / 'md.traj'
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    ReversibleVerlet(atoms, DT, trajectory=str(traj), loginterval=10).run(20)
+    frame = read(traj, -1)
+    frame.calc = CALCULATORS['ase-lj']()
+    frame.set_momenta(frame.get_momenta() * 1.01)
+    with pytest.warns(AnchorMovedWarning, match='new run'):
+        assert ReversibleVerlet(frame, DT).get_time() == 0.0
