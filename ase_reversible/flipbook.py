@@ -378,6 +378,7 @@ CALCULATORS = {
 def main(argv=None):
     """``python -m ase_reversible flipbook``: see ``--help``."""
     import argparse
+    import sys
     from importlib import import_module
     from .scenes import SCENES
     parser = argparse.ArgumentParser(
@@ -404,6 +405,14 @@ def main(argv=None):
                              '--out and exit')
     parser.add_argument('--out', help='file for --png or --gif')
     args = parser.parse_args(argv)
+
+    if args.png is None and args.gif is None:
+        import matplotlib
+        if matplotlib.get_backend().lower() == 'agg':
+            print('No interactive matplotlib backend (no display?): use '
+                  '--png FRAME --out FILE or --gif FRAMES --out FILE.',
+                  file=sys.stderr)
+            return 2
 
     from ase import units
     from .verlet import ReversibleVerlet
@@ -449,10 +458,5 @@ def main(argv=None):
         back = book.frame == 0
         print(f'back at frame 0 after {args.gif} frames each way: {back}')
         return 0
-    import matplotlib
-    if matplotlib.get_backend().lower() == 'agg':
-        print('No interactive matplotlib backend (no display?): use --png '
-              'FRAME --out FILE or --gif FRAMES --out FILE.')
-        return 2
     book.show()
     return 0

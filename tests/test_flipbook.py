@@ -244,7 +244,8 @@ def test_command_line_from_a_trajectory(tmp_path):
 
 
 @pytest.mark.parametrize('argv, message', [
-    (['nowhere.traj', '--calculator', 'emt'], 'neither a scene'),
+    (['nowhere.traj', '--calculator', 'emt', '--png', '1', '--out', 'x.png'],
+     'neither a scene'),
     (['ring', '--png', '2'], 'need --out'),
 ])
 def test_command_line_errors(argv, message, capsys):
@@ -258,5 +259,12 @@ def test_command_line_file_needs_a_calculator(tmp_path, capsys):
     atoms = make_chain(2)
     atoms.write(tmp_path / 'chain.traj')
     with pytest.raises(SystemExit):
-        main([str(tmp_path / 'chain.traj')])
+        main([str(tmp_path / 'chain.traj'), '--png', '1', '--out',
+              str(tmp_path / 'x.png')])
     assert '--calculator' in capsys.readouterr().err
+
+
+def test_command_line_without_a_display_says_what_to_do(capsys):
+    assert matplotlib.get_backend().lower() == 'agg'
+    assert main(['ring']) == 2
+    assert '--png FRAME --out FILE' in capsys.readouterr().err
