@@ -10,6 +10,7 @@ from ase.cluster import Icosahedron
 from ase_reversible import LennardJones, ReversibleVerlet, probe_purity
 
 from conftest import (AR_EPSILON, AR_SIGMA, DT, assert_same_state,
+                      at_positions, central_difference,
                       forward_and_back, thermalize)
 
 
@@ -29,18 +30,6 @@ def rattled_crystal(seed=2):
     atoms.rattle(0.15, seed=seed)
     atoms.calc = lj()
     return atoms
-
-
-def central_difference(function, x0, direction, h):
-    return (function(x0 + h * direction) - function(x0 - h * direction)) \
-        / (2 * h)
-
-
-def at_positions(atoms, quantity):
-    def evaluate(x_nc):
-        atoms.positions = x_nc
-        return quantity()
-    return evaluate
 
 
 @pytest.mark.parametrize('build', [rattled_cluster, rattled_crystal])
