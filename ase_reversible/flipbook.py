@@ -272,7 +272,6 @@ class Flipbook:
         shown, e.g. ``[*range(0, 100), *range(100, -1, -1)]``) into an
         animated GIF at ``path``; ``fps`` frames per second.  The
         dynamics are left at the last frame.  Returns the path."""
-        from PIL import Image
         images = []
         self._heading = ''  # the first frame was not reached by this film
         for frame in frames:

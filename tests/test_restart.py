@@ -8,7 +8,7 @@ from ase_reversible import AnchorMovedWarning, ReversibleVerlet
 
 from conftest import (CALCULATORS, DT, argon_cluster, assert_frame_is_state,
                       assert_frame_on_grid, assert_same_state, copper_bulk,
-                      snapshot)
+                      forward_and_back, snapshot)
 
 CASES = {
     'Ar55 ase-lj': (lambda: argon_cluster(3, 120), 'ase-lj', 60, 10),
@@ -82,35 +82,34 @@ def test_an_edit_between_runs_is_taken_and_reversal_anchors_there():
     assert_same_state(atoms, edited)
 
 
-def test_a_frame_edited_after_it_was_written_starts_a_new_run(tmp_path):
-    """Re-thermalising a frame makes it a new start, not a restart."""
-    from ase.md.langevin import Langevin
+def frame_of_a_run(tmp_path, steps, index):
+    """Frame ``index`` of an Ar13 run of ``steps`` steps, calculator attached."""
     traj = tmp_path / 'md.traj'
     atoms = argon_cluster(2, 60)
     atoms.calc = CALCULATORS['ase-lj']()
-    ReversibleVerlet(atoms, DT, trajectory=str(traj), loginterval=10).run(40)
-    frame = read(traj, 3)
+    ReversibleVerlet(atoms, DT, trajectory=str(traj), loginterval=10).run(steps)
+    frame = read(traj, index)
     frame.calc = CALCULATORS['ase-lj']()
+    return frame
+
+
+def test_a_frame_edited_after_it_was_written_starts_a_new_run(tmp_path):
+    """Re-thermalising a frame makes it a new start, not a restart."""
+    from ase.md.langevin import Langevin
+    frame = frame_of_a_run(tmp_path, 40, 3)
     Langevin(frame, DT, temperature_K=60, friction=0.01, fixcm=False,
              rng=np.random.default_rng(0)).run(5)
     with pytest.warns(AnchorMovedWarning, match='not on its grid'):
         dyn = ReversibleVerlet(frame, DT)
     assert dyn.get_time() == 0.0
     # Still exactly reversible from the new start.
-    start = snapshot(frame)
-    dyn.run(30)
-    dyn.reverse()
-    dyn.run(30)
+    start, moved = forward_and_back(dyn, 30)
+    assert moved
     assert_same_state(frame, start)
 
 
 def test_a_frame_with_new_velocities_starts_a_new_run(tmp_path):
-    traj = tmp_path / 'md.traj'
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
-    ReversibleVerlet(atoms, DT, trajectory=str(traj), loginterval=10).run(20)
-    frame = read(traj, -1)
-    frame.calc = CALCULATORS['ase-lj']()
+    frame = frame_of_a_run(tmp_path, 20, -1)
     frame.set_momenta(frame.get_momenta() * 1.01)
     with pytest.warns(AnchorMovedWarning, match='new run'):
         assert ReversibleVerlet(frame, DT).get_time() == 0.0
