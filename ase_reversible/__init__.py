@@ -7,7 +7,8 @@
 leaves ``atoms`` bit for bit where the constructor put it.
 """
 
-from .errors import (ImpureForcesError, NonFiniteForcesError,
+from .errors import (CoarseQuantumError, ImpureForcesError,
+                     NonFiniteForcesError,
                      QuantumRangeError, ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
 from .adjoint import Gradients
@@ -26,5 +27,5 @@ __all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
            'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',
            'Flipbook', 'AnalyticHVP', 'FiniteDifferenceHVP',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
-           'NonFiniteForcesError', 'ImpureForcesError',
+           'NonFiniteForcesError', 'ImpureForcesError', 'CoarseQuantumError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

@@ -52,3 +52,15 @@ class UnsupportedConstraintError(ReversibilityError, ValueError):
     Raised by the constructor; FixAtoms, FixCartesian, FixedPlane and
     FixedLine are supported.
     """
+
+
+class CoarseQuantumError(ReversibilityError, ValueError):
+    """A momentum quantum so coarse that it would visibly change the state.
+
+    Raised by the constructor, before anything is changed, when snapping
+    the momenta to the grid would move the kinetic energy by more than a
+    tiny fraction or leave too few significant bits
+    (:func:`ase_reversible.fixedpoint.momentum_resolution_problem`).  The
+    message says where the quantum came from (``momentum_quantum``, or a
+    ``force_noise`` that raised it) and what to change.
+    """

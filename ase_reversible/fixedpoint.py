@@ -135,6 +135,21 @@ def choose_position_quantum(positions_nc, cell, pbc,
     return quantum_for(size * room)
 
 
+def momentum_scale(masses_n, momenta_nc,
+                   temperature_floor: float = MOMENTUM_TEMPERATURE_FLOOR
+                   ) -> float:
+    """The momentum a grid must resolve, amu Å / ASE time unit.
+
+    The largest |momentum| component of ``momenta_nc`` ``[n_atoms, 3]``, or
+    the thermal momentum ``sqrt(m kB T)`` of the heaviest atom (``masses_n``
+    ``[n_atoms]``, amu) at ``temperature_floor`` K, whichever is larger.
+    """
+    scale = math.sqrt(float(np.max(masses_n)) * units.kB * temperature_floor)
+    if len(momenta_nc):
+        scale = max(scale, float(np.abs(momenta_nc).max()))
+    return scale
+
+
 def choose_momentum_quantum(masses_n, momenta_nc,
                             room: float = MOMENTUM_ROOM,
                             temperature_floor: float =
@@ -142,15 +157,56 @@ def choose_momentum_quantum(masses_n, momenta_nc,
     """Momentum quantum (ASE units) leaving ``room`` times the momentum scale.
 
     ``masses_n`` is ``[n_atoms]`` (amu), ``momenta_nc`` ``[n_atoms, 3]``
-    (amu Å / ASE time unit).  The scale is the largest |momentum| component or the thermal momentum
-    ``sqrt(m kB T)`` of the heaviest atom at ``temperature_floor`` K,
-    whichever is larger.  For argon near 100 K this gives 2**-44
-    (5.7e-14 amu Å / ASE time), a resolution of ~1e-13 of a thermal momentum.
+    (amu Å / ASE time unit); the scale is :func:`momentum_scale`.  For
+    argon near 100 K this gives 2**-44 (5.7e-14 amu Å / ASE time), a
+    resolution of ~1e-13 of a thermal momentum.
     """
-    scale = math.sqrt(float(np.max(masses_n)) * units.kB * temperature_floor)
-    if len(momenta_nc):
-        scale = max(scale, float(np.abs(momenta_nc).max()))
-    return quantum_for(scale * room)
+    return quantum_for(momentum_scale(masses_n, momenta_nc,
+                                      temperature_floor) * room)
+
+
+#: Fewest significant bits a momentum quantum must leave of the momentum
+#: scale.  The default grid leaves about 44; a quantum with 12 resolves a
+#: thermal momentum to 2.4e-4, and rounding errors of that size in every
+#: kick swamp the integrator's own energy error.
+MIN_MOMENTUM_BITS = 12
+#: Largest relative change of the kinetic energy that snapping the momenta
+#: to the grid may cause.  The default grid changes it by ~1e-13.
+MAX_SNAP_KINETIC_CHANGE = 1e-6
+
+
+def momentum_resolution_problem(masses_n, momenta_nc, quantum: float):
+    """Why ``quantum`` is too coarse for these momenta, or None if it is not.
+
+    ``masses_n`` ``[n_atoms]`` (amu), ``momenta_nc`` ``[n_atoms, 3]`` (amu Å
+    / ASE time unit, constraints already applied), ``quantum`` in the same
+    unit.  The quantum is too coarse if snapping the momenta to it changes
+    the kinetic energy by more than ``MAX_SNAP_KINETIC_CHANGE`` of itself,
+    or if it leaves fewer than ``MIN_MOMENTUM_BITS`` bits of
+    :func:`momentum_scale`.  Returns a sentence with the numbers.
+    """
+    momenta_nc = np.asarray(momenta_nc, dtype=np.float64)
+    m_n1 = np.asarray(masses_n, dtype=np.float64)[:, None]
+    kinetic = 0.5 * float(np.sum(momenta_nc**2 / m_n1))
+    snapped_nc = np.rint(momenta_nc / quantum) * quantum
+    snapped = 0.5 * float(np.sum(snapped_nc**2 / m_n1))
+    scale = momentum_scale(masses_n, momenta_nc)
+    bits = math.log2(scale / quantum)
+    reasons = []
+    if abs(snapped - kinetic) > MAX_SNAP_KINETIC_CHANGE * kinetic:
+        reasons.append(
+            f'snapping the momenta to it changes the kinetic energy from '
+            f'{kinetic:.6g} eV to {snapped:.6g} eV (by '
+            f'{(snapped - kinetic) / kinetic:+.2g} of itself; at most '
+            f'{MAX_SNAP_KINETIC_CHANGE:g} is allowed)')
+    if bits < MIN_MOMENTUM_BITS:
+        reasons.append(
+            f'it leaves {max(bits, 0.0):.1f} significant bits of the '
+            f'momentum scale {scale:.3g} (the largest momentum, or the '
+            f'thermal momentum of the heaviest atom at '
+            f'{MOMENTUM_TEMPERATURE_FLOOR:g} K), fewer than the '
+            f'{MIN_MOMENTUM_BITS} needed')
+    return ' and '.join(reasons) or None
 
 
 def encode(values, quantum: float, what: str) -> np.ndarray:

@@ -38,6 +38,7 @@ import warnings
 import numpy as np
 
 from .errors import ImpureForcesError
+from .watch import calculator_members, mixture
 
 #: Default bound on history noise in forces, eV/Å (scaled by max|F| above
 #: 1 eV/Å).  The largest noise measured, asap3 EMT on periodic copper, was
@@ -100,21 +101,38 @@ class TrustedForces:
 class SortedNeighborListForces(TrustedForces):
     """ASE calculators with an ``ase.neighborlist.NeighborList`` in ``.nl``.
 
-    The calculator creates its list on the first calculation (and again when
-    the atomic numbers change); the list is then swapped for a sorted copy
-    and the unsorted results are discarded, costing one extra force call.
+    Also a mixing calculator (SumCalculator, ...) whose members include
+    such calculators: each of those gets a sorted list.  A calculator
+    creates its list on the first calculation (and again when the atomic
+    numbers change); the list is then swapped for a sorted copy and the
+    unsorted results are discarded, costing one extra force call.
+
+    Parameters
+    ----------
+    listed : sequence of calculators, optional
+        The calculators (the attached one or its members) that keep a
+        neighbour list in ``.nl``; default: the attached one.
     """
 
     mode = 'sorted'
 
+    def __init__(self, listed=None):
+        self._listed = None if listed is None else tuple(listed)
+
     def forces(self, atoms):
         f_nc = atoms.get_forces(md=True)
+        listed = (atoms.calc,) if self._listed is None else self._listed
         # Checked after the call: the calculator may have (re)built an
         # unsorted list inside it, or answered from a cache filled by one.
-        if not _has_sorted_list(atoms.calc):
-            _install_sorted_list(atoms.calc)
-            f_nc = atoms.get_forces(md=True)
-        return f_nc
+        if all(map(_has_sorted_list, listed)):
+            return f_nc
+        for calc in listed:
+            if not _has_sorted_list(calc):
+                _install_sorted_list(calc)
+        # Mixing calculators, nested ones too, cache their members' sums.
+        for calc in calculator_members(atoms.calc):
+            discard_results(calc)
+        return atoms.get_forces(md=True)
 
 
 class GuardedForces(TrustedForces):
@@ -233,7 +251,7 @@ def probe_purity(atoms, trials: int = 2, displacement: float = 0.3,
     """
     rng = np.random.default_rng(seed)
     x_nc = atoms.positions.copy()
-    _discard_results(atoms.calc)
+    discard_results(atoms.calc)
     f0_nc = atoms.get_forces(md=True)
     worst = 0.0
     try:
@@ -260,12 +278,16 @@ def force_provider(atoms, mode: str = 'auto',
     atoms : ase.Atoms
         With its calculator attached.
     mode : {'auto', 'sorted', 'guarded', 'trust'}
-        ``'auto'`` picks ``'trust'`` for a calculator whose
-        ``forces_are_pure`` attribute is True (it guarantees forces that
-        are a function of the positions alone), ``'sorted'`` for ASE's
-        LennardJones and EMT, ``'guarded'`` for asap3 calculators, and
-        ``'trust'`` for any other calculator that passes
-        :func:`probe_purity`.
+        ``'auto'`` looks at the calculator and, for a mixing calculator
+        (anything with members in ``.calcs``: SumCalculator,
+        LinearCombinationCalculator, MixedCalculator), at every member,
+        and takes the strictest handling any of them needs: ``'guarded'``
+        if one is an asap3 calculator; else ASE's LennardJones and EMT get
+        sorted neighbour lists (``'sorted'``); members that are neither
+        these nor declare ``forces_are_pure = True`` (a guarantee that
+        forces are a function of the positions alone) make it probe the
+        whole calculator with :func:`probe_purity` and refuse it if its
+        forces depend on its history.
     force_noise : float, optional
         Noise bound for ``'guarded'`` (eV/Å).
 
@@ -281,38 +303,83 @@ def force_provider(atoms, mode: str = 'auto',
         raise ValueError(f'force_purity must be one of {modes}, got {mode!r}')
     if force_noise is not None and mode not in ('auto', 'guarded'):
         raise ValueError("force_noise only applies to force_purity='guarded'")
+    members = calculator_members(calc)
+    listed = [c for c in members if _is_ase_neighborlist_calculator(c)]
     if mode == 'auto':
-        if getattr(calc, 'forces_are_pure', False) is True:
-            # The calculator vouches for itself (this package's
-            # LennardJones, PendulumChain, ...).
+        # A mixing calculator is as impure as its worst member: its own
+        # probe can pass while a member's history has not shown yet.
+        leaves = [c for c in members if not _mixes(c)] or [calc]
+        if _declares_pure(calc):
             mode = 'trust'
-        elif _is_ase_neighborlist_calculator(calc):
-            mode = 'sorted'
-        elif _is_asap3(calc) or force_noise is not None:
+        elif force_noise is not None or any(_is_asap3(c) for c in leaves):
             mode = 'guarded'
+        elif all(_declares_pure(c) or _is_plain_ase_neighborlist_calculator(c)
+                 for c in leaves):
+            mode = 'sorted' if listed else 'trust'
         else:
+            provider = (SortedNeighborListForces(listed) if listed
+                        else TrustedForces())
+            if listed:  # sorted lists in place before the probe
+                provider.forces(atoms)
             noise = probe_purity(atoms)
             if noise:
-                raise ImpureForcesError(
-                    f'{type(calc).__name__} returned forces that differ by '
-                    f'{noise:.3g} eV/Å at identical positions after the '
-                    'atoms had been moved elsewhere: its forces depend on '
-                    'its history, which breaks exact reversal. If a '
-                    'neighbour list is the cause, use '
-                    "force_purity='guarded' (with force_noise above that "
-                    "difference); force_purity='trust' skips this check.")
-            mode = 'trust'
+                raise ImpureForcesError(_impurity_advice(
+                    calc, noise, np.abs(provider.forces(atoms)).max(
+                        initial=0.0)))
+            return provider
     if mode == 'sorted':
-        if not _is_ase_neighborlist_calculator(calc):
+        if not listed:
             raise ValueError(
                 "force_purity='sorted' needs an ASE calculator that keeps "
-                f"an ase.neighborlist.NeighborList in .nl; "
-                f"{type(calc).__name__} does not.")
-        return SortedNeighborListForces()
+                "an ase.neighborlist.NeighborList in .nl (LennardJones, "
+                "EMT), or a mixing calculator with such members; "
+                f"{type(calc).__name__} is neither.")
+        return SortedNeighborListForces(listed)
     if mode == 'guarded':
         return GuardedForces(DEFAULT_FORCE_NOISE if force_noise is None
                              else force_noise)
     return TrustedForces()
+
+
+#: Largest history noise, relative to max(1 eV/Å, max|F|), that comes from
+#: the order of floating-point sums (neighbour lists): such noise is a few
+#: ulps, 1e-16 to 1e-13 relative.  A self-consistent field that starts from
+#: its previous solution leaves noise near its convergence threshold
+#: (tblite GFN2-xTB: 1.9e-4 eV/Å), far above this.
+SUMMATION_NOISE_LIMIT = 1e-9
+
+
+def _impurity_advice(calc, noise, f_max):
+    """The ImpureForcesError message, with the remedy for the likely cause."""
+    name = type(calc).__name__
+    head = (f'{name} returned forces that differ by {noise:.3g} eV/Å at '
+            'identical positions after the atoms had been moved elsewhere: '
+            'its forces depend on its history, which breaks exact '
+            'reversal.')
+    if noise <= SUMMATION_NOISE_LIMIT * max(1.0, f_max):
+        # Sixteen times what was seen keeps it below the bound / 8 at
+        # which guarded rounding warns that the bound is being approached.
+        bound = max(DEFAULT_FORCE_NOISE, _round_up(16 * noise))
+        return (f'{head} Noise this small comes from the order of '
+                'floating-point sums (a neighbour list built elsewhere): '
+                "construct the integrator with force_purity='guarded', "
+                f'force_noise={bound:.2g} (eV/Å, at least sixteen times what '
+                "was seen). force_purity='trust' skips this check.")
+    return (f'{head} Noise this large does not come from summation order '
+            'but from state the calculator carries between calls, such as '
+            'a self-consistent field (DFT, tight binding) that starts from '
+            'the previous solution. Make every calculation start from '
+            'scratch (reset the initial guess or wavefunction before each '
+            'call, for example in a subclass whose calculate() does that '
+            'first), then construct the integrator again. Guarded rounding '
+            'cannot absorb noise this large: the momentum quantum would '
+            'have to be so coarse that the momenta lose their precision.')
+
+
+def _round_up(value):
+    """``value`` rounded up to two significant digits."""
+    digits = math.floor(math.log10(value)) - 1
+    return math.ceil(value / 10.0**digits) * 10.0**digits
 
 
 #: How to read each quantity :func:`exact_system_changes` can compare.
@@ -351,6 +418,22 @@ def _is_ase_neighborlist_calculator(calc):
     return isinstance(calc, (EMT, LennardJones))
 
 
+def _mixes(calc):
+    return mixture(calc) is not None
+
+
+def _declares_pure(calc):
+    return getattr(calc, 'forces_are_pure', False) is True
+
+
+def _is_plain_ase_neighborlist_calculator(calc):
+    # A subclass may add history of its own (a cache, a warm start): its
+    # lists are sorted all the same, but it is probed.
+    from ase.calculators.emt import EMT
+    from ase.calculators.lj import LennardJones
+    return type(calc) in (EMT, LennardJones)
+
+
 def _is_asap3(calc):
     module = type(calc).__module__ or ''
     return module.split('.')[0] in ('asap3', '_asap')
@@ -369,10 +452,11 @@ def _install_sorted_list(calc):
                        bothways=old.bothways)
     new.nl.cutoffs = old.cutoffs.copy()
     calc.nl = new
-    _discard_results(calc)
+    discard_results(calc)
 
 
-def _discard_results(calc):
+def discard_results(calc):
+    """Forget a calculator's cached results (if it keeps ASE's dict)."""
     results = getattr(calc, 'results', None)
     if isinstance(results, dict):
         results.clear()

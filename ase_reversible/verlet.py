@@ -14,10 +14,12 @@ from . import fixedpoint as fp
 from .adjoint import Adjoint
 from .compositions import composition_for, substeps
 from .constraints import constraint_projection
-from .errors import (NonFiniteForcesError, QuantumRangeError,
-                     UnstableIntegrationError)
+from .errors import (CoarseQuantumError, NonFiniteForcesError,
+                     QuantumRangeError, UnstableIntegrationError)
 from .io import INFO_KEY, read_record, write_record
-from .purity import force_provider
+from .purity import DEFAULT_FORCE_NOISE, discard_results, force_provider
+from .watch import (EQUAL_CALCULATOR, SystemWatch, calculator_members,
+                    same_values)
 
 DRIFT, KICK = 'drift', 'kick'
 
@@ -35,14 +37,17 @@ SCHEMES = {
 
 
 class AnchorMovedWarning(UserWarning):
-    """The state was edited outside the integrator: reversal starts anew.
+    """A change made around the run was taken: reversal starts anew there.
 
     Issued by :class:`ReversibleVerlet` at the next step (or
-    ``backpropagate``) when ``atoms.positions`` or the momenta differ from
-    what the integrator last wrote.  The edit is taken and snapped to the
-    grid; reversal then leads back to that point, not beyond.  Also issued
-    by the constructor when a restart record in ``atoms.info`` does not fit
-    the atoms (new quanta are chosen).
+    ``backpropagate``) when the positions, momenta, masses, atomic
+    numbers, cell, pbc, constraints, calculator or its parameters differ
+    from what the integrator last saw, and when the size of ``dt`` changes
+    after steps were taken.  The change is taken (positions and momenta
+    snapped to the grid); reversal then leads back to that point
+    (:attr:`ReversibleVerlet.anchor`), not beyond.  Also issued by the
+    constructor when a restart record in ``atoms.info`` does not fit the
+    atoms (new quanta are chosen).
     """
 
 
@@ -122,8 +127,13 @@ class ReversibleVerlet(MolecularDynamics):
     Attributes
     ----------
     dt : float
-        The time step, ASE time units; its sign is the direction of time
-        (:meth:`reverse` negates it).
+        The time step, ASE time units; its sign is the direction of time.
+        Setting it is honoured at the next step: a negated ``dt`` runs
+        backwards exactly like :meth:`reverse`; a new size moves the
+        anchor of reversal there (:class:`AnchorMovedWarning` if steps
+        were taken since the anchor).
+    anchor : FixedPointState
+        The state that reversal leads back to.
     grid : Grid
         The two quanta (Å; amu Å / ASE time unit) and their ranges.
     scheme : str
@@ -142,7 +152,11 @@ class ReversibleVerlet(MolecularDynamics):
         Bad arguments (time step, scheme, order, quanta, masses, non-finite
         positions or momenta), before anything is changed or opened.
     RuntimeError
-        The atoms have no calculator.
+        The atoms have no calculator, or only the stored results of a
+        trajectory frame (a SinglePointCalculator).
+    CoarseQuantumError
+        The momentum quantum (given, or raised by ``force_noise``) would
+        visibly change the momenta.
     UnsupportedConstraintError
         A constraint other than FixAtoms, FixCartesian, FixedPlane and
         FixedLine.
@@ -166,24 +180,16 @@ class ReversibleVerlet(MolecularDynamics):
                              f'got {scheme!r}')
         self.energy_check, self.energy_tolerance = _check_energy_watch(
             energy_check, energy_tolerance)
-        self.composition = composition_for(order, composition)
-        self._substeps = substeps(SCHEMES[scheme], self.composition)
+        self._composition = composition_for(order, composition)
+        self._substeps = substeps(SCHEMES[scheme], self._composition)
         if not isinstance(atoms, Atoms):
             raise TypeError(
                 f'ReversibleVerlet integrates ase.Atoms at a fixed cell, got '
                 f'{type(atoms).__name__}: filters that move the cell '
                 '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
                 'pass the Atoms themselves.')
-        if atoms.calc is None:
-            raise RuntimeError('The atoms have no calculator: attach one '
-                               '(atoms.calc = ...) before constructing '
-                               'ReversibleVerlet.')
-        masses_n = atoms.get_masses()
-        if not (np.all(np.isfinite(masses_n)) and np.all(masses_n > 0)):
-            bad = int(np.argwhere(~(masses_n > 0) | ~np.isfinite(masses_n))[0, 0])
-            raise ValueError(f'Atom {bad} has mass {float(masses_n[bad])}: every '
-                             'mass must be positive and finite (set it with '
-                             'atoms.set_masses).')
+        _check_calculator(atoms.calc, 'constructing ReversibleVerlet')
+        masses_n = _checked_masses(atoms)
         for name in ('positions', 'momenta'):
             values = atoms.arrays.get(name)
             if values is not None and not np.all(np.isfinite(values)):
@@ -192,17 +198,23 @@ class ReversibleVerlet(MolecularDynamics):
         self._purity_mode = force_purity
         self._force_noise = force_noise
         self._purity = force_provider(atoms, force_purity, force_noise)
-        self._calc = atoms.calc
-        self.scheme = scheme
-        grid, time0 = self._choose_grid(atoms, masses_n, timestep,
-                                        position_quantum, momentum_quantum)
-        self.grid = grid
-        state = _encode(atoms, grid, self._project)  # may refuse: no files yet
+        self._scheme = scheme
+        grid, time0, origin = self._choose_grid(
+            atoms, masses_n, timestep, position_quantum, momentum_quantum)
+        self._grid = grid
+        # Refusals end here, before the base class opens any file.
+        self._check_momentum_quantum(atoms, masses_n, origin)
+        state = _encode(atoms, grid, self._project)
+        self._time0 = time0
+        self._elapsed = []  # ASE time units taken with each earlier |dt|
+        self._step_index = self._anchor_index = 0
+        #: Signed steps taken with each earlier |dt|, so that the clock
+        #: returns exactly to where it was when the steps are undone.
+        self._steps_by_size = {}
         super().__init__(atoms, timestep, trajectory=trajectory,
                          logfile=logfile, loginterval=loginterval, **kwargs)
         self._m_n1 = masses_n[:, None]
-        self._time0 = time0
-        self._step_index = 0
+        self._watch = SystemWatch(atoms)
         self._versions = itertools.count()
         self._install(state)
         self._prepare_plan()
@@ -264,6 +276,15 @@ class ReversibleVerlet(MolecularDynamics):
         """
         steps = _check_steps(steps)
         self._sync()
+        available = (self._step_index - self._anchor_index) * self._direction
+        if steps > available:
+            raise ValueError(
+                f'Cannot retrace {steps} steps: only {available} were taken '
+                'in this direction since the anchor of reversal (the '
+                'constructor, or the last change taken: an edit of the '
+                'atoms, the calculator, the constraints, the cell, or the '
+                'size of dt). Steps before it ran under other dynamics. '
+                f'Call backpropagate with at most {available} steps.')
         adjoint = Adjoint(self.atoms, grad_positions, grad_momenta,
                           self._m_n1, self._project, hvp, parameters)
         self.reverse()
@@ -288,16 +309,100 @@ class ReversibleVerlet(MolecularDynamics):
     def reverse(self):
         """Flip the direction of time: further steps retrace the path.
 
-        Negates :attr:`dt`.  ``run(n); reverse(); run(n)`` ends bit for bit
-        where the first ``run`` started.  Returns the integrator, so
+        Negates :attr:`dt` (``dyn.dt = -dyn.dt`` does the same).
+        ``run(n); reverse(); run(n)`` ends bit for bit where the first
+        ``run`` started.  Returns the integrator, so
         ``dyn.reverse().run(n)`` works.
         """
         self.dt = -self.dt
-        self._prepare_plan()
-        # The way back may start outside the energy tolerance (a run that
-        # ended between checks): the check waits until it is inside again.
-        self._energy_alarm = True
         return self
+
+    @property
+    def dt(self):
+        """The time step, ASE time units; negative runs backwards."""
+        return self._dt
+
+    @dt.setter
+    def dt(self, value):
+        value = _check_timestep(value)
+        old = self.__dict__.get('_dt')
+        self._dt = value
+        self._direction = 1 if value > 0 else -1
+        if old is None:  # set by the base class's constructor
+            return
+        moved = None
+        if abs(value) != abs(old):
+            moved = self._change_step_size(abs(old), abs(value))
+        if (value > 0) != (old > 0):
+            # The way back may start outside the energy tolerance (a run
+            # that ended between checks): the check waits until it is
+            # inside again.
+            self._energy_alarm = True
+        self._prepare_plan()
+        if moved:  # last: a warning made an error leaves all consistent
+            warnings.warn(moved, AnchorMovedWarning, stacklevel=2)
+
+    def _change_step_size(self, old, new):
+        """Keep the clock exact and move the anchor to a new |dt|.
+
+        Returns the warning to give if steps were taken since the anchor.
+        """
+        taken = self._step_index - self._anchor_index
+        counts = self._steps_by_size
+        counts[old] = counts.get(old, 0) + self._step_index
+        self._step_index = self._anchor_index = counts.pop(new, 0)
+        for h in [h for h, k in counts.items() if k == 0]:
+            del counts[h]
+        self._elapsed = [k * h for h, k in counts.items()]
+        if not taken:
+            return None
+        self._anchor = self.state
+        return (f'The time step changed from {old / units.fs:g} fs to '
+                f'{new / units.fs:g} fs after {abs(taken)} steps. The new '
+                'step is used from here; reversal with it leads back to '
+                f'this point (time {self.get_time() / units.fs:.6g} fs), not '
+                'beyond. To retrace the earlier steps exactly, set dt back '
+                f'to {old / units.fs:g} fs (negated) here.')
+
+    # Fixed at construction: an assignment would otherwise be ignored.
+    @property
+    def scheme(self):
+        """``'velocity'`` or ``'position'`` (fixed at construction)."""
+        return self._scheme
+
+    @scheme.setter
+    def scheme(self, value):
+        _fixed('scheme')
+
+    @property
+    def composition(self):
+        """The :class:`~ase_reversible.compositions.Composition` in use
+        (fixed at construction)."""
+        return self._composition
+
+    @composition.setter
+    def composition(self, value):
+        _fixed('composition (and order)')
+
+    @property
+    def grid(self):
+        """The two quanta, a :class:`Grid` (fixed at construction)."""
+        return self._grid
+
+    @grid.setter
+    def grid(self, value):
+        _fixed('grid (the quanta)')
+
+    @property
+    def anchor(self) -> fp.FixedPointState:
+        """A copy of the state reversal leads back to (int64 counts).
+
+        The state right after the constructor, or right after the last
+        change that was taken (:class:`AnchorMovedWarning`); same layout as
+        :attr:`state`.
+        """
+        return fp.FixedPointState(self._anchor.ix_nc.copy(),
+                                  self._anchor.ip_nc.copy())
 
     @property
     def state(self) -> fp.FixedPointState:
@@ -326,7 +431,12 @@ class ReversibleVerlet(MolecularDynamics):
         Goes back when the integrator runs backwards (unlike ``nsteps``,
         which counts every step taken).
         """
-        return self._time0 + self._step_index * abs(self.dt)
+        now = self._step_index * abs(self._dt)
+        if self._elapsed:
+            # One correctly rounded sum over every step size used: the same
+            # multiset of steps gives the same time, whatever the order.
+            now = math.fsum([*self._elapsed, now])
+        return self._time0 + now
 
     def todict(self):
         """ASE's description of the dynamics (written into trajectory
@@ -368,7 +478,7 @@ class ReversibleVerlet(MolecularDynamics):
             self._write_positions()
             raise
         self._write_momenta()
-        self._step_index += 1 if self.dt > 0 else -1
+        self._step_index += self._direction
         write_record(self.atoms, self.grid, self.get_time())
 
     def _check_energy(self):
@@ -403,6 +513,12 @@ class ReversibleVerlet(MolecularDynamics):
                 'raise energy_tolerance or pass energy_check=0.')
 
     # -- hooks of MolecularDynamics ------------------------------------
+
+    def irun(self, *args, **kwargs):
+        """As ASE's ``irun``; changes made around the run are taken (or
+        refused) first, so even ``run(0)`` takes them."""
+        self._sync()
+        yield from super().irun(*args, **kwargs)
 
     def _refresh_properties(self):
         # ASE asks for forces after every step.  Kick-drift-kick ends each
@@ -472,13 +588,18 @@ class ReversibleVerlet(MolecularDynamics):
     # -- state <-> atoms -------------------------------------------------
 
     def _choose_grid(self, atoms, masses_n, timestep, qx, qp):
+        """The grid, the clock's start and where the momentum quantum came
+        from (``'given'``, ``'record'``, ``'default'`` or ``'purity'``)."""
         record = read_record(atoms)
         time0 = 0.0
+        origin = 'given' if qp is not None else 'default'
+
         if record is not None:
             mismatch = _record_mismatch(atoms, record)
             if mismatch is None:
                 qx = record['position_quantum'] if qx is None else qx
-                qp = record['momentum_quantum'] if qp is None else qp
+                if qp is None:
+                    qp, origin = record['momentum_quantum'], 'record'
                 time0 = record['time']
             else:
                 warnings.warn(
@@ -501,7 +622,45 @@ class ReversibleVerlet(MolecularDynamics):
                 extent=float(np.abs(atoms.positions).max(initial=0.0)))
             if floor > qp:
                 qp = math.ldexp(1.0, math.frexp(floor)[1])  # power of 2 > floor
-        return fp.Grid(qx, qp), time0
+                origin = 'purity'
+        return fp.Grid(qx, qp), time0, origin
+
+    def _check_momentum_quantum(self, atoms, masses_n, origin):
+        """Refuse a momentum quantum that would visibly change the state."""
+        p_nc = atoms.arrays.get('momenta', np.zeros((len(atoms), 3))).copy()
+        self._project(p_nc)
+        qp = self.grid.momentum_quantum
+        problem = fp.momentum_resolution_problem(masses_n, p_nc, qp)
+        if problem is None:
+            return
+        purity = self._purity
+        source, remedy = {
+            'given': ('as given', 'Pass a finer momentum_quantum, or none '
+                      '(the default is chosen for these momenta).'),
+            'record': ('from the restart record in atoms.info',
+                       'Remove the record (atoms.info.pop('
+                       f'{INFO_KEY!r})) to start a new run on a grid chosen '
+                       'for these momenta.'),
+            'default': ('chosen by default', 'Pass a finer '
+                        'momentum_quantum.'),
+            'purity': (f"raised to this by force_purity='{purity.mode}' with "
+                       f'force_noise={purity.force_noise:.3g} eV/Å, which '
+                       'keeps clean recomputations of the forces rare',
+                       'force_noise bounds the history noise of the '
+                       'forces; neighbour lists leave noise below 1e-12 '
+                       'eV/Å (the default bound is '
+                       f'{DEFAULT_FORCE_NOISE:.2g}). A '
+                       'bound this large means the noise comes from state '
+                       'the calculator carries between calls, such as a '
+                       'self-consistent field: make each calculation start '
+                       "from scratch and use force_purity='auto'. A "
+                       'smaller force_noise or time step also gives a '
+                       'finer quantum.'),
+        }[origin]
+        raise CoarseQuantumError(
+            f'The momentum quantum {qp:.3g} amu Å / ASE time unit '
+            f'({source}) is too coarse: {problem}. {remedy} Nothing was '
+            'changed.')
 
     def _install(self, state):
         """Make ``state`` the anchor of reversal and show it on the atoms."""
@@ -514,6 +673,8 @@ class ReversibleVerlet(MolecularDynamics):
         self._r_key = None
         self._x_version = next(self._versions)
         self._f_cache = None
+        self._anchor = state
+        self._anchor_index = self._step_index
         self._anchor_energy = None  # taken at the next check
         self._energy_alarm = False
         self._write_positions()
@@ -531,30 +692,72 @@ class ReversibleVerlet(MolecularDynamics):
             momenta[:] = self._p.floats
 
     def _sync(self):
-        """Take edits made to the atoms outside the integrator."""
+        """Take or refuse changes made around the run (see watch.py)."""
         atoms = self.atoms
-        if len(atoms) != len(self._x.ints):
-            raise ValueError('The number of atoms changed; construct a new '
-                             'ReversibleVerlet for the new system.')
-        if atoms.calc is not self._calc:
-            if atoms.calc is None:
-                raise RuntimeError('The atoms lost their calculator; attach '
-                                   'one before running.')
-            self._purity = force_provider(atoms, self._purity_mode,
-                                          self._force_noise)
-            self._calc = atoms.calc
-            self._f_cache = self._r_key = None
+        changes = self._watch.changes(atoms)
+        if changes and self._take_changes(changes):
+            return
         momenta = atoms.arrays.get('momenta')
-        if (np.array_equal(atoms.arrays['positions'], self._x.floats)
+        if (same_values(atoms.arrays['positions'], self._x.floats)
                 and momenta is not None
-                and np.array_equal(momenta, self._p.floats)):
+                and same_values(momenta, self._p.floats)):
             return
         self._install(_encode(atoms, self.grid, self._project))
         warnings.warn(
             'Positions or momenta were changed outside ReversibleVerlet. The '
             'change was taken and snapped to the grid; reversal now leads '
-            f'back to this point (time {self.get_time():.6g}), not beyond.',
-            AnchorMovedWarning, stacklevel=3)
+            f'back to this point (time {self.get_time() / units.fs:.6g} fs), '
+            'not beyond.', AnchorMovedWarning, stacklevel=3)
+
+    def _take_changes(self, changes):
+        """Take a change of the dynamics, or refuse it leaving all as was.
+
+        Everything that can refuse runs before anything is replaced.
+        Returns True if the anchor moved (the state was re-installed),
+        False for a calculator replaced by an equal one.
+        """
+        atoms = self.atoms
+        if len(atoms) != len(self._x.ints):
+            raise ValueError('The number of atoms changed; construct a new '
+                             'ReversibleVerlet for the new system (or put '
+                             'the atoms back to continue this run).')
+        if atoms.calc is None:
+            raise RuntimeError('The atoms lost their calculator; attach one '
+                               '(atoms.calc = ...) before running.')
+        _check_calculator(atoms.calc, 'running')
+        project = constraint_projection(atoms)
+        masses_n = _checked_masses(atoms)
+        purity = self._purity
+        if atoms.calc is not self._watch.calc or any(
+                'parameters' in change for change in changes):
+            purity = force_provider(atoms, self._purity_mode,
+                                    self._force_noise)
+        if changes == [EQUAL_CALCULATOR]:
+            self._purity = purity
+            self._watch.take(atoms)
+            self._f_cache = self._r_key = None
+            return False
+        state = _encode(atoms, self.grid, project)
+        # ASE's Calculator.set keeps results (and ASE's LennardJones its
+        # neighbour list) from before the change: the first kick after it
+        # would use them.  reset() is ASE's way to drop all of that.
+        for calc in calculator_members(atoms.calc):
+            reset = getattr(calc, 'reset', None)
+            reset() if callable(reset) else discard_results(calc)
+        self._project, self._purity = project, purity
+        self._m_n1 = self.masses = masses_n[:, None]
+        self._watch.take(atoms)
+        self._prepare_plan()
+        self._install(state)
+        warnings.warn(
+            f'Changed outside ReversibleVerlet since the last step: '
+            f'{", ".join(changes)}. The change was taken (positions and '
+            'momenta snapped to the grid, momenta projected onto the '
+            'constraints); reversal now leads back to this point (time '
+            f'{self.get_time() / units.fs:.6g} fs), not beyond. To retrace '
+            'further back exactly, undo the change when you get here.',
+            AnchorMovedWarning, stacklevel=4)
+        return True
 
 
 def _encode(atoms, grid, project):
@@ -575,6 +778,39 @@ def _is_check_step(n, interval):
     # one energy per interval keeps the cost low (for asap3 EMT an energy
     # after the forces costs half a force call).
     return n % interval == 0 or n in EARLY_ENERGY_CHECKS
+
+
+def _fixed(name):
+    raise AttributeError(
+        f'The {name} of a ReversibleVerlet is fixed when it is constructed; '
+        'construct a new one (from the present atoms, which hold the exact '
+        'state and its restart record) to change it.')
+
+
+def _check_calculator(calc, doing):
+    """Refuse a missing calculator or one that only holds stored results."""
+    if calc is None:
+        raise RuntimeError(f'The atoms have no calculator: attach one '
+                           f'(atoms.calc = ...) before {doing}.')
+    from ase.calculators.singlepoint import SinglePointCalculator
+    if isinstance(calc, SinglePointCalculator):
+        raise RuntimeError(
+            'The atoms carry a SinglePointCalculator: the stored results of '
+            'a trajectory frame, which cannot compute forces anywhere else. '
+            f'Attach a real calculator (atoms.calc = ...) before {doing}; '
+            "the frame's positions, momenta and restart record are kept.")
+
+
+def _checked_masses(atoms):
+    """The masses ``[n_atoms]`` (amu), refused unless positive and finite."""
+    masses_n = atoms.get_masses()
+    bad = ~(masses_n > 0) | ~np.isfinite(masses_n)
+    if np.any(bad):
+        atom = int(np.argwhere(bad)[0, 0])
+        raise ValueError(f'Atom {atom} has mass {float(masses_n[atom])}: '
+                         'every mass must be positive and finite (set it '
+                         'with atoms.set_masses).')
+    return masses_n
 
 
 def _check_energy_watch(interval, tolerance):

@@ -84,6 +84,13 @@ def forward_and_back(dyn, steps):
     return start, moved
 
 
+def assert_runs_back(dyn, steps):
+    """Run ``steps`` out and back: the atoms moved, and returned bit for bit."""
+    start, moved = forward_and_back(dyn, steps)
+    assert moved
+    assert_same_state(dyn.atoms, start)
+
+
 def assert_frame_on_grid(frame, grid):
     """Positions and momenta of a frame are whole numbers of quanta."""
     ix = frame.positions / grid.position_quantum

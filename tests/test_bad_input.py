@@ -364,6 +364,16 @@ def test_calculator_removed_between_runs(make_calc, reattach):
     assert_same_state(atoms, after_run)
 
     atoms.calc = calc if reattach == 'same' else make_calc()
+    if reattach == 'fresh' and make_calc is asap_lj:
+        # asap3 calculators have no ASE parameters to compare, so a new one
+        # is a new dynamics for all the integrator can tell: the anchor
+        # moves, loudly.  Its forces are the same function, so the way back
+        # still reaches the start.
+        dyn.reverse()
+        with pytest.warns(AnchorMovedWarning, match='the calculator'):
+            dyn.run(10)
+        assert_same_state(atoms, start)
+        return
     run_back(dyn, 10, start)
 
 
