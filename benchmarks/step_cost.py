@@ -20,6 +20,19 @@ The replay floor sets the positions of a recorded VelocityVerlet trajectory
 of the same system frame by frame and asks for the forces, so it pays for
 the neighbour-list updates and rebuilds that real MD causes, and nothing
 else: time beyond it is the integrator's own.
+
+The control for the per-step checks.  Before every step ReversibleVerlet
+asks its ``SystemWatch`` (ase_reversible/watch.py) what changed since the
+last step (calculator, its parameters, constraints, cell, pbc, numbers,
+masses).  The contestant 'rv_unwatched' is 'rv_velocity' with the
+instance's ``_watch`` replaced by a stub whose ``changes()`` returns no
+change: the same steps without the checks, for this benchmark only (it
+would miss a real change).  Both run in the same rounds; their difference
+is the checks' cost in the step loop.  Since that is near the noise of a
+step, ``changes()`` is also timed directly on the 'rv_velocity' contestant
+after the rounds: each call inside the steps of one more block (the cost a
+step pays: the force call leaves the caches cold), and in a tight loop
+(warm caches: the lower bound).
 """
 
 from __future__ import annotations
@@ -68,6 +81,8 @@ TARGET_OVERHEAD_CALCULATOR = 'asap3 EMT'
 TARGET_OVERHEAD_MIN_ATOMS = 4000
 #: Reversible velocity counts as "slower than VelocityVerlet" above this ratio.
 SLOWER_THRESHOLD = 1.05
+#: The per-step checks in a tight loop: median over blocks of calls.
+WATCH_CALLS, WATCH_BLOCKS = 200, 15
 
 
 @dataclass(frozen=True)
@@ -220,12 +235,43 @@ class ReplayFloor:
         self._next += steps
 
 
+class NoWatch:
+    """Stands in for a ReversibleVerlet's SystemWatch: never a change."""
+
+    def changes(self, atoms):
+        return []
+
+
+class TimedWatch:
+    """Wraps a SystemWatch and times each ``changes()`` call where it runs."""
+
+    def __init__(self, watch):
+        self.watch, self.seconds = watch, []
+
+    def changes(self, atoms):
+        t0 = time.perf_counter()
+        changed = self.watch.changes(atoms)
+        self.seconds.append(time.perf_counter() - t0)
+        return changed
+
+    def __getattr__(self, name):  # take(), calc, ...: the wrapped watch's
+        return getattr(self.watch, name)
+
+
+def unwatched(atoms):
+    """'rv_velocity' without the per-step checks: the control, see top."""
+    dyn = ReversibleVerlet(atoms, TIMESTEP, scheme='velocity')
+    dyn._watch = NoWatch()
+    return dyn
+
+
 INTEGRATORS = {
     'force': NudgeFloor,
     'replay': ReplayFloor,
     'vv': lambda atoms: VelocityVerlet(atoms, TIMESTEP),
     'rv_velocity': lambda atoms: ReversibleVerlet(atoms, TIMESTEP,
                                                   scheme='velocity'),
+    'rv_unwatched': unwatched,
     'rv_position': lambda atoms: ReversibleVerlet(atoms, TIMESTEP,
                                                   scheme='position'),
     'rv_trust': lambda atoms: ReversibleVerlet(atoms, TIMESTEP,
@@ -233,7 +279,7 @@ INTEGRATORS = {
                                                force_purity='trust'),
 }
 STEP_CONTESTANTS = ('force', 'replay', 'vv', 'rv_velocity', 'rv_position',
-                    'rv_trust')
+                    'rv_trust', 'rv_unwatched')
 LOGGING_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
 
 
@@ -330,6 +376,26 @@ def time_cached_queries(atoms, calls, rounds=3):
     return statistics.median(forces_again), statistics.median(energy_after)
 
 
+def time_watch(dyn, steps, calls=WATCH_CALLS, blocks=WATCH_BLOCKS):
+    """Median seconds per call of ``dyn._watch.changes`` (the per-step
+    checks) when nothing changed, the path every step takes: in the calls
+    of a run of ``steps`` steps, and in a tight loop."""
+    watch, atoms = dyn._watch, dyn.atoms
+    assert watch.changes(atoms) == []
+    dyn._watch = timed = TimedWatch(watch)
+    try:
+        dyn.run(steps)
+    finally:
+        dyn._watch = watch
+    per_call = []
+    for _ in range(blocks):
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            watch.changes(atoms)
+        per_call.append((time.perf_counter() - t0) / calls)
+    return statistics.median(timed.seconds), statistics.median(per_call)
+
+
 def _medians(samples):
     return {k: statistics.median(v) for k, v in samples.items()}
 
@@ -361,6 +427,8 @@ def benchmark(case, names, settings, with_logger=False):
     # Few calls suffice: a cache hit and a recomputation differ 100-fold.
     forces_again, energy_after = time_cached_queries(
         by_name['force'].runner.atoms, min(steps, 20))
+    in_step, in_loop = (time_watch(by_name['rv_velocity'].runner, steps)
+                        if 'rv_unwatched' in by_name else (None, None))
     result = {
         'calculator': case.calculator.label,
         'system': case.calculator.system,
@@ -375,6 +443,8 @@ def benchmark(case, names, settings, with_logger=False):
         'clean_recomputations': clean,
         'get_forces_again_seconds': forces_again,
         'energy_after_forces_seconds': energy_after,
+        'watch_changes_seconds': in_step,
+        'watch_changes_loop_seconds': in_loop,
         'force_purity': {c.name: c.purity.todict() for c in contestants
                          if c.purity is not None},
         'grids': {c.name: c.runner.grid.todict() for c in contestants
@@ -402,7 +472,9 @@ def run(quick, figures):
         'settings': {**asdict(settings), 'timestep_fs': TIMESTEP_FS,
                      'floor_nudge_angstrom': FLOOR_NUDGE,
                      'ar_temperature_K': AR_TEMPERATURE_K,
-                     'cu_temperature_K': CU_TEMPERATURE_K},
+                     'cu_temperature_K': CU_TEMPERATURE_K,
+                     'watch_calls': WATCH_CALLS,
+                     'watch_blocks': WATCH_BLOCKS},
         'step_cost': steps,
         'logging': logging,
         'plots': [PLOT],
@@ -602,6 +674,61 @@ def logging_table(results):
     return common.markdown_table(header, rows)
 
 
+def checks_table(results):
+    header = ('calculator', 'N', 'Reversible velocity (ms/step)',
+              'checks bypassed (ms/step)',
+              'with / without checks (per-round range)',
+              'difference of medians (µs/step)',
+              'changes() in the steps (µs/call, % of step)',
+              'changes() in a tight loop (µs/call)', 'round spread')
+    rows = []
+    for r in results:
+        med = r['median_seconds']
+        paired = paired_ratios(r, 'rv_velocity', 'rv_unwatched')
+        diff = 1e6 * (med['rv_velocity'] - med['rv_unwatched'])
+        watch = r['watch_changes_seconds']
+        spread = max(r['spread'][k] for k in ('rv_velocity', 'rv_unwatched'))
+        rows.append((r['calculator'], r['n_atoms'], ms(med['rv_velocity']),
+                     ms(med['rv_unwatched']),
+                     f"×{ratio(r, 'rv_velocity', 'rv_unwatched'):.3f} "
+                     f'(×{min(paired):.2f} to ×{max(paired):.2f})',
+                     f'{diff:+.1f}' if abs(diff) < 100 else f'{diff:+.0f}',
+                     f'{1e6 * watch:.2f} '
+                     f"({100 * watch / med['rv_velocity']:.2g}%)",
+                     f"{1e6 * r['watch_changes_loop_seconds']:.2f}",
+                     f'{100 * spread:.0f}%'))
+    return common.markdown_table(header, rows)
+
+
+def checks_lines(results):
+    """The per-step checks, alone and in the step loop."""
+    def share(r):
+        return r['watch_changes_seconds'] / r['median_seconds']['rv_velocity']
+
+    def with_without(r):
+        return ratio(r, 'rv_velocity', 'rv_unwatched')
+
+    alone = sorted(results, key=lambda r: r['watch_changes_seconds'])
+    tight = [1e6 * r['watch_changes_loop_seconds'] for r in results]
+    top = max(results, key=share)
+    loop = sorted(results, key=with_without)
+    unresolved = sum(min(p) <= 1 <= max(p) for p in (
+        paired_ratios(r, 'rv_velocity', 'rv_unwatched') for r in results))
+    return (f'- The per-step checks (`SystemWatch.changes`, timed in the '
+            f"steps) cost {1e6 * alone[0]['watch_changes_seconds']:.2f} µs "
+            f'({case_label(alone[0])}) to '
+            f"{1e6 * alone[-1]['watch_changes_seconds']:.2f} µs "
+            f'({case_label(alone[-1])}) per call, at most '
+            f'{100 * share(top):.2g}% of a Reversible velocity step '
+            f'({case_label(top)}); in a tight loop {min(tight):.2f} to '
+            f'{max(tight):.2f} µs.\n'
+            f'- In the step loop, Reversible velocity with / without the '
+            f'checks ranges from ×{with_without(loop[0]):.3f} '
+            f'({case_label(loop[0])}) to ×{with_without(loop[-1]):.3f} '
+            f'({case_label(loop[-1])}); the per-round ratios lie on both '
+            f'sides of 1 in {unresolved} of {len(results)} cases.')
+
+
 def cache_table(results):
     header = ('calculator', 'N', 'nudge floor (ms)',
               'get_forces() again (ms, in force calls)',
@@ -704,6 +831,7 @@ def summary(step_results, log_results):
     purity_cost = [ratio(r, 'rv_velocity', 'rv_trust') for r in step_results]
     out.append(f"- Force purity handling (auto vs 'trust', velocity scheme) "
                f"costs ×{min(purity_cost):.2f} to ×{max(purity_cost):.2f}.")
+    out.append(checks_lines(step_results))
     fractions = []
     for r in step_results:
         for name in ('rv_velocity', 'rv_position'):
@@ -796,6 +924,10 @@ add scheduler delays to the steps.
 - **Reversible trust**: `ReversibleVerlet(scheme='velocity',
   force_purity='trust')`: the cost without any purity handling. *Not exact*
   for these calculators; a baseline only.
+- **checks bypassed** (`rv_unwatched` in the JSON): Reversible velocity
+  with the integrator's `SystemWatch` replaced by a stub that never reports
+  a change (benchmark only): the control for the checks made before every
+  step. See "Cost of the per-step checks".
 - **clean recomputations**: for 'guarded', the share of force evaluations
   (one per step) whose kick was recomputed from a freshly built neighbour
   list, during the timed blocks, as count / force evaluations.
@@ -809,6 +941,27 @@ add scheduler delays to the steps.
 Median step time minus a floor, in ms and in % of that floor.
 
 {overhead_table(steps)}
+
+### Cost of the per-step checks
+
+Before every step `ReversibleVerlet` compares the calculator, its
+parameters, the constraints, cell, pbc, atomic numbers and masses with a
+snapshot (`SystemWatch.changes`, `ase_reversible/watch.py`), then the
+positions and momenta. "Checks bypassed" is Reversible velocity with that
+comparison replaced by a stub reporting no change, timed in the same
+rounds: the difference of the medians is the checks' cost in the step loop,
+noise where it is within the round spread (of these two contestants) or
+the per-round ratios lie on both sides of 1. The comparison is also timed
+directly on the Reversible velocity contestant after the rounds, with
+nothing changed (the path of every step): "in the steps" is the median of
+its calls (`time.perf_counter` around each) during one more block of the
+same number of steps, in µs and in % of that contestant's median step;
+"in a tight loop" is the median over {s['watch_blocks']} blocks of
+{s['watch_calls']} back-to-back calls. The tight loop runs with warm caches
+and is the lower bound; in the steps the force call has left the caches
+cold, and that is what a step pays.
+
+{checks_table(steps)}
 
 ### Targets
 
