@@ -25,10 +25,8 @@ from ase_reversible import (FiniteDifferenceHVP, LennardJones,
                             ReversibleVerlet)
 from ase_reversible.compositions import COMPOSITIONS, DEFAULT_FOR_ORDER
 
-from conftest import (AR_EPSILON, AR_SIGMA, DT, assert_same_state, snapshot,
-                      thermalize)
-
-asap3 = pytest.importorskip('asap3')
+from conftest import (AR_EPSILON, AR_SIGMA, DT, asap_emt, assert_same_state,
+                      snapshot, thermalize)
 
 #: Fine quanta: finite differences of whole runs see rounding as noise.
 FINE = {'position_quantum': 2.0**-44, 'momentum_quantum': 2.0**-46}
@@ -319,7 +317,7 @@ def test_finite_difference_products_with_asap3_emt():
     # stencil at the same step (truncation ~1e-20).
     atoms = bulk('Cu', cubic=True) * (4, 4, 4)
     atoms.rattle(0.05, seed=1)
-    atoms.calc = asap3.EMT()
+    atoms.calc = asap_emt()
     v_nc = np.random.default_rng(0).normal(size=(len(atoms), 3))
     e = FiniteDifferenceHVP().step / np.abs(v_nc).max()
     x_nc = atoms.positions.copy()

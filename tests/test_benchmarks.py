@@ -18,6 +18,8 @@ sys.path.insert(0, str(ROOT / 'benchmarks'))
 
 @pytest.fixture(scope='module')
 def quick_run(tmp_path_factory):
+    # The benchmarks measure asap3 beside ASE's calculators.
+    pytest.importorskip('asap3', reason='the benchmarks need asap3')
     out = tmp_path_factory.mktemp('benchmarks')
     result = subprocess.run(
         [sys.executable, str(ROOT / 'benchmarks' / 'run_all.py'), '--quick',
