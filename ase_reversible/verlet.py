@@ -727,11 +727,9 @@ class ReversibleVerlet(MolecularDynamics):
         _check_calculator(atoms.calc, 'running')
         project = constraint_projection(atoms)
         masses_n = _checked_masses(atoms)
-        purity = self._purity
-        if atoms.calc is not self._watch.calc or any(
-                'parameters' in change for change in changes):
-            purity = force_provider(atoms, self._purity_mode,
-                                    self._force_noise)
+        # Any change may alter how pure the forces are (a new calculator or
+        # cut-off, atoms now near a periodic face): choose again.
+        purity = force_provider(atoms, self._purity_mode, self._force_noise)
         if changes == [EQUAL_CALCULATOR]:
             self._purity = purity
             self._watch.take(atoms)
@@ -742,8 +740,10 @@ class ReversibleVerlet(MolecularDynamics):
         # neighbour list) from before the change: the first kick after it
         # would use them.  reset() is ASE's way to drop all of that.
         for calc in calculator_members(atoms.calc):
-            reset = getattr(calc, 'reset', None)
-            reset() if callable(reset) else discard_results(calc)
+            if callable(getattr(calc, 'reset', None)):
+                calc.reset()
+            else:
+                discard_results(calc)
         self._project, self._purity = project, purity
         self._m_n1 = self.masses = masses_n[:, None]
         self._watch.take(atoms)

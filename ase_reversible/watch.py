@@ -89,10 +89,7 @@ class SystemWatch:
         for same in self._calculator_checks:
             if not same():
                 return False
-        constraints = atoms.constraints
-        if len(constraints) != len(self._constraints) or (
-                constraints and not all(map(operator.is_, constraints,
-                                            self._constraints))):
+        if not _same_objects(atoms.constraints, self._constraints):
             return False
         masses = atoms.arrays.get('masses')
         return (atoms.cell.array.tobytes() == self._cell
