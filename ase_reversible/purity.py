@@ -2,9 +2,13 @@
 
 Exact reversal needs every kick to be a function of the positions alone: the
 reverse run meets each position again and must round the same increment.
-Many calculators break this in the last bits (findings.md, section 3): the
-order in which a neighbour list visits pairs, and so the rounding of the
-sums, depends on where that list was last built.  Three providers handle
+Many calculators break this in the last bits: the order in which a
+neighbour list visits pairs, and so the rounding of the sums, depends on
+where that list was last built.  Forces at identical positions, after the
+list had been built elsewhere first, differed by up to 2.3e-14 eV/Å for
+ASE EMT on 500 periodic copper atoms and 7e-14 eV/Å for asap3 EMT; a
+fixed-point Verlet run of that copper, 1000 steps out and back, then
+missed its start by 16 position quanta (ASE) and 57 (asap3).  Three providers handle
 this, chosen per calculator by :func:`force_provider`:
 
 ``'sorted'`` (ASE's LennardJones and EMT)

@@ -5,8 +5,8 @@ temporary directory and imported by a worker process of its own.  Every
 worker builds the same thermalised system with the same calculator; the
 parent then asks the workers for blocks of steps in rounds, rotating their
 order, and compares medians, so the commits are timed side by side under
-the same machine load.  The commits are the steps of the hot-path work of
-issue 3 (listed in ``COMMITS``); a commit missing from the clone (a shallow
+the same machine load.  The commits are the steps of the work that made the
+per-step path cheaper (listed in ``COMMITS``); a commit missing from the clone (a shallow
 clone) is reported as skipped.
 """
 
