@@ -9,19 +9,19 @@ import warnings
 import numpy as np
 import pytest
 from ase import units
-from ase.build import bulk
 from ase.calculators.emt import EMT
 from ase.calculators.lj import LennardJones
-from ase.cluster import Icosahedron
 from ase_reversible import AnchorMovedWarning
-from ase_reversible.demo import thermalize as _thermalize
+from ase_reversible.app.systems import (AR_EPSILON, AR_RC, AR_SIGMA,  # noqa: F401
+                                         argon_bulk, argon_cluster,
+                                         copper_bulk, copper_cluster,
+                                         thermalize)
 
 try:
     import asap3
 except ImportError:  # an optional extra: tests that need it skip one by one
     asap3 = None
 
-AR_EPSILON, AR_SIGMA, AR_RC = 0.0104, 3.4, 8.5
 DT = 5 * units.fs
 
 
@@ -48,35 +48,6 @@ def asap_emt():
 
 CALCULATORS = {'ase-lj': ase_lj, 'asap-lj': asap_lj,
                'ase-emt': EMT, 'asap-emt': asap_emt}
-
-
-def thermalize(atoms, temperature_K, seed=0):
-    _thermalize(atoms, temperature_K, seed)
-    return atoms
-
-
-def argon_cluster(shells, temperature_K, seed=0):
-    """Argon icosahedron: shells 2, 3, 4 give 13, 55, 147 atoms."""
-    atoms = Icosahedron('Ar', shells, latticeconstant=5.26)
-    atoms.center(vacuum=10.0)  # asap3 wants a cell even without pbc
-    return thermalize(atoms, temperature_K, seed)
-
-
-def copper_cluster(shells=3, temperature_K=600, seed=0):
-    atoms = Icosahedron('Cu', shells)
-    atoms.center(vacuum=10.0)
-    return thermalize(atoms, temperature_K, seed)
-
-
-def copper_bulk(size=(3, 3, 3), temperature_K=600, seed=0):
-    atoms = bulk('Cu', cubic=True) * size
-    atoms.rattle(0.05, seed=seed)
-    return thermalize(atoms, temperature_K, seed)
-
-
-def argon_bulk(size=(3, 3, 3), temperature_K=80, seed=0):
-    atoms = bulk('Ar', 'fcc', a=5.26, cubic=True) * size
-    return thermalize(atoms, temperature_K, seed)
 
 
 def snapshot(atoms):
