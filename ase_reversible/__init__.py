@@ -5,27 +5,33 @@
 >>> dyn.run(1000); dyn.reverse(); dyn.run(1000)       # doctest: +SKIP
 
 leaves ``atoms`` bit for bit where the constructor put it.
+
+Where things live: :mod:`.core` (the exact engine: codec, quanta,
+variables, plans, compositions, restart record), :mod:`.md` (the ASE
+integrators), :mod:`.purity` (forces as a pure function of positions),
+:mod:`.adjoint` (gradients by retracing), :mod:`.calculators` (our own),
+:mod:`.app` (systems, flipbook, scenes, demo, command line).
 """
 
-from .errors import (CoarseQuantumError, ImpureForcesError,
-                     NonFiniteForcesError,
+from .errors import (AnchorMovedWarning, CoarseQuantumError,
+                     ImpureForcesError, NonFiniteForcesError,
                      QuantumRangeError, ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
-from .adjoint import Gradients
+from .adjoint import AnalyticHVP, FiniteDifferenceHVP, Gradients
 from .chain import PendulumChain
-from .fixedpoint import FixedPointState, Grid
+from .core.quanta import Grid
+from .core.record import INFO_KEY
 from .flipbook import Flipbook
 from .gravity import SoftenedGravity
-from .hessian import AnalyticHVP, FiniteDifferenceHVP
 from .lennardjones import LennardJones
+from .md import FixedPointState, ReversibleVerlet
 from .purity import probe_purity
-from .verlet import AnchorMovedWarning, ReversibleVerlet
 
 __version__ = '0.1.0'
 
 __all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
            'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',
-           'Flipbook', 'AnalyticHVP', 'FiniteDifferenceHVP',
+           'Flipbook', 'AnalyticHVP', 'FiniteDifferenceHVP', 'INFO_KEY',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
            'NonFiniteForcesError', 'ImpureForcesError', 'CoarseQuantumError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

@@ -19,7 +19,7 @@ from ase.cluster import Icosahedron
 from ase.md import velocitydistribution
 from ase.md.verlet import VelocityVerlet
 
-from .verlet import ReversibleVerlet
+from .md import ReversibleVerlet
 
 SHELLS = {13: 2, 55: 3, 147: 4, 309: 5}
 

@@ -60,7 +60,22 @@ class CoarseQuantumError(ReversibilityError, ValueError):
     Raised by the constructor, before anything is changed, when snapping
     the momenta to the grid would move the kinetic energy by more than a
     tiny fraction or leave too few significant bits
-    (:func:`ase_reversible.fixedpoint.momentum_resolution_problem`).  The
+    (:func:`ase_reversible.core.quanta.momentum_resolution_problem`).  The
     message says where the quantum came from (``momentum_quantum``, or a
     ``force_noise`` that raised it) and what to change.
+    """
+
+
+class AnchorMovedWarning(UserWarning):
+    """A change made around the run was taken: reversal starts anew there.
+
+    Issued by :class:`~ase_reversible.ReversibleVerlet` at the next step (or
+    ``backpropagate``) when the positions, momenta, masses, atomic
+    numbers, cell, pbc, constraints, calculator or its parameters differ
+    from what the integrator last saw, and when the size of ``dt`` changes
+    after steps were taken.  The change is taken (positions and momenta
+    snapped to the grid); reversal then leads back to that point
+    (:attr:`~ase_reversible.ReversibleVerlet.anchor`), not beyond.  Also issued by the
+    constructor when a restart record in ``atoms.info`` does not fit the
+    atoms (new quanta are chosen).
     """

@@ -123,7 +123,7 @@ class Flipbook:
 
     def __init__(self, dyn, stride=1, view=None, limits=None,
                  figsize=(5.0, 5.0), first=0, last=None):
-        from .verlet import ReversibleVerlet
+        from .md import ReversibleVerlet
         if not isinstance(dyn, ReversibleVerlet):
             raise TypeError(
                 f'Flipbook needs a ReversibleVerlet, got '
@@ -139,7 +139,7 @@ class Flipbook:
         self.first, self.last = first, last
         self.figsize = figsize
         #: Step count of the dynamics at frame 0.
-        self._origin = dyn._step_index
+        self._origin = dyn.step_index
         self.limits = self._default_limits() if limits is None else limits
         self._figure = None
         self._message = ''
@@ -156,7 +156,7 @@ class Flipbook:
     def steps(self) -> int:
         """Steps from frame 0 to the current state (may be between frames
         after a failed move)."""
-        return self.dyn._step_index - self._origin
+        return self.dyn.step_index - self._origin
 
     @property
     def frame(self) -> float:
@@ -414,7 +414,7 @@ def main(argv=None):
             return 2
 
     from ase import units
-    from .verlet import ReversibleVerlet
+    from .md import ReversibleVerlet
     if args.source in SCENES:
         scene = SCENES[args.source]()
         atoms, timestep, stride, view = (scene.atoms, scene.timestep,

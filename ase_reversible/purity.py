@@ -41,8 +41,8 @@ import warnings
 
 import numpy as np
 
+from .core.codec import guard_band_crossed, round_odd
 from .errors import ImpureForcesError
-from .watch import calculator_members, mixture
 
 #: Default bound on history noise in forces, eV/Å (scaled by max|F| above
 #: 1 eV/Å).  The largest noise measured, asap3 EMT on periodic copper, was
@@ -85,7 +85,7 @@ class TrustedForces:
         """
         np.multiply(f_nc, scale, out=out)
         project(out)
-        np.rint(out, out=out)
+        round_odd(out, out=out)
         return f_nc
 
     def min_momentum_quantum(self, n_atoms, max_kick_time, extent=0.0):
@@ -169,7 +169,7 @@ class GuardedForces(TrustedForces):
         y_nc = scratch
         np.multiply(f_nc, scale, out=y_nc)
         project(y_nc)
-        np.rint(y_nc, out=out)
+        round_odd(y_nc, out=out)
         if f_nc is self._clean_nc:
             return f_nc
         f_max = max(f_nc.max(initial=0.0), -f_nc.min(initial=0.0))
@@ -177,18 +177,15 @@ class GuardedForces(TrustedForces):
         extent = max(x_nc.max(initial=0.0), -x_nc.min(initial=0.0))
         noise = self.force_noise * _extent_factor(extent)
         bound = abs(scale) * noise * max(1.0, f_max)
-        # Noise below `bound` cannot flip rint(y) unless y lies within
-        # `bound` of a half-integer.  NaN forces fail the comparison and
-        # go straight back to the caller, which refuses them.
-        np.subtract(y_nc, out, out=y_nc)
-        np.abs(y_nc, out=y_nc)
-        if not y_nc.max(initial=0.0) > 0.5 - bound:
+        # NaN forces are not flagged and go straight back to the caller,
+        # which refuses them.
+        if not guard_band_crossed(y_nc, out, bound):
             return f_nc
         clean_nc = self.clean_forces(atoms)
         self._record_noise(np.abs(clean_nc - f_nc).max(), noise)
         np.multiply(clean_nc, scale, out=out)
         project(out)
-        np.rint(out, out=out)
+        round_odd(out, out=out)
         return clean_nc
 
     def clean_forces(self, atoms):
@@ -464,3 +461,39 @@ def discard_results(calc):
     results = getattr(calc, 'results', None)
     if isinstance(results, dict):
         results.clear()
+
+
+def calculator_members(calc):
+    """``calc`` and, recursively, every calculator it mixes (``.calcs``).
+
+    See :func:`mixture`.  Returns a list, ``calc`` first (empty for
+    None).
+    """
+    if calc is None:
+        return []
+    out, stack, seen = [], [calc], set()
+    while stack:
+        c = stack.pop()
+        if id(c) in seen:
+            continue
+        seen.add(id(c))
+        out.append(c)
+        mixed = mixture(c)
+        if mixed is not None:
+            stack.extend(reversed(mixed[0]))
+    return out
+
+
+def mixture(calc):
+    """``(members, weights)`` of a calculator that mixes others, or None.
+
+    ASE's SumCalculator, LinearCombinationCalculator, MixedCalculator and
+    AverageCalculator keep their members and weights in ``.mixer`` (ASE
+    3.29) or on themselves (``.calcs``, ``.weights``, earlier versions);
+    a user's wrapper with ``.calcs`` counts too.  ``weights`` may be None.
+    """
+    for holder in (calc, getattr(calc, 'mixer', None)):
+        members = getattr(holder, 'calcs', None)
+        if isinstance(members, (list, tuple)):
+            return list(members), getattr(holder, 'weights', None)
+    return None

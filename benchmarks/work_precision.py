@@ -45,7 +45,7 @@ from ase.md.verlet import VelocityVerlet
 from scipy.spatial.distance import pdist
 
 from ase_reversible import ReversibleVerlet
-from ase_reversible.compositions import composition_for
+from ase_reversible.core.compositions import composition_for
 
 TITLE = 'Work against precision'
 

@@ -53,7 +53,7 @@ from ase.md.verlet import VelocityVerlet
 
 from ase_reversible import ReversibleVerlet
 from ase_reversible.chain import PendulumChain, make_chain
-from ase_reversible.io import INFO_KEY
+from ase_reversible import INFO_KEY
 
 RV_COLOUR = 'tab:blue'
 VV_COLOUR = 'tab:red'

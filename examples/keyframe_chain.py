@@ -35,7 +35,7 @@ from scipy.optimize import minimize
 
 from ase_reversible import ReversibleVerlet
 from ase_reversible.chain import PendulumChain, make_chain
-from ase_reversible.io import INFO_KEY
+from ase_reversible import INFO_KEY
 
 
 @dataclass(frozen=True)

@@ -58,7 +58,7 @@ from ase.cluster import Icosahedron
 from ase.optimize import BFGS
 
 from ase_reversible import LennardJones, ReversibleVerlet
-from ase_reversible.io import INFO_KEY
+from ase_reversible import INFO_KEY
 
 #: Argon, eV and Å.
 EPSILON, SIGMA = 0.0104, 3.4

@@ -23,7 +23,7 @@ from ase.constraints import FixAtoms
 
 from ase_reversible import (FiniteDifferenceHVP, LennardJones,
                             ReversibleVerlet)
-from ase_reversible.compositions import COMPOSITIONS, DEFAULT_FOR_ORDER
+from ase_reversible.core.compositions import COMPOSITIONS, DEFAULT_FOR_ORDER
 
 from conftest import (AR_EPSILON, AR_SIGMA, DT, asap_emt, assert_same_state,
                       snapshot, thermalize)
@@ -250,7 +250,8 @@ def test_retrace_is_exact_for_every_scheme_and_order(system, scheme, order):
     g = dyn.backpropagate(steps, a_nc, b_nc)
     assert_same_state(atoms, start)
     assert dyn.dt > 0
-    kicks_per_step = sum(1 for kind, _ in dyn._substeps if kind == 'kick')
+    kicks_per_step = sum(1 for substep, _ in dyn.engine.plan
+                         if substep is dyn.system.kick)
     if scheme == 'velocity':
         # Kicks meeting across a step boundary share one product.
         assert g.hessian_vector_products == steps * (kicks_per_step - 1) + 1

@@ -8,7 +8,9 @@ from hypothesis import given, strategies as st
 from hypothesis.extra.numpy import arrays
 
 from ase_reversible import QuantumRangeError
-from ase_reversible import fixedpoint as fp
+from ase_reversible.core import codec as fp
+from ase_reversible.core.quanta import Grid
+from ase_reversible.core.variables import ExactVariable
 
 finite = st.floats(min_value=-1e300, max_value=1e300, allow_nan=False)
 exponents = st.integers(min_value=-60, max_value=10)
@@ -67,7 +69,7 @@ def assert_holds(variable, ints):
        arrays(np.float64, 6, elements=st.floats(-2.0**51, 2.0**51)),
        exponents)
 def test_a_rounded_increment_is_undone_by_the_negated_one(ints, y, exponent):
-    variable = fp.FixedPointArray(ints, math.ldexp(1.0, exponent), 'x')
+    variable = ExactVariable('x', ints, math.ldexp(1.0, exponent))
     variable.add_integers(rounded(y))
     variable.add_integers(rounded(-y))
     assert_holds(variable, ints)
@@ -76,7 +78,7 @@ def test_a_rounded_increment_is_undone_by_the_negated_one(ints, y, exponent):
 @given(st.integers(-fp.LIMIT + 1, fp.LIMIT - 1),
        st.floats(-2.0**60, 2.0**60, allow_nan=False))
 def test_an_update_never_leaves_the_range(start, increment):
-    variable = fp.FixedPointArray(np.array([start]), 1.0, 'x')
+    variable = ExactVariable('x', np.array([start]), 1.0)
     step = int(np.rint(increment))
     if abs(step) < fp.LIMIT and abs(start + step) < fp.LIMIT:
         variable.add_integers(rounded([increment]))
@@ -88,7 +90,7 @@ def test_an_update_never_leaves_the_range(start, increment):
 
 
 def test_the_range_is_enforced_over_many_updates():
-    variable = fp.FixedPointArray(np.zeros(2, np.int64), 1.0, 'x')
+    variable = ExactVariable('x', np.zeros(2, np.int64), 1.0)
     step = rounded([2.0**50, -(2.0**50)])
     for k in range(1, 8):
         variable.add_integers(step)
@@ -100,7 +102,7 @@ def test_the_range_is_enforced_over_many_updates():
 def test_back_and_forth_updates_never_raise_a_false_alarm():
     # The running bound on |counts| grows with every update; it must be
     # replaced by the true maximum rather than raise.
-    variable = fp.FixedPointArray(np.array([3, -3]), 1.0, 'x')
+    variable = ExactVariable('x', np.array([3, -3]), 1.0)
     for _ in range(50):
         variable.add_integers(rounded([2.0**52, 2.0**52]))
         variable.add_integers(rounded([-(2.0**52), -(2.0**52)]))
@@ -109,7 +111,7 @@ def test_back_and_forth_updates_never_raise_a_false_alarm():
 
 @pytest.mark.parametrize('bad', [np.nan, np.inf, -np.inf])
 def test_non_finite_increments_are_refused(bad):
-    variable = fp.FixedPointArray(np.zeros(3, np.int64), 1.0, 'momentum')
+    variable = ExactVariable('momentum', np.zeros(3, np.int64), 1.0)
     with pytest.raises(QuantumRangeError, match='not finite'):
         variable.add_integers(np.array([0.0, bad, 1.0]))
     assert_holds(variable, [0, 0, 0])
@@ -119,7 +121,7 @@ def test_non_finite_increments_are_refused(bad):
                 min_size=1, max_size=6))
 def test_rollback_returns_to_the_checkpoint_after_any_updates(increments):
     start = np.arange(4)
-    variable = fp.FixedPointArray(start, 2.0**-3, 'x')
+    variable = ExactVariable('x', start, 2.0**-3)
     variable.add_integers(rounded([1, 2, 3, 4]))
     variable.checkpoint()
     expected = variable.ints.copy()
@@ -140,4 +142,4 @@ def test_quantum_for_is_the_smallest_sufficient_power_of_two(max_abs):
 @pytest.mark.parametrize('q', [0.0, -1.0, 3e-12, np.inf, np.nan])
 def test_grid_rejects_quanta_that_are_not_powers_of_two(q):
     with pytest.raises(ValueError, match='power of two'):
-        fp.Grid(q, 2.0**-40)
+        Grid(q, 2.0**-40)

@@ -8,7 +8,7 @@ from ase import units
 from ase.calculators.lj import LennardJones
 
 from ase_reversible import ReversibleVerlet
-from ase_reversible.compositions import (COMPOSITIONS, DEFAULT_FOR_ORDER,
+from ase_reversible.core.compositions import (COMPOSITIONS, DEFAULT_FOR_ORDER,
                                          composition_for)
 
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS, DT,

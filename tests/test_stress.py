@@ -16,7 +16,7 @@ from ase.md.verlet import VelocityVerlet
 
 from ase_reversible import (QuantumRangeError,
                             ReversibleVerlet, UnstableIntegrationError)
-from ase_reversible.verlet import ENERGY_CHECK_INTERVAL
+from ase_reversible.md.verlet import ENERGY_CHECK_INTERVAL
 from conftest import (AR_RC, AR_SIGMA, CALCULATORS, DT, argon_cluster,
                       assert_atoms_show_committed_state, assert_same_state,
                       copper_bulk, run_back, snapshot, thermalize)

@@ -134,27 +134,3 @@ def composition_for(order=2, composition=None) -> Composition:
         raise ValueError(f'composition fractions must sum to 1, got '
                          f'{math.fsum(fractions)!r}')
     return Composition('custom', order, fractions)
-
-
-def substeps(base, composition: Composition):
-    """Sub-steps ``(kind, fraction)`` of a composed step, merged.
-
-    Returns a tuple of ``(kind, fraction)`` pairs, ``kind`` being
-    ``'kick'`` or ``'drift'`` and ``fraction`` that of the time step.
-
-    ``base`` is the second-order scheme's palindrome of ``(kind,
-    fraction)``, e.g. kick 1/2, drift 1, kick 1/2.  Each stage scales it by
-    its ``g_i``; neighbours of the same kind are merged by adding their
-    fractions, which keeps the sequence a palindrome bit for bit (float
-    addition commutes).
-    """
-    merged = []
-    for g in composition.fractions:
-        for kind, c in base:
-            if merged and merged[-1][0] == kind:
-                merged[-1] = (kind, merged[-1][1] + c * g)
-            else:
-                merged.append((kind, c * g))
-    plan = tuple(merged)
-    assert plan == plan[::-1], 'a composed step must be a palindrome'
-    return plan

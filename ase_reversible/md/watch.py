@@ -32,6 +32,8 @@ import operator
 
 import numpy as np
 
+from ..purity import calculator_members, mixture
+
 #: The change reported for a calculator replaced by an equal one: same
 #: class, equal parameters, mixing nothing.  Its forces are the same
 #: function of the positions, so reversal is unaffected.
@@ -162,42 +164,6 @@ def same_values(a, b) -> bool:
 #: development machine: at 39 elements bytes take 0.3 µs against 4 µs for
 #: ``(a == b).all()``; at 12,000 elements 9 µs against 6 µs.
 _BYTES_COMPARE_LIMIT = 1024
-
-
-def calculator_members(calc):
-    """``calc`` and, recursively, every calculator it mixes (``.calcs``).
-
-    See :func:`mixture`.  Returns a list, ``calc`` first (empty for
-    None).
-    """
-    if calc is None:
-        return []
-    out, stack, seen = [], [calc], set()
-    while stack:
-        c = stack.pop()
-        if id(c) in seen:
-            continue
-        seen.add(id(c))
-        out.append(c)
-        mixed = mixture(c)
-        if mixed is not None:
-            stack.extend(reversed(mixed[0]))
-    return out
-
-
-def mixture(calc):
-    """``(members, weights)`` of a calculator that mixes others, or None.
-
-    ASE's SumCalculator, LinearCombinationCalculator, MixedCalculator and
-    AverageCalculator keep their members and weights in ``.mixer`` (ASE
-    3.29) or on themselves (``.calcs``, ``.weights``, earlier versions);
-    a user's wrapper with ``.calcs`` counts too.  ``weights`` may be None.
-    """
-    for holder in (calc, getattr(calc, 'mixer', None)):
-        members = getattr(holder, 'calcs', None)
-        if isinstance(members, (list, tuple)):
-            return list(members), getattr(holder, 'weights', None)
-    return None
 
 
 class _ParameterSnapshot:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from ase.constraints import FixAtoms, FixCartesian, FixedLine, FixedPlane
 
-from .errors import UnsupportedConstraintError
+from ..errors import UnsupportedConstraintError
 
 SUPPORTED = (FixAtoms, FixCartesian, FixedPlane, FixedLine)
 

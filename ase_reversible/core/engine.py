@@ -1,0 +1,257 @@
+"""The engine: runs a plan of exact sub-steps forwards and backwards.
+
+It owns what every exact dynamics shares: the plan for the present time
+step (composed, merged, its coefficients prepared once per ``dt``), the
+checkpoint and rollback of a whole step over every variable and every piece
+of side state, the direction of time, the exact clock, the anchor that
+reversal leads back to, the retrace that integrates an adjoint, and the
+check of a conserved quantity.  It knows nothing of ASE.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+from ..errors import UnstableIntegrationError
+from .plans import compose
+
+#: Steps (before the interval takes over) that catch an immediate blow-up.
+EARLY_CHECKS = (1, 2, 4, 8)
+
+
+class Engine:
+    """A dynamics declared as exact variables and a palindromic scheme.
+
+    Parameters
+    ----------
+    variables : dict of str to ExactVariable
+        The exact variables, by name.
+    scheme : tuple of (SubStep, float)
+        The second-order palindrome of sub-steps and time-step fractions.
+    composition : Composition
+        How the scheme is composed to higher order.
+    dt : float
+        The time step (any unit the sub-steps agree on); its sign is the
+        direction of time.
+    side : sequence
+        Further state with ``checkpoint()`` and ``rollback()`` (an
+        information buffer, say) that a step must restore when it fails.
+    invariant : InvariantCheck, optional
+        Checked before a step.
+
+    Attributes
+    ----------
+    plan : tuple of (SubStep, float)
+        The composed, merged sub-steps and their fractions of ``dt``.
+    step_index : int
+        Signed steps taken with the present ``|dt|`` (forward +1, back -1).
+    anchor_index : int
+        ``step_index`` at the anchor: reversal leads back no further.
+    """
+
+    def __init__(self, variables, scheme, composition, dt, side=(),
+                 invariant=None):
+        self.variables = dict(variables)
+        self.composition = composition
+        self.plan = compose(scheme, composition)
+        self.substeps = tuple(dict.fromkeys(s for s, _ in self.plan))
+        self._parts = (*self.variables.values(), *side, *self.substeps)
+        self.invariant = invariant
+        self.step_index = self.anchor_index = 0
+        #: Signed steps taken with each earlier |dt|, so that the clock
+        #: returns exactly to where it was when the steps are undone.
+        self._steps_by_size = {}
+        self._elapsed = []
+        self._dt = None
+        self.set_dt(dt)
+        self.anchor = self.snapshot()
+
+    # -- time -----------------------------------------------------------
+
+    @property
+    def dt(self) -> float:
+        return self._dt
+
+    @property
+    def direction(self) -> int:
+        """+1 forward, -1 backward."""
+        return 1 if self._dt > 0 else -1
+
+    def set_dt(self, dt):
+        """Use the time step ``dt`` from the next step on.
+
+        A negated ``dt`` retraces exactly.  A new size starts the count of
+        steps afresh (the clock stays exact) and returns the number of
+        steps taken since the anchor, which then moves here; 0 otherwise.
+        """
+        old, self._dt = self._dt, dt
+        # Negating dt negates every coefficient exactly.
+        self._prepared = tuple((s, s.prepare(c * dt)) for s, c in self.plan)
+        if old is None or abs(dt) == abs(old):
+            return 0
+        taken = self.step_index - self.anchor_index
+        counts = self._steps_by_size
+        counts[abs(old)] = counts.get(abs(old), 0) + self.step_index
+        self.step_index = self.anchor_index = counts.pop(abs(dt), 0)
+        for h in [h for h, k in counts.items() if k == 0]:
+            del counts[h]
+        self._elapsed = [k * h for h, k in counts.items()]
+        if taken:
+            self.anchor = self.snapshot()
+        return taken
+
+    def elapsed(self) -> float:
+        """Time since the engine started, in the unit of ``dt``; goes back
+        when the engine runs backwards."""
+        now = self.step_index * abs(self._dt)
+        if self._elapsed:
+            # One correctly rounded sum over every step size used: the same
+            # multiset of steps gives the same time, whatever the order.
+            now = math.fsum([*self._elapsed, now])
+        return now
+
+    # -- state ----------------------------------------------------------
+
+    def snapshot(self) -> dict:
+        """Copies of every variable's counts, by name."""
+        return {name: v.ints.copy() for name, v in self.variables.items()}
+
+    def install(self, counts):
+        """Set the variables to ``counts`` (dict of int64 arrays by name)
+        and make this the anchor of reversal."""
+        for name, v in self.variables.items():
+            v.reset(counts[name])
+        self.anchor = self.snapshot()
+        self.anchor_index = self.step_index
+        if self.invariant is not None:
+            self.invariant.reset()
+
+    @property
+    def steps_since_anchor(self) -> int:
+        """Steps that can be retraced in the present direction."""
+        return (self.step_index - self.anchor_index) * self.direction
+
+    # -- stepping -------------------------------------------------------
+
+    def step(self, number=None):
+        """One step of the plan; if anything fails, all is as before it.
+
+        ``number`` (ASE's count of steps) decides whether the invariant is
+        checked first.
+        """
+        if self.invariant is not None and number is not None:
+            self.invariant.check(number)
+        self._advance(self._prepared)
+
+    def _advance(self, prepared, cotangents=None):
+        parts = self._parts
+        for part in parts:
+            part.checkpoint()
+        try:
+            if cotangents is None:
+                for substep, argument in prepared:
+                    substep.apply(argument)
+            else:
+                # A retrace: each sub-step undoes the forward sub-step with
+                # the opposite coefficient, after pulling the cotangents
+                # back through it at the values it saw.
+                for substep, argument, forward_ch in prepared:
+                    substep.adjoint(cotangents, forward_ch)
+                    substep.apply(argument)
+        except BaseException:
+            # Updates never overwrite the checkpoint, so going back to it
+            # undoes a partial step exactly.
+            for part in parts:
+                part.rollback()
+            raise
+        self.step_index += self.direction
+
+    def reverse(self):
+        """Flip the direction of time."""
+        self.set_dt(-self._dt)
+
+    def retrace(self, steps, cotangents):
+        """Undo ``steps`` steps while pulling ``cotangents`` back.
+
+        ``cotangents`` holds dL/d(variable) by name and ``flush()``; the
+        sub-steps' :meth:`~.plans.SubStep.adjoint` update it.  Afterwards
+        the variables are ``steps`` steps back and ``dt`` has its sign
+        again, also if a step fails (the state is then that of the last
+        completed step).
+        """
+        self.reverse()
+        try:
+            retrace = tuple((s, s.prepare(c * self._dt), -(c * self._dt))
+                            for s, c in self.plan)
+            for _ in range(steps):
+                self._advance(retrace, cotangents)
+            cotangents.flush()
+        finally:
+            self.reverse()
+            if self.invariant is not None:
+                self.invariant.alarm = False
+
+
+class InvariantCheck:
+    """Stops a run whose conserved quantity drifted beyond a tolerance.
+
+    Parameters
+    ----------
+    interval : int
+        Check at steps 1, 2, 4, 8 and every ``interval`` steps; 0: never.
+    tolerance : float or None
+        Largest allowed change since the anchor; None: what ``measure``
+        proposes at the anchor.
+    measure : callable
+        ``measure() -> (value, proposed_tolerance)``.
+    explain : callable
+        ``explain(number, drift, tolerance) -> str``, the error message.
+    """
+
+    def __init__(self, interval, tolerance, measure, explain):
+        self.interval = interval
+        self.tolerance = tolerance
+        self.measure = measure
+        self.explain = explain
+        self.reset()
+
+    def reset(self):
+        """Take the next value checked as the reference."""
+        self.reference = None
+        self.alarm = False
+
+    def arm_for_retrace(self):
+        """The way back may start outside the tolerance (a run that ended
+        between checks): stay quiet until the value is inside again."""
+        self.alarm = True
+
+    def due(self, number) -> bool:
+        # The early checks catch a time step that blows up at once; after
+        # that one value per interval keeps the cost low.
+        return bool(self.interval) and (number % self.interval == 0
+                                        or number in EARLY_CHECKS)
+
+    def check(self, number):
+        """Raise :class:`~ase_reversible.UnstableIntegrationError` once if
+        the value at step ``number`` drifted beyond the tolerance."""
+        if not self.due(number):
+            return
+        value, proposed = self.measure()
+        if self.reference is None:
+            self.reference = value
+            self.limit = (self.tolerance if self.tolerance is not None
+                          else proposed)
+            return
+        drift = value - self.reference
+        if abs(drift) <= self.limit:
+            self.alarm = False
+            return
+        # Raised once: the way back passes through the same bad values and
+        # must not be stopped.  Armed again once back within the tolerance.
+        if not self.alarm:
+            self.alarm = True
+            raise UnstableIntegrationError(
+                self.explain(number, drift, self.limit))
+
+

@@ -1,0 +1,83 @@
+"""The restart record: the one owner of what a frame needs to resume.
+
+ASE trajectories store ``atoms.info`` with every frame (JSON, which
+round-trips these floats exactly) but not custom per-atom arrays.  The
+record holds what, besides the values shown on the atoms, a resumed run
+needs to re-encode a frame into the very integers the original run had:
+the quantum of every exact variable, keyed ``'<name>_quantum'``, and the
+simulated time.  Because quanta are powers of two and integers stay below
+2**53, the float64 values of the frame determine those integers exactly.
+A variable that the atoms do not show (a thermostat's, say) is stored in
+the record itself as its list of counts, keyed by its name.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .codec import check_quantum, on_grid, value_range
+
+INFO_KEY = 'reversible'
+
+
+def write_record(info: dict, quanta: dict, time: float,
+                 hidden: dict | None = None) -> None:
+    """Store the quanta and the simulated time in ``info`` (``atoms.info``).
+
+    ``quanta``: ``{name: quantum}`` of every exact variable, e.g.
+    ``{'position': ... (Å), 'momentum': ... (amu Å / ASE time unit)}``;
+    ``time`` in ASE time units; ``hidden``: ``{name: int64 array}`` of the
+    variables the atoms do not show.
+    """
+    record = {f'{name}_quantum': float(q) for name, q in quanta.items()}
+    record['time'] = float(time)
+    for name, counts in (hidden or {}).items():
+        record[name] = np.asarray(counts).tolist()
+    info[INFO_KEY] = record
+
+
+def read_record(info: dict, names=('position', 'momentum')) -> dict | None:
+    """The record in ``info``, or None if absent or malformed.
+
+    A dict of floats with the keys ``'<name>_quantum'`` for each of
+    ``names`` and ``'time'`` (units as in :func:`write_record`).
+    """
+    record = info.get(INFO_KEY)
+    if not isinstance(record, dict):
+        return None
+    keys = [f'{name}_quantum' for name in names] + ['time']
+    try:
+        out = {key: float(record[key]) for key in keys}
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not all(math.isfinite(v) for v in out.values()):
+        return None
+    return out
+
+
+def record_mismatch(record: dict, shown: dict):
+    """Why ``record`` cannot be resumed from, or None if it can.
+
+    ``shown``: ``{name: float array or None}``, the values the atoms show
+    of each variable in the record (None: absent, such as momenta never
+    set).  A frame the integrator wrote holds whole numbers of quanta,
+    exactly; anything else -- a thermostat run, new velocities, moved atoms
+    -- was edited since it was written, and its time would be wrong.
+    """
+    try:
+        quanta = {name: check_quantum(record[f'{name}_quantum'])
+                  for name in shown}
+    except ValueError:
+        return 'its quanta are not valid'
+    present = {name: values for name, values in shown.items()
+               if values is not None}
+    if not all(np.abs(values).max(initial=0) < 0.5 * value_range(quanta[name])
+               for name, values in present.items()):
+        return 'the atoms lie outside its range'
+    if not all(on_grid(values, quanta[name])
+               for name, values in present.items()):
+        return ('the positions or momenta are not on its grid: they were '
+                'changed since the frame was written')
+    return None

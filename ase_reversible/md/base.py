@@ -1,0 +1,332 @@
+"""ReversibleDynamics: the thin layer between ASE's MolecularDynamics and
+the exact engine, shared by every reversible dynamics on atoms.
+
+It keeps ASE's contract -- ``run``/``irun``, observers, loggers,
+trajectories, ``dt``, ``get_time`` -- and the library's: every change made
+around a run is taken exactly (the anchor of reversal moves, with an
+:class:`~ase_reversible.AnchorMovedWarning`) or refused, the atoms always
+show the exact state, and every frame carries the restart record.  A
+subclass declares the dynamics: it builds ``self.system`` (the exact
+variables and sub-steps over the atoms) and ``self.engine``.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from ase import units
+from ase.md.md import MolecularDynamics
+
+from ..adjoint import Cotangents, Gradients, hvp_for
+from ..adjoint.cotangents import checked_gradient, checked_parameters
+from ..core.codec import encode
+from ..core.record import write_record
+from ..errors import AnchorMovedWarning
+from ..purity import calculator_members, discard_results, force_provider
+from .checks import (check_calculator, check_steps, check_timestep,
+                     checked_masses)
+from .constraints import constraint_projection
+from .watch import EQUAL_CALCULATOR, SystemWatch, same_values
+
+
+
+
+class ReversibleDynamics(MolecularDynamics):
+    """Base of the reversible integrators; see :class:`ReversibleVerlet`.
+
+    A subclass's constructor checks its arguments, then calls
+    :meth:`_attach` with the system and engine it declared.
+    """
+
+    engine = None
+
+    def _attach(self, system, engine, purity_choice, time0):
+        """Take the declared system and engine (before ASE's constructor)."""
+        self.system, self.engine = system, engine
+        self._purity_choice = purity_choice  # (mode, force_noise)
+        self._time0 = time0
+
+    def _start(self, watch):
+        """After ASE's constructor: watch the atoms, show the exact state."""
+        self._watch = watch
+        self.masses = self.system.m_n1
+        self._show_anchor()
+
+    # -- time -------------------------------------------------------------
+
+    @property
+    def dt(self):
+        """The time step, ASE time units; negative runs backwards."""
+        return self._dt if self.engine is None else self.engine.dt
+
+    @dt.setter
+    def dt(self, value):
+        value = check_timestep(value)
+        if self.engine is None:  # set by the base class's constructor
+            self._dt = value
+            return
+        old = self.engine.dt
+        taken = self.engine.set_dt(value)
+        if (value > 0) != (old > 0) and self.engine.invariant is not None:
+            # The way back may start outside the energy tolerance (a run
+            # that ended between checks): the check waits until it is
+            # inside again.
+            self.engine.invariant.arm_for_retrace()
+        if taken:
+            old, new = abs(old), abs(value)
+            warnings.warn(
+                f'The time step changed from {old / units.fs:g} fs to '
+                f'{new / units.fs:g} fs after {abs(taken)} steps. The new '
+                'step is used from here; reversal with it leads back to '
+                f'this point (time {self.get_time() / units.fs:.6g} fs), not '
+                'beyond. To retrace the earlier steps exactly, set dt back '
+                f'to {old / units.fs:g} fs (negated) here.',
+                AnchorMovedWarning, stacklevel=2)
+
+    def reverse(self):
+        """Flip the direction of time: further steps retrace the path.
+
+        Negates :attr:`dt` (``dyn.dt = -dyn.dt`` does the same).
+        ``run(n); reverse(); run(n)`` ends bit for bit where the first
+        ``run`` started.  Returns the integrator, so
+        ``dyn.reverse().run(n)`` works.
+        """
+        self.dt = -self.dt
+        return self
+
+    def get_time(self):
+        """Simulated time in ASE time units, continued from a restart record.
+
+        Goes back when the integrator runs backwards (unlike ``nsteps``,
+        which counts every step taken).
+        """
+        return self._time0 + self.engine.elapsed()
+
+    @property
+    def step_index(self) -> int:
+        """Signed steps taken with the present ``|dt|`` (back counts -1)."""
+        return self.engine.step_index
+
+    # -- the run ----------------------------------------------------------
+
+    def irun(self, steps=50):
+        """As ASE's ``irun`` (a generator yielding whether the run is done).
+
+        Changes made around the run are taken (or refused) first, so even
+        ``run(0)`` takes them.  The loop is this class's own, not ASE's:
+        ASE's asks for forces after every step through a private hook
+        whose existence depends on the ASE version; this one asks only
+        where a step does not end with them already.
+        """
+        self._sync()
+        self.max_steps = self.nsteps + steps
+        if self.nsteps == 0:
+            self._ready()
+            self.log()
+            self.call_observers()
+        yield self.nsteps == self.max_steps
+        while self.nsteps < self.max_steps:
+            self.step()
+            self.nsteps += 1
+            self.log()
+            self.call_observers()
+            yield self.nsteps == self.max_steps
+
+    def run(self, steps=50):
+        """Run ``steps`` steps; True once the run has reached them."""
+        converged = steps == 0
+        for converged in self.irun(steps):
+            pass
+        return converged
+
+    def _ready(self):
+        """Before the first step: what ASE's loop would have computed."""
+
+    def step(self):
+        """One time step (called by ``run``/``irun``; ``dt`` may be negative).
+
+        Takes any edit of the atoms first (:class:`AnchorMovedWarning`),
+        checks the energy at checkpoint steps, then applies the sub-steps.
+        If anything fails, the state is that before the step, bit for bit.
+        """
+        self._sync()
+        self.engine.step(self.nsteps)
+        self._committed()
+
+    def _committed(self):
+        self.system.show_momenta()
+        write_record(self.atoms.info, self._quanta(), self.get_time())
+
+    # -- the adjoint ------------------------------------------------------
+
+    def backpropagate(self, steps, grad_positions, grad_momenta=None, *,
+                      hvp='auto', parameters=()):
+        """Gradients of a loss with respect to the state ``steps`` steps ago.
+
+        After ``run(steps)``, with ``grad_positions`` = dL/d(positions)
+        and ``grad_momenta`` = dL/d(momenta) of a scalar loss L at the
+        current state, retraces the ``steps`` steps exactly while
+        integrating the adjoint (:mod:`ase_reversible.adjoint`), and
+        returns dL/d(positions) and dL/d(momenta) at the state ``steps``
+        steps earlier.  Afterwards the atoms are at that earlier state, bit
+        for bit, and the time step has its original sign: ``run(steps)``
+        repeats the forward run exactly.  Memory does not grow with
+        ``steps``.
+
+        The retrace costs what the forward run cost, plus one
+        Hessian-vector product per step (kick-drift-kick, ``steps + 1`` in
+        all; one per kick for drift-kick-drift).  Observers are not called
+        during it.  A loss on several states of a run is handled by calling
+        this once per segment, adding each state's own dL/dx, dL/dp to the
+        gradients returned.
+
+        Parameters
+        ----------
+        steps : int
+            Number of steps to retrace, >= 0.
+        grad_positions : array_like ``[n_atoms, 3]``
+            dL/dx at the current state, (loss unit) / Å.
+        grad_momenta : array_like ``[n_atoms, 3]``, optional
+            dL/dp at the current state, (loss unit) / (amu Å / ASE time);
+            None means zero.
+        hvp : {'auto', 'analytic', 'finite-difference'} or callable
+            How Hessian-vector products are computed
+            (:func:`ase_reversible.adjoint.hvp_for`): ``'auto'`` uses the
+            calculator's ``hessian_vector_product`` if it has one, else a
+            central finite difference of the forces (two force calls).
+        parameters : sequence of str
+            Potential parameters (e.g. ``('epsilon', 'sigma')`` for
+            :class:`ase_reversible.LennardJones`) whose gradients to
+            accumulate; returned in ``.parameters``.
+
+        Returns
+        -------
+        Gradients
+            ``(grad_positions0, grad_momenta0)``, each ``[n_atoms, 3]``,
+            with ``.parameters`` (dict) and ``.hessian_vector_products``.
+            Constraints are honoured: the gradients are those of the
+            constrained run, and the momentum gradient is projected
+            (momenta a constraint holds are not free).
+
+        If the retrace fails (the calculator raises, or an interrupt), the
+        atoms are left at the last completed step, still exactly
+        reversible, and the time step keeps its original sign.
+        """
+        steps = check_steps(steps)
+        self._sync()
+        available = self.engine.steps_since_anchor
+        if steps > available:
+            raise ValueError(
+                f'Cannot retrace {steps} steps: only {available} were taken '
+                'in this direction since the anchor of reversal (the '
+                'constructor, or the last change taken: an edit of the '
+                'atoms, the calculator, the constraints, the cell, or the '
+                'size of dt). Steps before it ran under other dynamics. '
+                f'Call backpropagate with at most {available} steps.')
+        atoms, n = self.atoms, len(self.atoms)
+        cotangents = Cotangents(
+            {'position': checked_gradient(grad_positions, n,
+                                          'grad_positions'),
+             'momentum': checked_gradient(grad_momenta, n, 'grad_momenta')},
+            hvp=hvp_for(atoms.calc, hvp),
+            parameters=checked_parameters(atoms.calc, parameters))
+        try:
+            self.engine.retrace(steps, cotangents)
+        finally:
+            self._committed()
+        ap_nc = cotangents['momentum'].copy()
+        self.system.project(ap_nc)
+        return Gradients(cotangents['position'].copy(), ap_nc,
+                         cotangents.grad_parameters, cotangents.products)
+
+    # -- changes made around the run --------------------------------------
+
+    def _sync(self):
+        """Take or refuse changes made around the run (see watch.py)."""
+        atoms = self.atoms
+        changes = self._watch.changes(atoms)
+        if changes and self._take_changes(changes):
+            return
+        momenta = atoms.arrays.get('momenta')
+        if (same_values(atoms.arrays['positions'], self.system.x.floats)
+                and momenta is not None
+                and same_values(momenta, self.system.p.floats)):
+            return
+        self._install(self._encode(atoms, self.system.project))
+        warnings.warn(
+            f'Positions or momenta were changed outside {type(self).__name__}. The '
+            'change was taken and snapped to the grid; reversal now leads '
+            f'back to this point (time {self.get_time() / units.fs:.6g} fs), '
+            'not beyond.', AnchorMovedWarning, stacklevel=3)
+
+    def _take_changes(self, changes):
+        """Take a change of the dynamics, or refuse it leaving all as was.
+
+        Everything that can refuse runs before anything is replaced.
+        Returns True if the anchor moved (the state was re-installed),
+        False for a calculator replaced by an equal one.
+        """
+        atoms = self.atoms
+        if len(atoms) != len(self.system.x.ints):
+            raise ValueError('The number of atoms changed; construct a new '
+                             f'{type(self).__name__} for the new system (or put the '
+                             'atoms back to continue this run).')
+        if atoms.calc is None:
+            raise RuntimeError('The atoms lost their calculator; attach one '
+                               '(atoms.calc = ...) before running.')
+        check_calculator(atoms.calc, 'running')
+        project = constraint_projection(atoms)
+        masses_n = checked_masses(atoms)
+        # Any change may alter how pure the forces are (a new calculator or
+        # cut-off, atoms now near a periodic face): choose again.
+        purity = force_provider(atoms, *self._purity_choice)
+        if changes == [EQUAL_CALCULATOR]:
+            self.system.purity = purity
+            self._watch.take(atoms)
+            self.system.kick.forget()
+            return False
+        counts = self._encode(atoms, project)
+        # ASE's Calculator.set keeps results (and ASE's LennardJones its
+        # neighbour list) from before the change: the first kick after it
+        # would use them.  reset() is ASE's way to drop all of that.
+        for calc in calculator_members(atoms.calc):
+            if callable(getattr(calc, 'reset', None)):
+                calc.reset()
+            else:
+                discard_results(calc)
+        self.system.set_dynamics(masses_n, project, purity)
+        self.masses = self.system.m_n1
+        self._watch.take(atoms)
+        self.engine.set_dt(self.engine.dt)  # coefficients use the masses
+        self._install(counts)
+        warnings.warn(
+            f'Changed outside {type(self).__name__} since the last step: '
+            f'{", ".join(changes)}. The change was taken (positions and '
+            'momenta snapped to the grid, momenta projected onto the '
+            'constraints); reversal now leads back to this point (time '
+            f'{self.get_time() / units.fs:.6g} fs), not beyond. To retrace '
+            'further back exactly, undo the change when you get here.',
+            AnchorMovedWarning, stacklevel=4)
+        return True
+
+    def _encode(self, atoms, project):
+        """Snap the atoms' positions and (projected) momenta to the grid."""
+        p_nc = atoms.get_momenta()
+        project(p_nc)
+        return {'position': encode(atoms.positions, self.system.x.quantum,
+                                   'position'),
+                'momentum': encode(p_nc, self.system.p.quantum, 'momentum')}
+
+    def _install(self, counts):
+        """Make ``counts`` the anchor of reversal and show it on the atoms."""
+        self.engine.install(counts)
+        self._show_anchor()
+
+    def _show_anchor(self):
+        self.system.show()
+        write_record(self.atoms.info, self._quanta(), self.get_time())
+
+    def _quanta(self):
+        return {name: v.quantum for name, v in self.engine.variables.items()}
+

@@ -1,0 +1,124 @@
+"""Argument checks of the ASE adapters: refuse bad input before anything
+is changed or opened, with a message that says what to do."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def check_timestep(timestep):
+    """The time step as a finite, non-zero float (ASE time units)."""
+    if isinstance(timestep, (str, bytes)):
+        raise TypeError(f'timestep must be a number (ASE time units, e.g. '
+                        f'5 * ase.units.fs), got the string {timestep!r}')
+    try:
+        dt = float(timestep)
+    except (TypeError, ValueError):
+        raise TypeError(f'timestep must be a number (ASE time units, e.g. '
+                        f'5 * ase.units.fs), got {timestep!r}') from None
+    if not math.isfinite(dt) or dt == 0:
+        raise ValueError(f'timestep must be finite and non-zero (ASE time '
+                         f'units, e.g. 5 * ase.units.fs), got {timestep!r}')
+    return dt
+
+
+def check_steps(steps):
+    """A whole number of steps >= 0."""
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) \
+            or steps < 0:
+        raise ValueError(f'steps must be a whole number >= 0, got {steps!r}')
+    return int(steps)
+
+
+def check_energy_watch(interval, tolerance):
+    """``(energy_check, energy_tolerance)`` of the energy check, checked."""
+    if isinstance(interval, bool) or not isinstance(interval, int) \
+            or interval < 0:
+        raise ValueError(f'energy_check must be a whole number of steps '
+                         f'(0 turns the check off), got {interval!r}')
+    if tolerance is not None:
+        tolerance = float(tolerance)
+        if not tolerance > 0:
+            raise ValueError(f'energy_tolerance must be positive (eV), got '
+                             f'{tolerance!r}')
+    return interval, tolerance
+
+
+def check_calculator(calc, doing):
+    """Refuse a missing calculator or one that only holds stored results."""
+    if calc is None:
+        raise RuntimeError(f'The atoms have no calculator: attach one '
+                           f'(atoms.calc = ...) before {doing}.')
+    from ase.calculators.singlepoint import SinglePointCalculator
+    if isinstance(calc, SinglePointCalculator):
+        raise RuntimeError(
+            'The atoms carry a SinglePointCalculator: the stored results of '
+            'a trajectory frame, which cannot compute forces anywhere else. '
+            f'Attach a real calculator (atoms.calc = ...) before {doing}; '
+            "the frame's positions, momenta and restart record are kept.")
+
+
+def checked_masses(atoms):
+    """The masses ``[n_atoms]`` (amu), refused unless positive and finite."""
+    masses_n = atoms.get_masses()
+    bad = ~(masses_n > 0) | ~np.isfinite(masses_n)
+    if np.any(bad):
+        atom = int(np.argwhere(bad)[0, 0])
+        raise ValueError(f'Atom {atom} has mass {float(masses_n[atom])}: '
+                         'every mass must be positive and finite (set it '
+                         'with atoms.set_masses).')
+    return masses_n
+
+
+def fixed(name):
+    """Refuse an assignment to something fixed at construction."""
+    raise AttributeError(
+        f'The {name} of a ReversibleVerlet is fixed when it is constructed; '
+        'construct a new one (from the present atoms, which hold the exact '
+        'state and its restart record) to change it.')
+
+
+def refuse_coarse_momentum_quantum(masses_n, momenta_nc, grid, origin,
+                                   purity):
+    """Refuse a momentum quantum that would visibly change the momenta.
+
+    ``momenta_nc`` ``[n_atoms, 3]`` already projected onto the
+    constraints; ``origin`` as returned by
+    :func:`ase_reversible.core.quanta.choose_grid`.
+    """
+    from ..core.quanta import momentum_resolution_problem
+    from ..core.record import INFO_KEY
+    from ..errors import CoarseQuantumError
+    from ..purity import DEFAULT_FORCE_NOISE
+    qp = grid.momentum_quantum
+    problem = momentum_resolution_problem(masses_n, momenta_nc, qp)
+    if problem is None:
+        return
+    source, remedy = {
+        'given': ('as given', 'Pass a finer momentum_quantum, or none '
+                  '(the default is chosen for these momenta).'),
+        'record': ('from the restart record in atoms.info',
+                   'Remove the record (atoms.info.pop('
+                   f'{INFO_KEY!r})) to start a new run on a grid chosen '
+                   'for these momenta.'),
+        'default': ('chosen by default', 'Pass a finer momentum_quantum.'),
+        'purity': (f"raised to this by force_purity='{purity.mode}' with "
+                   f'force_noise={purity.force_noise:.3g} eV/Å, which '
+                   'keeps clean recomputations of the forces rare',
+                   'force_noise bounds the history noise of the '
+                   'forces; neighbour lists leave noise below 1e-12 '
+                   'eV/Å (the default bound is '
+                   f'{DEFAULT_FORCE_NOISE:.2g}). A '
+                   'bound this large means the noise comes from state '
+                   'the calculator carries between calls, such as a '
+                   'self-consistent field: make each calculation start '
+                   "from scratch and use force_purity='auto'. A "
+                   'smaller force_noise or time step also gives a '
+                   'finer quantum.'),
+    }[origin]
+    raise CoarseQuantumError(
+        f'The momentum quantum {qp:.3g} amu Å / ASE time unit '
+        f'({source}) is too coarse: {problem}. {remedy} Nothing was '
+        'changed.')

@@ -1,0 +1,226 @@
+"""Atoms as a Hamiltonian system in fixed point: the drift and the kick.
+
+Positions and momenta are the exact variables ``'position'`` and
+``'momentum'``, ``[n_atoms, 3]``.  The two sub-steps are shears -- each adds
+the odd rounding of a function of the variable it does not change (Stam,
+"An Exact Bitwise Reversible Integrator", eq. posVerlet):
+
+* drift: ``x += round_odd(c h P p / m / q_x)``
+* kick: ``p += round_odd(c h P F(x) / q_p)``
+
+with ``P`` the constraint projection.  Each brings its adjoint rule
+(:mod:`ase_reversible.adjoint`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from ase import units
+
+from ..core.codec import round_odd
+from ..core.plans import SubStep
+from ..core.variables import ExactVariable
+from ..errors import NonFiniteForcesError, QuantumRangeError
+
+#: Temperature (K) whose kinetic energy is the smallest default tolerance
+#: of the energy check.
+ENERGY_TOLERANCE_TEMPERATURE = 100.0
+
+
+class Hamiltonian:
+    """The atoms' positions and momenta as exact variables, and their forces.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        Shows the exact values: positions after every drift, momenta after
+        every step.
+    grid : Grid
+        The two quanta.
+    counts : dict
+        int64 ``[n_atoms, 3]`` counts for ``'position'`` and ``'momentum'``.
+    masses_n : numpy.ndarray ``[n_atoms]``
+        amu.
+    project : callable
+        In-place constraint projection of an ``[n_atoms, 3]`` array.
+    purity : force provider
+        From :func:`ase_reversible.purity.force_provider`.
+    """
+
+    def __init__(self, atoms, grid, counts, masses_n, project, purity):
+        self.atoms = atoms
+        self.x = ExactVariable('position', counts['position'],
+                               grid.position_quantum)
+        self.p = ExactVariable('momentum', counts['momentum'],
+                               grid.momentum_quantum)
+        self.variables = {'position': self.x, 'momentum': self.p}
+        self.set_dynamics(masses_n, project, purity)
+        self.drift = Drift(self)
+        self.kick = Kick(self)
+
+    def set_dynamics(self, masses_n, project, purity):
+        """New masses, constraints or force provider (re-prepare the plan)."""
+        self.m_n1 = masses_n[:, None]
+        self.project = project
+        self.purity = purity
+
+    def show_positions(self):
+        self.atoms.arrays['positions'][:] = self.x.floats
+
+    def show_momenta(self):
+        momenta = self.atoms.arrays.get('momenta')
+        if momenta is None:
+            self.atoms.set_momenta(self.p.floats, apply_constraint=False)
+        else:
+            momenta[:] = self.p.floats
+
+    def show(self):
+        self.show_positions()
+        self.show_momenta()
+
+    def energy(self):
+        """``(total energy, proposed tolerance)`` in eV, for the check: the
+        tolerance is the kinetic energy or that of the atoms at
+        ``ENERGY_TOLERANCE_TEMPERATURE``, whichever is larger."""
+        kinetic = self.atoms.get_kinetic_energy()
+        energy = self.atoms.get_potential_energy() + kinetic
+        floor = 1.5 * len(self.atoms) * units.kB * \
+            ENERGY_TOLERANCE_TEMPERATURE
+        return energy, max(kinetic, floor)
+
+
+class Drift(SubStep):
+    """``x += round_odd(c h P p / m / q_x)``; shown on the atoms at once."""
+
+    reads, writes = ('momentum',), 'position'
+
+    def __init__(self, system):
+        self.system = system
+        self._y_nc = np.empty(system.x.ints.shape)
+
+    def prepare(self, ch):
+        # Applied to the momenta's exact float image p = ip * qp.
+        return ch / self.system.x.quantum / self.system.m_n1
+
+    def apply(self, factor_n1):
+        s = self.system
+        y_nc = np.multiply(s.p.floats, factor_n1, out=self._y_nc)
+        s.project(y_nc)
+        round_odd(y_nc, out=y_nc)
+        s.x.add_integers(y_nc)
+        s.show_positions()
+
+    def rollback(self):
+        self.system.show_positions()
+
+    def adjoint(self, cotangents, ch):
+        """``a_p += c h P a_x / m``, after the pending kicks."""
+        cotangents.flush()
+        w_nc = np.divide(cotangents['position'], self.system.m_n1)
+        self.system.project(w_nc)
+        w_nc *= ch
+        cotangents['momentum'] += w_nc
+
+
+class Kick(SubStep):
+    """``p += round_odd(c h P F(x) / q_p)``, the forces made pure.
+
+    Forces are computed once per position value; kick-drift-kick ends a
+    step and starts the next with the same kick at the same positions, so
+    its rounding is reused, not recomputed.
+    """
+
+    reads, writes = ('position',), 'momentum'
+
+    def __init__(self, system):
+        self.system = system
+        shape = system.x.ints.shape
+        self._y_nc = np.empty(shape)
+        self._r_nc = np.empty(shape)
+        self.forget()
+
+    def forget(self):
+        """Drop cached forces (a new calculator, even an equal one)."""
+        self._r_key = None
+        self._f_cache = None
+        self._saved = None
+
+    def prepare(self, ch):
+        return ch / self.system.p.quantum
+
+    def forces(self):
+        """Forces ``[n_atoms, 3]`` (eV/Å) at the current grid positions."""
+        s = self.system
+        if self._f_cache is not None and self._f_cache[0] == s.x.label:
+            return self._f_cache[1]
+        f_nc = s.purity.forces(s.atoms)
+        self._f_cache = (s.x.label, f_nc)
+        return f_nc
+
+    def apply(self, scale):
+        s = self.system
+        r_nc = self._r_nc
+        key = (s.x.label, scale)
+        if self._r_key != key:
+            self._r_key = None  # r_nc is about to be overwritten
+            f_used_nc = s.purity.rounded_kick(
+                s.atoms, self.forces(), scale, s.project, out=r_nc,
+                scratch=self._y_nc)
+            self._f_cache = (s.x.label, f_used_nc)
+            self._r_key = key
+        try:
+            s.p.add_integers(r_nc)
+        except QuantumRangeError:
+            if not np.all(np.isfinite(self._f_cache[1])):
+                raise NonFiniteForcesError(
+                    f'{type(s.atoms.calc).__name__} returned non-finite '
+                    'forces; the step was not taken and the state is still '
+                    'reversible. Check the structure (overlapping atoms?) '
+                    'and the calculator.') from None
+            raise
+
+    def checkpoint(self):
+        self._saved = self._f_cache
+
+    def rollback(self):
+        self._f_cache = self._saved
+        self._r_key = None  # r_nc may hold a kick of the failed step
+
+    def adjoint(self, cotangents, ch):
+        # Deferred: the next drift or the end applies it, merged with any
+        # other kick at these positions.
+        cotangents.defer(self._pull_back, ch)
+
+    def _pull_back(self, cotangents, ch):
+        """``a_x -= c h H(x) P a_p`` and ``a_theta += c h (dF/dtheta)^T P
+        a_p`` at the atoms' current positions."""
+        s = self.system
+        w_nc = np.array(cotangents['momentum'])
+        s.project(w_nc)
+        if not w_nc.any():
+            return  # H 0 = 0 (a loss on positions only starts this way)
+        # A copy: a user's product may keep or modify its argument.
+        hv_nc = np.asarray(cotangents.hvp(s.atoms, w_nc.copy()), dtype=float)
+        if hv_nc.shape != w_nc.shape:
+            raise ValueError(f'The Hessian-vector product has shape '
+                             f'{hv_nc.shape}, expected {w_nc.shape}')
+        cotangents.products += 1
+        cotangents['position'] -= ch * hv_nc
+        for name in cotangents.parameters:
+            df_nc = s.atoms.calc.force_parameter_derivative(s.atoms, name)
+            cotangents.grad_parameters[name] += ch * float(np.vdot(df_nc,
+                                                                   w_nc))
+
+
+def explain_energy_drift(number, drift, tolerance, dt):
+    """The message of the energy check that stopped a run at step
+    ``number`` (energies in eV, ``dt`` in ASE time units)."""
+    return (
+        f'The total energy has changed by {drift:.4g} eV since the '
+        f'anchor of reversal (tolerance {tolerance:.4g} eV) '
+        f'after step {number}: the integration is unstable. Use '
+        f'a smaller time step (now {abs(dt) / units.fs:g} fs). '
+        'The step was not taken; the state is valid and reverse() '
+        'leads back exactly (the check stays quiet until the energy '
+        'is within the tolerance again). If the change is expected, '
+        'raise energy_tolerance or pass energy_check=0.')

@@ -1,0 +1,330 @@
+"""ReversibleVerlet: bit-for-bit reversible NVE dynamics for ASE.
+
+The dynamics is declared, not hand-written: positions and momenta as exact
+variables (:mod:`ase_reversible.md.hamiltonian`), a palindromic scheme of
+drifts and kicks, and a composition; the engine
+(:mod:`ase_reversible.core.engine`) runs it and the base class
+(:mod:`ase_reversible.md.base`) keeps ASE's contract.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from ase import Atoms
+
+from ..core.codec import encode
+from ..core.compositions import composition_for
+from ..core.engine import Engine, InvariantCheck
+from ..core.plans import compose
+from ..core.quanta import choose_grid
+from ..core.record import INFO_KEY, read_record, record_mismatch
+from ..errors import AnchorMovedWarning
+from ..purity import force_provider
+from .base import ReversibleDynamics
+from .checks import (check_calculator, check_energy_watch, check_timestep,
+                     checked_masses, fixed, refuse_coarse_momentum_quantum)
+from .constraints import constraint_projection
+from .hamiltonian import Hamiltonian, explain_energy_drift
+from .state import FixedPointState
+from .watch import SystemWatch
+
+DRIFT, KICK = 'drift', 'kick'
+
+#: Default steps between checks of the total energy.
+ENERGY_CHECK_INTERVAL = 100
+
+#: Sub-steps of each scheme: (kind, fraction of the time step).  Both are
+#: palindromes, so the same sequence run with -h is the exact inverse.
+SCHEMES = {
+    'velocity': ((KICK, 0.5), (DRIFT, 1.0), (KICK, 0.5)),
+    'position': ((DRIFT, 0.5), (KICK, 1.0), (DRIFT, 0.5)),
+}
+
+
+class ReversibleVerlet(ReversibleDynamics):
+    """Verlet dynamics in int64 fixed point that can be run back exactly.
+
+    Positions and momenta are integers counted in power-of-two quanta
+    (:mod:`ase_reversible.core.codec`).  Every sub-step adds the odd
+    rounding of a function of the *other* variable -- drift:
+    ``x += rint(c h p / m / q_x)``, kick: ``p += rint(c h F(x) / q_p)`` --
+    so after ``run(n)``, :meth:`reverse` and ``run(n)`` the positions and
+    momenta are bitwise those right after the constructor (J. Stam, "An
+    Exact Bitwise Reversible Integrator", eq. posVerlet).
+
+    The constructor snaps positions and momenta to the grid (a move of at
+    most half a quantum) and writes them back to ``atoms``.  The values on
+    ``atoms`` are exact images of the integers at every step, so any
+    trajectory frame is an exact restart point: read it with
+    ``ase.io.read``, attach a calculator and construct a new
+    ``ReversibleVerlet``.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        With a calculator attached.
+    timestep : float
+        Time step in ASE time units (``5 * ase.units.fs``); may be
+        negative to run backwards.
+    trajectory, logfile, loginterval, append_trajectory
+        As for :class:`ase.md.verlet.VelocityVerlet`.
+    scheme : {'velocity', 'position'}
+        ``'velocity'`` (default): kick-drift-kick.  ``'position'``:
+        drift-kick-drift, the paper's position Verlet.  Both take one force
+        evaluation per step; kick-drift-kick ends each step with the forces
+        and energy at the new positions, so loggers, observers and
+        trajectories read them for free, while drift-kick-drift has to
+        compute them again whenever something asks.
+    order : {2, 4, 6, 8, 10}
+        Order of accuracy.  Above 2 a step is a symmetric composition of
+        ``scheme`` steps (:mod:`ase_reversible.core.compositions`), still
+        exactly reversible, costing one force call per stage: 5 for order
+        4, 9 for 6, 15 for 8 and 33 for 10.
+    composition : str or sequence of float, optional
+        Another composition of the same order, such as ``'triple-jump'``
+        (order 4 in 3 stages), or custom palindromic step fractions.
+    position_quantum : float, optional
+        Å, a power of two.  Default: from a restart record in
+        ``atoms.info`` if present, otherwise 1024 times the system's size
+        over 2**53 (:func:`~ase_reversible.core.quanta.choose_position_quantum`).
+    momentum_quantum : float, optional
+        amu Å / ASE time unit, a power of two.  Default: from a restart
+        record, otherwise 256 times the momentum scale over 2**53, raised
+        if the force-purity mode needs it coarser.
+    force_purity : {'auto', 'sorted', 'guarded', 'trust'}
+        How forces are made a pure function of positions; see
+        :mod:`ase_reversible.purity`.
+    force_noise : float, optional
+        Bound on history noise in the forces for ``'guarded'``, eV/Å.
+    energy_check : int
+        At steps 1, 2, 4, 8 and then every this many steps (default 100;
+        0 turns the check off) the total energy is compared with its value
+        where reversal is anchored; a difference above ``energy_tolerance`` stops the run
+        with :class:`~ase_reversible.UnstableIntegrationError` before the
+        next step, at a valid, reversible state (the check then stays
+        quiet until the energy is back within the tolerance, so the run
+        can be reversed).  This is what catches a time step past the
+        stability limit.  A check reads the energy the
+        calculator has from the last force call ('velocity'; for asap3 a
+        fraction of a force call) or computes it ('position').
+    energy_tolerance : float, optional
+        eV.  Default: the kinetic energy at the anchor or that of the atoms
+        at 100 K, whichever is larger.
+    **kwargs
+        Passed to :class:`ase.md.md.MolecularDynamics`, e.g.
+        ``append_trajectory=True``.
+
+    Attributes
+    ----------
+    dt : float
+        The time step, ASE time units; its sign is the direction of time.
+        Setting it is honoured at the next step: a negated ``dt`` runs
+        backwards exactly like :meth:`reverse`; a new size moves the
+        anchor of reversal there (:class:`AnchorMovedWarning` if steps
+        were taken since the anchor).
+    anchor : FixedPointState
+        The state that reversal leads back to.
+    grid : Grid
+        The two quanta (Å; amu Å / ASE time unit) and their ranges.
+    scheme : str
+        ``'velocity'`` or ``'position'``.
+    composition : Composition
+        The composition in use: ``.name``, ``.order``, ``.stages`` (force
+        calls per step) and ``.fractions``.
+    energy_check : int
+        Steps between energy checks (0: off).
+    energy_tolerance : float or None
+        eV, as passed; None means the default described above.
+
+    Raises
+    ------
+    ValueError, TypeError
+        Bad arguments (time step, scheme, order, quanta, masses, non-finite
+        positions or momenta), before anything is changed or opened.
+    RuntimeError
+        The atoms have no calculator, or only the stored results of a
+        trajectory frame (a SinglePointCalculator).
+    CoarseQuantumError
+        The momentum quantum (given, or raised by ``force_noise``) would
+        visibly change the momenta.
+    UnsupportedConstraintError
+        A constraint other than FixAtoms, FixCartesian, FixedPlane and
+        FixedLine.
+    ImpureForcesError
+        ``force_purity='auto'`` probed the calculator and its forces
+        depended on its history.
+    QuantumRangeError
+        A position or momentum lies outside the range of the quanta given.
+    """
+
+    def __init__(self, atoms, timestep, trajectory=None, logfile=None,
+                 loginterval=1, *, scheme='velocity', order=2,
+                 composition=None, position_quantum=None,
+                 momentum_quantum=None, force_purity='auto', force_noise=None,
+                 energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
+                 **kwargs):
+        # Validate everything before the base class touches any file.
+        timestep = check_timestep(timestep)
+        if scheme not in SCHEMES:
+            raise ValueError(f'scheme must be one of {tuple(SCHEMES)}, '
+                             f'got {scheme!r}')
+        energy_check, energy_tolerance = check_energy_watch(
+            energy_check, energy_tolerance)
+        composition = composition_for(order, composition)
+        if not isinstance(atoms, Atoms):
+            raise TypeError(
+                f'ReversibleVerlet integrates ase.Atoms at a fixed cell, got '
+                f'{type(atoms).__name__}: filters that move the cell '
+                '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
+                'pass the Atoms themselves.')
+        check_calculator(atoms.calc, 'constructing ReversibleVerlet')
+        masses_n = checked_masses(atoms)
+        for name in ('positions', 'momenta'):
+            values = atoms.arrays.get(name)
+            if values is not None and not np.all(np.isfinite(values)):
+                raise ValueError(f'The atoms have non-finite {name}.')
+        project = constraint_projection(atoms)
+        purity = force_provider(atoms, force_purity, force_noise)
+        momenta = atoms.arrays.get('momenta', np.zeros((len(atoms), 3)))
+        record, time0 = self._resumable_record(atoms), 0.0
+        if record is not None:
+            time0 = record['time']
+        max_kick = abs(timestep) * max(
+            abs(c) for kind, c in compose(SCHEMES[scheme], composition)
+            if kind == KICK)
+        grid, origin = choose_grid(
+            atoms.positions, atoms.cell, atoms.pbc, masses_n, momenta,
+            position_quantum=position_quantum,
+            momentum_quantum=momentum_quantum, record=record,
+            momentum_floor=purity.min_momentum_quantum(
+                len(atoms), max_kick,
+                extent=float(np.abs(atoms.positions).max(initial=0.0))))
+        p_nc = atoms.get_momenta()
+        project(p_nc)
+        # Refusals end here, before the base class opens any file.
+        refuse_coarse_momentum_quantum(masses_n, p_nc, grid, origin, purity)
+        counts = {'position': encode(atoms.positions, grid.position_quantum,
+                                     'position'),
+                  'momentum': encode(p_nc, grid.momentum_quantum, 'momentum')}
+        system = Hamiltonian(atoms, grid, counts, masses_n, project, purity)
+        substep = {KICK: system.kick, DRIFT: system.drift}
+        invariant = InvariantCheck(energy_check, energy_tolerance,
+                                   system.energy, self._explain_drift)
+        engine = Engine(system.variables,
+                        tuple((substep[k], c) for k, c in SCHEMES[scheme]),
+                        composition, timestep, invariant=invariant)
+        self._scheme, self._grid = scheme, grid
+        # Before the base class: older ASE writes todict() into a
+        # trajectory's header as soon as it is attached.
+        self._attach(system, engine, (force_purity, force_noise), time0)
+        super().__init__(atoms, timestep, trajectory=trajectory,
+                         logfile=logfile, loginterval=loginterval, **kwargs)
+        self._start(SystemWatch(atoms))
+
+    @staticmethod
+    def _resumable_record(atoms):
+        """The restart record in ``atoms.info`` if it fits the atoms."""
+        record = read_record(atoms.info)
+        if record is None:
+            return None
+        mismatch = record_mismatch(record, {
+            'position': atoms.positions,
+            'momentum': atoms.arrays.get('momenta')})
+        if mismatch is None:
+            return record
+        warnings.warn(
+            f'The restart record in atoms.info does not fit these '
+            f'atoms ({mismatch}); this is a new run: new quanta, '
+            'time from 0. To resume a run exactly, start from an '
+            'unedited trajectory frame; to silence this, remove the '
+            f'record (atoms.info.pop({INFO_KEY!r})).',
+            AnchorMovedWarning, stacklevel=4)
+        return None
+
+    def _explain_drift(self, number, drift, tolerance):
+        return explain_energy_drift(number, drift, tolerance, self.dt)
+
+    def _ready(self):
+        # Kick-drift-kick starts with the forces at the present positions,
+        # as ASE's loop would compute them; drift-kick-drift computes them
+        # only when a logger or observer asks.
+        if self.engine.plan[0][0] is self.system.kick:
+            self.system.kick.forces()
+
+    # Fixed at construction: an assignment would otherwise be ignored.
+    scheme = property(lambda self: self._scheme,
+                      lambda self, value: fixed('scheme'),
+                      doc="``'velocity'`` or ``'position'`` (fixed at "
+                          'construction).')
+    composition = property(
+        lambda self: self.engine.composition,
+        lambda self, value: fixed('composition (and order)'),
+        doc='The :class:`~ase_reversible.core.compositions.Composition` in '
+            'use (fixed at construction).')
+    grid = property(lambda self: self._grid,
+                    lambda self, value: fixed('grid (the quanta)'),
+                    doc='The two quanta, a :class:`Grid` (fixed at '
+                        'construction).')
+
+    @property
+    def energy_check(self):
+        """Steps between energy checks (0: off)."""
+        return self.engine.invariant.interval
+
+    @energy_check.setter
+    def energy_check(self, value):
+        self.engine.invariant.interval = check_energy_watch(value, None)[0]
+
+    @property
+    def energy_tolerance(self):
+        """eV, as passed; None means the default described above."""
+        return self.engine.invariant.tolerance
+
+    @energy_tolerance.setter
+    def energy_tolerance(self, value):
+        self.engine.invariant.tolerance = check_energy_watch(0, value)[1]
+
+    @property
+    def anchor(self) -> FixedPointState:
+        """A copy of the state reversal leads back to (int64 counts).
+
+        The state right after the constructor, or right after the last
+        change that was taken (:class:`AnchorMovedWarning`); same layout as
+        :attr:`state`.
+        """
+        anchor = self.engine.anchor
+        return FixedPointState(anchor['position'].copy(),
+                               anchor['momentum'].copy())
+
+    @property
+    def state(self) -> FixedPointState:
+        """A copy of the exact state: int64 positions and momenta in quanta.
+
+        ``.ix_nc`` and ``.ip_nc``, int64 ``[n_atoms, 3]``; times
+        ``grid.position_quantum`` (Å) and ``grid.momentum_quantum`` (amu Å
+        / ASE time unit) they are exactly ``atoms.positions`` and
+        ``atoms.get_momenta()``.
+        """
+        return FixedPointState(self.system.x.ints.copy(),
+                               self.system.p.ints.copy())
+
+    @property
+    def force_purity(self):
+        """The force provider in use (:mod:`ase_reversible.purity`).
+
+        ``.mode`` is ``'sorted'``, ``'guarded'`` or ``'trust'``; a guarded
+        provider also counts ``.clean_recomputations`` and keeps
+        ``.max_observed_noise`` (eV/Å).
+        """
+        return self.system.purity
+
+    def todict(self):
+        """ASE's description of the dynamics (written into trajectory
+        headers), plus ``scheme``, ``order``, ``composition``, the two
+        quanta and the ``force_purity`` mode."""
+        return {**super().todict(), 'scheme': self.scheme,
+                'order': self.composition.order,
+                'composition': self.composition.name,
+                **self.grid.todict(), 'force_purity': self.force_purity.mode}
