@@ -14,7 +14,7 @@ from .errors import (CoarseQuantumError, ImpureForcesError,
 from .adjoint import Gradients
 from .chain import PendulumChain
 from .fixedpoint import FixedPointState, Grid
-from .flipbook import Flipbook
+from .app.flipbook import Flipbook
 from .gravity import SoftenedGravity
 from .hessian import AnalyticHVP, FiniteDifferenceHVP
 from .lennardjones import LennardJones
