@@ -19,9 +19,9 @@ from .errors import (AnchorMovedWarning, CoarseQuantumError,
                      UnstableIntegrationError, UnsupportedConstraintError)
 from .adjoint import AnalyticHVP, FiniteDifferenceHVP, Gradients
 from .chain import PendulumChain
+from .app.flipbook import Flipbook
 from .core.quanta import Grid
 from .core.record import INFO_KEY
-from .flipbook import Flipbook
 from .gravity import SoftenedGravity
 from .lennardjones import LennardJones
 from .md import FixedPointState, ReversibleVerlet

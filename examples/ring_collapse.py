@@ -8,7 +8,7 @@ the time step is negated and every step is undone: the bodies fall back
 through the centre, un-clump, and land on the ring exactly where they
 started, bit for bit.
 
-The frames are computed by a :class:`ase_reversible.flipbook.Flipbook`,
+The frames are computed by a :class:`ase_reversible.Flipbook`,
 which steps the dynamics to whichever frame is asked for, forward or
 backward, so no frame is ever stored.
 
@@ -35,8 +35,8 @@ from ase import units
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ase_reversible import ReversibleVerlet
-from ase_reversible.flipbook import AtomsView, Flipbook
+from ase_reversible import Flipbook, ReversibleVerlet
+from ase_reversible.app.view import AtomsView
 from ase_reversible.gravity import SoftenedGravity, make_ring
 
 

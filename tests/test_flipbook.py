@@ -18,8 +18,10 @@ from PIL import Image
 
 from ase_reversible import ReversibleVerlet, UnstableIntegrationError
 from ase_reversible.chain import PendulumChain, make_chain
-from ase_reversible.flipbook import AtomsView, Flipbook, main
-from ase_reversible.scenes import SCENES
+from ase_reversible.app import cli
+from ase_reversible.app.flipbook import Flipbook
+from ase_reversible.app.scenes import SCENES
+from ase_reversible.app.view import AtomsView
 
 from conftest import AR_EPSILON, AR_RC, AR_SIGMA, DT, argon_cluster
 
@@ -221,10 +223,10 @@ def test_scenes_run_out_and_back_exactly(name):
 
 def test_command_line_png_and_gif(tmp_path, capsys):
     png = tmp_path / 'ring.png'
-    assert main(['ring', '--png', '2', '--out', str(png)]) == 0
+    assert cli.flipbook(['ring', '--png', '2', '--out', str(png)]) == 0
     assert pixels(png).shape[2] == 3
     gif = tmp_path / 'chain.gif'
-    assert main(['chain', '--gif', '3', '--out', str(gif)]) == 0
+    assert cli.flipbook(['chain', '--gif', '3', '--out', str(gif)]) == 0
     with Image.open(gif) as image:
         assert image.n_frames == 7
     assert 'back at frame 0 after 3 frames each way: True' in \
@@ -238,8 +240,8 @@ def test_command_line_from_a_trajectory(tmp_path):
     path = tmp_path / 'md.traj'
     ReversibleVerlet(atoms, DT, trajectory=str(path)).run(4)
     png = tmp_path / 'frame.png'
-    assert main([str(path), '--index', '2', '--calculator', 'lj-argon',
-                 '--png', '3', '--out', str(png)]) == 0
+    assert cli.flipbook([str(path), '--index', '2', '--calculator',
+                         'lj-argon', '--png', '3', '--out', str(png)]) == 0
     assert png.exists()
 
 
@@ -250,7 +252,7 @@ def test_command_line_from_a_trajectory(tmp_path):
 ])
 def test_command_line_errors(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_:
-        main(argv)
+        cli.flipbook(argv)
     assert exit_.value.code == 2
     assert message in capsys.readouterr().err
 
@@ -259,12 +261,12 @@ def test_command_line_file_needs_a_calculator(tmp_path, capsys):
     atoms = make_chain(2)
     atoms.write(tmp_path / 'chain.traj')
     with pytest.raises(SystemExit):
-        main([str(tmp_path / 'chain.traj'), '--png', '1', '--out',
-              str(tmp_path / 'x.png')])
+        cli.flipbook([str(tmp_path / 'chain.traj'), '--png', '1', '--out',
+                      str(tmp_path / 'x.png')])
     assert '--calculator' in capsys.readouterr().err
 
 
 def test_command_line_without_a_display_says_what_to_do(capsys):
     assert matplotlib.get_backend().lower() == 'agg'
-    assert main(['ring']) == 2
+    assert cli.flipbook(['ring']) == 2
     assert '--png FRAME --out FILE' in capsys.readouterr().err

@@ -30,68 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ReversibilityError
+from ..errors import ReversibilityError
+from ..md import ReversibleVerlet
+from .view import AtomsView
 
 #: Key -> frames to move.  'home' is handled apart.
 KEY_STEPS = {'right': 1, 'left': -1, 'up': 10, 'down': -10,
              'pageup': 100, 'pagedown': -100}
-
-PLANES = {'xy': (0, 1), 'xz': (0, 2), 'yz': (1, 2)}
-
-
-class AtomsView:
-    """Draws atoms as discs projected on a plane of Cartesian axes.
-
-    Parameters
-    ----------
-    plane : {'xy', 'xz', 'yz'}
-        The two axes shown, Å.
-    colors : array_like, optional
-        One matplotlib colour per atom (``[n_atoms]`` names or
-        ``[n_atoms, 3 or 4]`` RGB(A) in 0..1).  Default: Jmol colours by
-        element.
-    size : float or array_like ``[n_atoms]``
-        Marker area, points².
-    bonds : array_like ``[n_bonds, 2]``, optional
-        Pairs of atom indices joined by a line (a chain's links).
-
-    Call it as ``view(ax, atoms)`` on a cleared matplotlib axes.
-    """
-
-    def __init__(self, plane='xy', colors=None, size=30.0, bonds=None):
-        if plane not in PLANES:
-            raise ValueError(f'plane must be one of {tuple(PLANES)}, got '
-                             f'{plane!r}')
-        self.plane = plane
-        self.colors = colors
-        self.size = size
-        self.bonds = None if bonds is None else np.asarray(bonds, dtype=int)
-        if self.bonds is not None and (self.bonds.ndim != 2
-                                       or self.bonds.shape[1] != 2):
-            raise ValueError('bonds must be pairs of atom indices, shape '
-                             f'[n_bonds, 2]; got shape {self.bonds.shape}')
-
-    def axes(self):
-        """Indices of the two Cartesian axes shown."""
-        return PLANES[self.plane]
-
-    def __call__(self, ax, atoms):
-        """Draw ``atoms`` (positions in Å) on the matplotlib axes ``ax``."""
-        a, b = self.axes()
-        x_nc = atoms.positions
-        if self.bonds is not None and len(self.bonds):
-            segments = x_nc[self.bonds][:, :, [a, b]]
-            from matplotlib.collections import LineCollection
-            ax.add_collection(LineCollection(segments, colors='0.35',
-                                             linewidths=1.5, zorder=1))
-        colors = self.colors
-        if colors is None:
-            from ase.data.colors import jmol_colors
-            colors = jmol_colors[atoms.numbers]
-        ax.scatter(x_nc[:, a], x_nc[:, b], s=self.size, c=colors,
-                   edgecolors='k', linewidths=0.3, zorder=2)
-        ax.set_xlabel(f'{self.plane[0]} (Å)')
-        ax.set_ylabel(f'{self.plane[1]} (Å)')
 
 
 class Flipbook:
@@ -123,7 +68,6 @@ class Flipbook:
 
     def __init__(self, dyn, stride=1, view=None, limits=None,
                  figsize=(5.0, 5.0), first=0, last=None):
-        from .md import ReversibleVerlet
         if not isinstance(dyn, ReversibleVerlet):
             raise TypeError(
                 f'Flipbook needs a ReversibleVerlet, got '
@@ -362,100 +306,3 @@ class Flipbook:
         half = max(hi - lo for lo, hi in limits) / 2
         return tuple((0.5 * (lo + hi) - half, 0.5 * (lo + hi) + half)
                      for lo, hi in limits)
-
-
-# -- command line ----------------------------------------------------------
-
-CALCULATORS = {
-    'emt': ('ase.calculators.emt', 'EMT', {}),
-    'asap3-emt': ('asap3', 'EMT', {}),
-    'lj-argon': ('ase_reversible.lennardjones', 'LennardJones',
-                 {'epsilon': 0.0104, 'sigma': 3.4, 'rc': 8.5}),
-}
-
-
-def main(argv=None):
-    """``python -m ase_reversible flipbook``: see ``--help``."""
-    import argparse
-    import sys
-    from importlib import import_module
-    from .scenes import SCENES
-    parser = argparse.ArgumentParser(
-        prog='python -m ase_reversible flipbook',
-        description='Step a simulation forward and backward on demand, '
-                    'without storing frames.  Keys: right/left one frame, '
-                    'up/down ten, PageUp/PageDown a hundred, Home frame 0.')
-    parser.add_argument('source', nargs='?', default='ring',
-                        help=f'a scene ({", ".join(SCENES)}; default ring) '
-                             'or a trajectory file to start from')
-    parser.add_argument('--index', type=int, default=-1,
-                        help='frame of the trajectory file (default: last)')
-    parser.add_argument('--calculator', choices=sorted(CALCULATORS),
-                        help='calculator for a trajectory file')
-    parser.add_argument('--timestep', type=float,
-                        help='fs (default: the scene\'s; 5 for files)')
-    parser.add_argument('--stride', type=int, help='steps per frame')
-    parser.add_argument('--plane', choices=sorted(PLANES),
-                        help='axes shown (default: the scene\'s; xy)')
-    parser.add_argument('--png', type=int, metavar='FRAME',
-                        help='render this frame to --out and exit')
-    parser.add_argument('--gif', type=int, metavar='FRAMES',
-                        help='animate frames 0..FRAMES and back to 0 into '
-                             '--out and exit')
-    parser.add_argument('--out', help='file for --png or --gif')
-    args = parser.parse_args(argv)
-
-    if args.png is None and args.gif is None:
-        import matplotlib
-        if matplotlib.get_backend().lower() == 'agg':
-            print('No interactive matplotlib backend (no display?): use '
-                  '--png FRAME --out FILE or --gif FRAMES --out FILE.',
-                  file=sys.stderr)
-            return 2
-
-    from ase import units
-    from .md import ReversibleVerlet
-    if args.source in SCENES:
-        scene = SCENES[args.source]()
-        atoms, timestep, stride, view = (scene.atoms, scene.timestep,
-                                         scene.stride, scene.view)
-        print(scene.description)
-    else:
-        path = Path(args.source)
-        if not path.exists():
-            parser.error(f'{args.source!r} is neither a scene '
-                         f'({", ".join(SCENES)}) nor an existing file')
-        if args.calculator is None:
-            parser.error('a trajectory file needs --calculator '
-                         f'({", ".join(sorted(CALCULATORS))})')
-        import ase.io
-        atoms = ase.io.read(path, args.index)
-        module, name, kwargs = CALCULATORS[args.calculator]
-        try:
-            atoms.calc = getattr(import_module(module), name)(**kwargs)
-        except ImportError:
-            parser.error(f'--calculator {args.calculator} needs {module}, '
-                         'which is not installed')
-        timestep, stride, view = 5 * units.fs, 1, AtomsView()
-    if args.timestep is not None:
-        timestep = args.timestep * units.fs
-    if args.stride is not None:
-        stride = args.stride
-    if args.plane is not None:
-        view.plane = args.plane
-    if (args.png is not None or args.gif is not None) and not args.out:
-        parser.error('--png and --gif need --out FILE')
-
-    book = Flipbook(ReversibleVerlet(atoms, timestep), stride=stride,
-                    view=view)
-    if args.png is not None:
-        print('wrote', book.render(args.png, args.out))
-        return 0
-    if args.gif is not None:
-        frames = [*range(args.gif + 1), *range(args.gif - 1, -1, -1)]
-        print('wrote', book.save_gif(args.out, frames))
-        back = book.frame == 0
-        print(f'back at frame 0 after {args.gif} frames each way: {back}')
-        return 0
-    book.show()
-    return 0

@@ -14,32 +14,18 @@ import math
 
 import numpy as np
 from ase import units
-from ase.calculators.lj import LennardJones
-from ase.cluster import Icosahedron
-from ase.md import velocitydistribution
 from ase.md.verlet import VelocityVerlet
 
-from .md import ReversibleVerlet
-
-SHELLS = {13: 2, 55: 3, 147: 4, 309: 5}
-
-
-def thermalize(atoms, temperature_K, seed):
-    """Maxwell-Boltzmann momenta at exactly ``temperature_K``."""
-    rng = np.random.default_rng(seed)
-    if hasattr(velocitydistribution, 'thermalize_momenta'):  # ASE >= 3.29
-        velocitydistribution.thermalize_momenta(
-            atoms, temperature_K, exact_temperature=True, rng=rng)
-    else:
-        velocitydistribution.MaxwellBoltzmannDistribution(
-            atoms, temperature_K=temperature_K, rng=rng, force_temp=True)
+from ..md import ReversibleVerlet
+from .systems import ICOSAHEDRON_SHELLS, argon_cluster, argon_lj
 
 
 def make_cluster(n_atoms, temperature_K, seed):
-    atoms = Icosahedron('Ar', SHELLS[n_atoms], latticeconstant=5.26)
-    atoms.center(vacuum=10.0)
-    thermalize(atoms, temperature_K, seed)
-    atoms.calc = LennardJones(sigma=3.4, epsilon=0.0104, rc=8.5)
+    """Ar``n_atoms`` icosahedron (a key of ``ICOSAHEDRON_SHELLS``) in 10 Å
+    of vacuum, momenta at exactly ``temperature_K`` K drawn from ``seed``,
+    with ASE's LennardJones (argon parameters) attached."""
+    atoms = argon_cluster(ICOSAHEDRON_SHELLS[n_atoms], temperature_K, seed)
+    atoms.calc = argon_lj()
     return atoms
 
 
@@ -86,7 +72,7 @@ def main(argv=None):
         prog='python -m ase_reversible demo',
         description='Reverse a hot argon cluster bit for bit.')
     parser.add_argument('--atoms', type=int, default=147,
-                        choices=sorted(SHELLS))
+                        choices=sorted(ICOSAHEDRON_SHELLS))
     parser.add_argument('--steps', type=int, default=1000)
     parser.add_argument('--temperature', type=float, default=120.0,
                         help='initial temperature, K (default 120)')

@@ -13,7 +13,14 @@ from typing import Callable
 import numpy as np
 from ase import units
 
-from .flipbook import AtomsView
+from .. import LennardJones, PendulumChain, SoftenedGravity
+# The builders stay at their modules' paths: only the calculators are
+# exported by the package.
+from ..chain import make_chain
+from ..gravity import make_ring
+from .systems import (AR_EPSILON, AR_RC, AR_SIGMA, ICOSAHEDRON_SHELLS,
+                      argon_cluster)
+from .view import AtomsView
 
 
 @dataclass
@@ -33,7 +40,6 @@ class Scene:
 def ring(n_atoms=100):
     """Gravitational collapse of a ring (J. Stam's first figure)."""
     import matplotlib
-    from .gravity import SoftenedGravity, make_ring
     atoms = make_ring(n_atoms, radius=10.0, jitter=0.05)
     atoms.calc = SoftenedGravity(G=1.0, softening=0.3)
     colors = matplotlib.colormaps['hsv'](np.arange(n_atoms) / n_atoms)
@@ -44,7 +50,6 @@ def ring(n_atoms=100):
 
 def chain(n_links=6):
     """A chaotic pendulum chain pinned at its top (the paper's web demo)."""
-    from .chain import PendulumChain, make_chain
     atoms = make_chain(n_links, angle=90.0)
     atoms.calc = PendulumChain(stiffness=1000.0, gravity=1.0)
     bonds = np.column_stack([np.arange(n_links), np.arange(1, n_links + 1)])
@@ -54,18 +59,13 @@ def chain(n_links=6):
 
 
 def argon(n_atoms=55, temperature_K=60.0, seed=0):
-    """A warm argon icosahedron with Lennard-Jones forces."""
-    from ase.cluster import Icosahedron
-    from .demo import thermalize
-    from .lennardjones import LennardJones
-    shells = {13: 2, 55: 3, 147: 4}
-    if n_atoms not in shells:
+    """A warm argon icosahedron (``n_atoms`` a magic size: 13, 55, 147,
+    ...) with Lennard-Jones forces; ``temperature_K`` in K."""
+    if n_atoms not in ICOSAHEDRON_SHELLS:
         raise ValueError(f'argon scene: n_atoms must be one of '
-                         f'{tuple(shells)}, got {n_atoms}')
-    atoms = Icosahedron('Ar', shells[n_atoms], latticeconstant=5.26)
-    atoms.center()
-    thermalize(atoms, temperature_K, seed)
-    atoms.calc = LennardJones(epsilon=0.0104, sigma=3.4, rc=8.5)
+                         f'{tuple(ICOSAHEDRON_SHELLS)}, got {n_atoms}')
+    atoms = argon_cluster(ICOSAHEDRON_SHELLS[n_atoms], temperature_K, seed)
+    atoms.calc = LennardJones(epsilon=AR_EPSILON, sigma=AR_SIGMA, rc=AR_RC)
     return Scene(atoms, 5 * units.fs, 4, AtomsView('xy', size=60),
                  f'Ar{n_atoms} at {temperature_K:g} K, Lennard-Jones')
 
