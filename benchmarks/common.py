@@ -1,16 +1,23 @@
-"""Shared pieces of the benchmarks: thread settings, machine, timing.
+"""Shared pieces of the measurements: thread settings, the package measured,
+the machine.
 
-Import this module before numpy (``run_all.py`` does): it pins BLAS to one
-thread.  Some numpy calls on the MD path go to OpenBLAS threads (np.vdot in
-Atoms.get_kinetic_energy, which MDLogger calls every step); on a busy
-machine every hand-off waits for a scheduler time slice, milliseconds that
-would swamp the per-step costs measured here.  Set the variables yourself
-to override.
+Import this module before numpy (every measurement script does): it pins
+BLAS to one thread.  Some numpy calls on the MD path go to OpenBLAS threads
+(np.vdot in Atoms.get_kinetic_energy, which MDLogger calls every step); on
+a busy machine every hand-off waits for a scheduler time slice,
+milliseconds that would swamp the per-step costs measured here.  Set the
+variables yourself to override.
+
+It also puts this checkout ahead of any installed ``ase_reversible``: the
+commit recorded beside the numbers must be the code that made them.
+Entries of PYTHONPATH stay ahead of it, which is how savings.py points its
+workers at other commits.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 
 BLAS_THREAD_VARIABLES = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS',
                          'MKL_NUM_THREADS')
@@ -22,7 +29,6 @@ for _name in BLAS_THREAD_VARIABLES:
 
 import platform  # noqa: E402  (after the thread settings on purpose)
 import subprocess  # noqa: E402
-import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -30,8 +36,15 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / 'docs'
 
+if str(ROOT) not in sys.path:
+    # sys.path[0] is the script's directory, then come PYTHONPATH's entries.
+    _python_path = [p for p in os.environ.get('PYTHONPATH', '').split(
+        os.pathsep) if p]
+    sys.path.insert(1 + len(_python_path), str(ROOT))
 
-def _run(command):
+
+def command_output(command):
+    """Stripped stdout of ``command`` run in the checkout, or None."""
     try:
         return subprocess.run(command, capture_output=True, text=True,
                               check=True, cwd=ROOT,
@@ -57,12 +70,13 @@ def machine_info() -> dict:
     import asap3
     import ase_reversible
     uname = platform.uname()
-    commit = _run(['git', 'rev-parse', '--short', 'HEAD'])
-    dirty = _run(['git', 'status', '--porcelain', '--untracked-files=no'])
+    commit = command_output(['git', 'rev-parse', '--short', 'HEAD'])
+    dirty = command_output(['git', 'status', '--porcelain',
+                            '--untracked-files=no'])
     return {
         'cpu_model': cpu_model() or platform.processor() or '(not reported)',
         'uname': f'{uname.system} {uname.release} {uname.machine}',
-        'nproc': _run(['nproc']) or str(os.cpu_count()),
+        'nproc': command_output(['nproc']) or str(os.cpu_count()),
         'python': platform.python_version(),
         'numpy': np.__version__,
         'ase': ase.__version__,
@@ -73,32 +87,3 @@ def machine_info() -> dict:
         'blas_threads': ', '.join(f'{name}={os.environ.get(name)}'
                                   for name in BLAS_THREAD_VARIABLES),
     }
-
-
-def thermalised(atoms, temperature_K, seed=0):
-    """Maxwell-Boltzmann momenta at exactly ``temperature_K`` (fixed seed)."""
-    from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
-    # Deprecated in ASE 3.29, but a thin wrapper of thermalize_momenta,
-    # which older ASE versions lack: same momenta, so keep it quiet.
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore', DeprecationWarning)
-        MaxwellBoltzmannDistribution(atoms, temperature_K=temperature_K,
-                                     rng=np.random.default_rng(seed),
-                                     force_temp=True)
-    return atoms
-
-
-def markdown_table(header, rows) -> str:
-    """A Markdown table from a header row and rows of cells."""
-    lines = ['| ' + ' | '.join(map(str, header)) + ' |',
-             '| ' + ' | '.join('---' for _ in header) + ' |']
-    lines += ['| ' + ' | '.join(map(str, row)) + ' |' for row in rows]
-    return '\n'.join(lines)
-
-
-def pyplot():
-    """matplotlib's pyplot on the non-interactive Agg backend."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    return plt

@@ -18,37 +18,42 @@ Two sources of error are measured separately:
 
 from __future__ import annotations
 
-import common
+import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
+import sys
 import time
 
+import asap3
 import numpy as np
+from ase import units
+from ase.calculators.emt import EMT
 
-TITLE = 'Gradient accuracy'
+from ase_reversible import (FiniteDifferenceHVP, LennardJones,
+                            ReversibleVerlet)
+from ase_reversible.app.systems import (AR_EPSILON, AR_SIGMA, argon_cluster,
+                                        copper_bulk, copper_cluster)
 
+TIMESTEP_FS = 5.0
 FINE = {'position_quantum': 2.0**-44, 'momentum_quantum': 2.0**-46,
         'energy_check': 0}
 STEPS_FD = (1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6, 1e-6)
+#: The step of the fourth-order reference stencil, Å.
+STENCIL_STEP = 1e-5
 FD_H = (1e-5, 1e-6, 1e-7)
 
 
 def _hvp_cases():
-    import asap3
-    from ase.build import bulk
-    from ase.calculators.emt import EMT
-    from ase.cluster import Icosahedron
-    from ase_reversible import LennardJones
-
+    # Only the positions matter for a Hessian-vector product: the momenta
+    # the builders draw are not used.
     def argon():
-        atoms = Icosahedron('Ar', 4, latticeconstant=5.26)
+        atoms = argon_cluster(4, 60)
         atoms.rattle(0.1, seed=1)
-        atoms.calc = LennardJones(epsilon=0.0104, sigma=3.4)
+        atoms.calc = LennardJones(epsilon=AR_EPSILON, sigma=AR_SIGMA)
         return atoms
 
     def copper(calc):
         def build():
-            atoms = bulk('Cu', cubic=True) * (4, 4, 4)
-            atoms.rattle(0.05, seed=1)
+            atoms = copper_bulk((4, 4, 4), 300, seed=1, rattle=0.05)
             atoms.calc = calc()
             return atoms
         return build
@@ -71,8 +76,7 @@ def _stencil(atoms, v_nc, step):
 
 
 def measure_hvp(quick):
-    from ase_reversible import FiniteDifferenceHVP
-    from ase_reversible.hessian import DEFAULT_FD_STEP
+    default_step = FiniteDifferenceHVP().step
     rows = []
     cases = _hvp_cases()[:2] if quick else _hvp_cases()
     for label, build, kind in cases:
@@ -80,7 +84,7 @@ def measure_hvp(quick):
         v_nc = np.random.default_rng(0).normal(size=(len(atoms), 3))
         reference_nc = (atoms.calc.hessian_vector_product(atoms, v_nc)
                         if kind == 'analytic'
-                        else _stencil(atoms, v_nc, 1e-5))
+                        else _stencil(atoms, v_nc, STENCIL_STEP))
         scale = np.abs(reference_nc).max()
         errors = {}
         for step in STEPS_FD:
@@ -88,27 +92,18 @@ def measure_hvp(quick):
             errors[step] = float(np.abs(hv_nc - reference_nc).max() / scale)
         rows.append({'case': label, 'n_atoms': len(atoms), 'reference': kind,
                      'errors': {repr(k): v for k, v in errors.items()},
-                     'default_step': DEFAULT_FD_STEP})
+                     'default_step': default_step})
     return rows
 
 
 def _run_cases(quick):
-    from ase.calculators.emt import EMT
-    from ase.cluster import Icosahedron
-    from ase_reversible import LennardJones
-    from ase_reversible.demo import thermalize
-
     def argon():
-        atoms = Icosahedron('Ar', 3, latticeconstant=5.26)
-        atoms.center(vacuum=10.0)
-        thermalize(atoms, 60, 0)
-        atoms.calc = LennardJones(epsilon=0.0104, sigma=3.4)
+        atoms = argon_cluster(3, 60)
+        atoms.calc = LennardJones(epsilon=AR_EPSILON, sigma=AR_SIGMA)
         return atoms
 
     def copper():
-        atoms = Icosahedron('Cu', 2)
-        atoms.center(vacuum=8.0)
-        thermalize(atoms, 600, 0)
+        atoms = copper_cluster(2, 600)
         atoms.calc = EMT()
         return atoms
 
@@ -122,19 +117,15 @@ def _run_cases(quick):
 
 
 def _loss_run(build, steps, a_nc, b_nc, dx_nc=0.0, dp_nc=0.0):
-    from ase import units
-    from ase_reversible import ReversibleVerlet
     atoms = build()
     atoms.positions = atoms.positions + dx_nc
     atoms.set_momenta(atoms.get_momenta() + dp_nc)
-    ReversibleVerlet(atoms, 5 * units.fs, **FINE).run(steps)
+    ReversibleVerlet(atoms, TIMESTEP_FS * units.fs, **FINE).run(steps)
     return float(np.vdot(a_nc, atoms.positions)
                  + np.vdot(b_nc, atoms.get_momenta()))
 
 
 def measure_runs(quick):
-    from ase import units
-    from ase_reversible import ReversibleVerlet
     results = []
     for label, build, lengths, directions in _run_cases(quick):
         rng = np.random.default_rng(1)
@@ -143,7 +134,7 @@ def measure_runs(quick):
         rows = []
         for steps in lengths:
             atoms = build()
-            dyn = ReversibleVerlet(atoms, 5 * units.fs, **FINE)
+            dyn = ReversibleVerlet(atoms, TIMESTEP_FS * units.fs, **FINE)
             start = (atoms.positions.copy(), atoms.get_momenta())
             t0 = time.perf_counter()
             dyn.run(steps)
@@ -176,99 +167,14 @@ def measure_runs(quick):
     return results
 
 
-def run(quick, figures):
-    results = {'hvp': measure_hvp(quick), 'runs': measure_runs(quick)}
-    plt = common.pyplot()
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for row in results['hvp']:
-        steps = [float(k) for k in row['errors']]
-        left.loglog(steps, list(row['errors'].values()), 'o-',
-                    label=row['case'])
-    default = results['hvp'][0]['default_step']
-    left.axvline(default, color='grey', ls=':', label='default step')
-    left.set_xlabel('finite-difference step (Å)')
-    left.set_ylabel('relative error of H v')
-    left.set_title('Finite-difference Hessian-vector products')
-    left.legend(fontsize=7)
-    for case in results['runs']:
-        steps = [r['steps'] for r in case['rows']]
-        best = [max(min(d['errors'].values()) for d in r['directions'])
-                for r in case['rows']]
-        growth = [r['growth'] for r in case['rows']]
-        line, = right.loglog(steps, best, 'o-', label=f"{case['case']}: error")
-        right.loglog(steps, growth, 's--', color=line.get_color(),
-                     label='gradient growth')
-    right.set_xlabel('steps (5 fs)')
-    right.set_title('backpropagate against whole-run finite differences')
-    right.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(figures / 'gradient_accuracy.png', dpi=120)
-    plt.close(fig)
-    return results
+def run(quick):
+    return {'hvp': measure_hvp(quick), 'runs': measure_runs(quick),
+            'settings': {'timestep_fs': TIMESTEP_FS,
+                         'position_quantum': FINE['position_quantum'],
+                         'momentum_quantum': FINE['momentum_quantum'],
+                         'stencil_step': STENCIL_STEP}}
 
 
-def render(results):
-    hvp = results['hvp']
-    steps = list(hvp[0]['errors'])
-    lines = [
-        'How accurate the gradients of `ReversibleVerlet.backpropagate` '
-        'are (`benchmarks/gradient_accuracy.py`).',
-        '',
-        '![gradient accuracy](benchmarks/gradient_accuracy.png)',
-        '',
-        '### Finite-difference Hessian-vector products',
-        '',
-        'Largest component error over the largest component of the '
-        'reference, for one random direction; the default step is '
-        f"{hvp[0]['default_step']:g} Å. Reference: `analytic` is the "
-        "calculator's exact product, `stencil` a fourth-order difference at "
-        '1e-5 Å.',
-        '',
-        common.markdown_table(
-            ['case', 'reference'] + [f'{float(s):g} Å' for s in steps],
-            [[r['case'], r['reference']]
-             + [f"{r['errors'][s]:.1e}" for s in steps] for r in hvp]),
-        '',
-        '### Whole-run gradients',
-        '',
-        'Linear loss `L = <a, x_T> + <b, p_T>` with random `a`, `b`; '
-        'relative error of the directional derivative `<dL/dx0, u>` (and '
-        'the same for `p0`) against central finite differences of the whole '
-        'run with h = ' + ', '.join(f'{h:g}' for h in FD_H) + ' (Å, or amu '
-        'Å / ASE time), for random `u`. "best h" is the smallest of the '
-        'three errors, the largest over directions; "growth" the gradient '
-        'growth over the run. Fine quanta (2^-44 Å, 2^-46), time step 5 fs.',
-        '',
-    ]
-    for case in results['runs']:
-        lines += [f"**{case['case']}** ({case['n_atoms']} atoms)", '']
-        rows = []
-        for r in case['rows']:
-            per_h = {h: max(d['errors'][repr(h)] for d in r['directions'])
-                     for h in FD_H}
-            best = max(min(d['errors'].values()) for d in r['directions'])
-            rows.append([r['steps'], f"{r['growth']:.3g}", f'{best:.1e}']
-                        + [f'{per_h[h]:.1e}' for h in FD_H]
-                        + ['yes' if r['exact_return'] else 'NO',
-                           f"{r['backward_s'] / r['forward_s']:.2f}"])
-        lines += [common.markdown_table(
-            ['steps', 'growth', 'error, best h']
-            + [f'error, h={h:g}' for h in FD_H]
-            + ['back at start bit for bit', 'backward / forward time'],
-            rows), '']
-    worst_case, worst_row = max(
-        ((case, r) for case in results['runs'] for r in case['rows']),
-        key=lambda cr: max(min(d['errors'].values())
-                           for d in cr[1]['directions']))
-    worst = max(min(d['errors'].values()) for d in worst_row['directions'])
-    per_h = [max(d['errors'][repr(h)] for d in worst_row['directions'])
-             for h in FD_H]
-    falls = ', '.join(f'{a / b:.0f}×' for a, b in zip(per_h, per_h[1:]))
-    lines += [f"Largest error at the best h: {worst:.1e} ({worst_case['case']}, "
-              f"{worst_row['steps']} steps, growth {worst_row['growth']:.3g}). "
-              f'There, each 10× smaller h divides the error by {falls}: '
-              'the finite differences\' truncation error (∝ h², growing '
-              'with the curvature of the run map) still dominates the '
-              'comparison, so it bounds the error of the adjoint from '
-              'above only.']
-    return '\n'.join(lines)
+if __name__ == '__main__':
+    import run_all
+    sys.exit(run_all.main(['--only', 'gradient_accuracy'] + sys.argv[1:]))

@@ -1,42 +1,53 @@
 """Long exact-reversal runs with ASE's pure-Python LennardJones.
 
 The test suite runs the 20,000-step hot Ar147 round trip with asap3; with
-ASE's LennardJones it takes minutes per scheme, so it lives here.
+ASE's LennardJones it takes minutes per scheme, so it lives here, out of
+the default run::
 
-    python benchmarks/long_reversal.py [--steps 20000] [velocity] [position]
+    python benchmarks/run_all.py --only long_reversal
 """
 
-import argparse
+from __future__ import annotations
+
+import common  # noqa: F401  (first: pins BLAS threads before numpy)
+
+import sys
 import time
 
 import numpy as np
 from ase import units
 
 from ase_reversible import ReversibleVerlet
-from ase_reversible.demo import make_cluster
+from ase_reversible.app.systems import argon_cluster, argon_lj
+
+SHELLS, TEMPERATURE_K, TIMESTEP_FS = 4, 120.0, 5.0
+SCHEMES = ('velocity', 'position')
 
 
-def main():
-    parser = argparse.ArgumentParser()
-    parser.add_argument('schemes', nargs='*', default=['velocity', 'position'])
-    parser.add_argument('--steps', type=int, default=20000)
-    args = parser.parse_args()
-    for scheme in args.schemes:
-        atoms = make_cluster(147, 120.0, seed=0)
-        dyn = ReversibleVerlet(atoms, 5 * units.fs, scheme=scheme)
-        x0, p0 = atoms.get_positions(), atoms.get_momenta()
-        tic = time.perf_counter()
-        dyn.run(args.steps)
-        furthest = np.abs(atoms.positions - x0).max()
-        dyn.reverse()
-        dyn.run(args.steps)
-        exact = (np.array_equal(atoms.positions, x0)
+def round_trip(scheme, steps):
+    atoms = argon_cluster(SHELLS, TEMPERATURE_K)
+    atoms.calc = argon_lj()
+    dyn = ReversibleVerlet(atoms, TIMESTEP_FS * units.fs, scheme=scheme)
+    x0, p0 = atoms.get_positions(), atoms.get_momenta()
+    tic = time.perf_counter()
+    dyn.run(steps)
+    furthest = float(np.abs(atoms.positions - x0).max())
+    dyn.reverse()
+    dyn.run(steps)
+    exact = bool(np.array_equal(atoms.positions, x0)
                  and np.array_equal(atoms.get_momenta(), p0))
-        print(f'Ar147 120 K, ASE LennardJones, {scheme}, {args.steps} steps '
-              f'each way: exact={exact}, largest displacement at the turn '
-              f'{furthest:.2f} Å, {time.perf_counter() - tic:.0f} s',
-              flush=True)
+    return {'scheme': scheme, 'steps': steps, 'exact': exact,
+            'largest_displacement_at_turn': furthest,
+            'seconds': time.perf_counter() - tic}
+
+
+def run(quick):
+    steps = 200 if quick else 20000
+    return {'atoms': len(argon_cluster(SHELLS, TEMPERATURE_K)),
+            'temperature_K': TEMPERATURE_K, 'timestep_fs': TIMESTEP_FS,
+            'runs': [round_trip(scheme, steps) for scheme in SCHEMES]}
 
 
 if __name__ == '__main__':
-    main()
+    import run_all
+    sys.exit(run_all.main(['--only', 'long_reversal'] + sys.argv[1:]))

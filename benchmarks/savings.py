@@ -1,13 +1,14 @@
 """Before and after: per-step cost of the package at two or more commits.
 
 Each commit's ``ase_reversible`` is exported with ``git archive`` into a
-temporary directory and imported by a worker process of its own.  Every
-worker builds the same thermalised system with the same calculator; the
-parent then asks the workers for blocks of steps in rounds, rotating their
-order, and compares medians, so the commits are timed side by side under
-the same machine load.  The commits are the steps of the work that made the
-per-step path cheaper (listed in ``COMMITS``); a commit missing from the clone (a shallow
-clone) is reported as skipped.
+temporary directory and imported by a worker process of its own (this
+script with ``--worker``, the export first on its PYTHONPATH).  Every
+worker gets the same thermalised atoms and calculator, pickled by this
+process; the parent then asks the workers for blocks of steps in rounds,
+rotating their order, and compares medians, so the commits are timed side
+by side under the same machine load.  The commits are the steps of the work
+that made the per-step path cheaper (listed in ``COMMITS``); a commit
+missing from the clone (a shallow clone) is reported as skipped.
 """
 
 from __future__ import annotations
@@ -15,12 +16,13 @@ from __future__ import annotations
 import common
 
 import io
-import json
+import pickle
 import statistics
 import subprocess
 import sys
 import tarfile
 import tempfile
+import time
 from pathlib import Path
 
 #: (commit, what it changed).  The first is the baseline.
@@ -33,49 +35,56 @@ COMMITS = (
     ('d48a84e', "guard bound scaled with the coordinates' extent"),
 )
 
-#: (label, builder expression for the worker, steps per block (full, quick)).
+#: (label, steps per block in the full and the quick run; None: not run).
 CASES = (
-    ('Cu 4000 asap3 EMT', "bulk('Cu', 'fcc', a=3.6, cubic=True) * 10",
-     'asap3.EMT()', (100, 20)),
-    ('Cu 32000 asap3 EMT', "bulk('Cu', 'fcc', a=3.6, cubic=True) * 20",
-     'asap3.EMT()', (12, None)),
-    ('Ar 4000 asap3 LJ', "bulk('Ar', 'fcc', a=5.26, cubic=True) * 10",
-     "asap3.LennardJones([18], [0.0104], [3.4], rCut=8.5, modified=True)",
-     (100, None)),
-    ('Ar147 ASE LJ', "_icosahedron()",
-     "LennardJones(sigma=3.4, epsilon=0.0104, rc=8.5)", (100, 20)),
+    ('Cu 4000 asap3 EMT', (100, 20)),
+    ('Cu 32000 asap3 EMT', (12, None)),
+    ('Ar 4000 asap3 LJ', (100, None)),
+    ('Ar147 ASE LJ', (100, 20)),
 )
+TIMESTEP_FS = 5.0
+WARMUP_STEPS = 5
 
-WORKER = r'''
-import os, sys, time
-for name in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
-    os.environ.setdefault(name, '1')
-import numpy as np, asap3
-from ase import units
-from ase.build import bulk
-from ase.calculators.lj import LennardJones
-from ase.cluster import Icosahedron
-from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
-import ase_reversible
-from ase_reversible import ReversibleVerlet
-assert ase_reversible.__file__.startswith(sys.argv[1]), ase_reversible.__file__
-def _icosahedron():
-    atoms = Icosahedron('Ar', 4, latticeconstant=5.26)
-    atoms.center(vacuum=10.0)
-    return atoms
-atoms = eval(sys.argv[2])
-MaxwellBoltzmannDistribution(atoms, temperature_K=300 if atoms[0].symbol == 'Cu' else 60,
-                             rng=np.random.default_rng(0), force_temp=True)
-atoms.calc = eval(sys.argv[3])
-dyn = ReversibleVerlet(atoms, 5 * units.fs)
-dyn.run(5)
-print('ready', flush=True)
-for line in sys.stdin:
-    steps = int(line)
-    start = time.perf_counter()
-    dyn.run(steps)
-    print(time.perf_counter() - start, flush=True)
-'''
+
+def build(label):
+    """Atoms and something that gives a fresh calculator, for a case.
+
+    Imported here, not at the top: the workers run this script with an old
+    commit's package, which has no ``ase_reversible.app``.
+    """
+    import asap3
+    import systems
+    from ase_reversible.app import systems as app_systems
+    if label == 'Cu 4000 asap3 EMT':
+        return app_systems.copper_bulk(10, 300, rattle=0), asap3.EMT
+    if label == 'Cu 32000 asap3 EMT':
+        return app_systems.copper_bulk(20, 300, rattle=0), asap3.EMT
+    if label == 'Ar 4000 asap3 LJ':
+        return app_systems.argon_bulk(10, 60), systems.asap3_argon_lj()
+    if label == 'Ar147 ASE LJ':
+        # An ASE calculator pickles as it is; asap3's only as a constructor.
+        return app_systems.argon_cluster(4, 60), app_systems.argon_lj()
+    raise ValueError(label)
+
+
+def worker(source, case_file):
+    """Run blocks of steps on request: a line with a number of steps on
+    stdin, a line with the seconds they took on stdout."""
+    from ase import units
+
+    import ase_reversible
+    from ase_reversible import ReversibleVerlet
+    assert ase_reversible.__file__.startswith(source), ase_reversible.__file__
+    atoms, calc = pickle.loads(Path(case_file).read_bytes())
+    atoms.calc = calc() if callable(calc) else calc
+    dyn = ReversibleVerlet(atoms, TIMESTEP_FS * units.fs)
+    dyn.run(WARMUP_STEPS)
+    print('ready', flush=True)
+    for line in sys.stdin:
+        steps = int(line)
+        start = time.perf_counter()
+        dyn.run(steps)
+        print(time.perf_counter() - start, flush=True)
 
 
 def export(commit, into: Path) -> bool:
@@ -91,24 +100,20 @@ def export(commit, into: Path) -> bool:
 
 
 def head_commits():
-    head = common._run(['git', 'rev-parse', '--short', 'HEAD'])
-    dirty = common._run(['git', 'status', '--porcelain',
-                         '--untracked-files=no', 'ase_reversible'])
+    head = common.command_output(['git', 'rev-parse', '--short', 'HEAD'])
+    dirty = common.command_output(['git', 'status', '--porcelain',
+                                   '--untracked-files=no', 'ase_reversible'])
     return head, bool(dirty)
 
 
-def time_case(case, sources, quick):
-    label, build, calc, (full_steps, quick_steps) = case
-    steps = quick_steps if quick else full_steps
+def time_case(label, steps, sources, quick, case_file):
     workers = {}
     for name, path in sources.items():
-        proc = subprocess.Popen(
-            [sys.executable, '-c', WORKER, str(path), build, calc],
+        workers[name] = subprocess.Popen(
+            [sys.executable, __file__, '--worker', str(path), str(case_file)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-            # `python -c` puts the working directory first on sys.path.
-            cwd=path, env={**common.os.environ, 'PYTHONPATH': str(path)})
-        assert proc.stdout.readline().strip() == 'ready'
-        workers[name] = proc
+            env={**common.os.environ, 'PYTHONPATH': str(path)})
+        assert workers[name].stdout.readline().strip() == 'ready'
     names = list(workers)
     samples = {name: [] for name in names}
     rounds = 3 if quick else 7
@@ -130,7 +135,7 @@ def time_case(case, sources, quick):
                           for v in samples.values())}
 
 
-def run(quick, figures):
+def run(quick):
     head, dirty = head_commits()
     listed = [c for c, _ in COMMITS]
     results = {'commits': [{'commit': c, 'change': what}
@@ -150,43 +155,21 @@ def run(quick, figures):
             sources[label] = common.ROOT
         if len(sources) < 2:
             return results
-        for case in CASES:
-            if (case[3][1] if quick else case[3][0]) is None:
+        for label, (full_steps, quick_steps) in CASES:
+            steps = quick_steps if quick else full_steps
+            if steps is None:
                 continue
-            print(f'  {case[0]}', flush=True)
-            results['cases'].append(time_case(case, sources, quick))
+            print(f'  {label}', flush=True)
+            case_file = Path(tmp) / 'case.pickle'
+            case_file.write_bytes(pickle.dumps(build(label)))
+            results['cases'].append(time_case(label, steps, sources, quick,
+                                              case_file))
     return results
 
 
-TITLE = 'Savings on the per-step path'
-
-
-def render(results):
-    if not results['cases']:
-        return ('Skipped: the baseline commits '
-                f"{', '.join(results['skipped'])} are not in this clone.")
-    commits = [c['commit'] for c in results['commits']
-               if c['commit'] not in results['skipped']]
-    rows = []
-    for case in results['cases']:
-        base = case['ms_per_step'][commits[0]]
-        rows.append([case['case']] + [
-            f"{case['ms_per_step'][c]:.3f} ({case['ms_per_step'][c] / base:.3f})"
-            for c in commits] + [f"{case['spread']:.0%}"])
-    changes = '\n'.join(f"- `{c['commit']}`: {c['change']}"
-                        for c in results['commits'])
-    return f"""The package at each commit below runs in a worker process of its own
-on the same system; blocks of steps are interleaved between the workers in
-rotating order and the medians compared (`benchmarks/savings.py`).
-Default settings (`scheme='velocity'`, `force_purity='auto'`, 5 fs).
-
-{changes}
-
-ms per step (ratio to the first commit):
-
-{common.markdown_table(['case'] + commits + ['round spread'], rows)}
-"""
-
-
 if __name__ == '__main__':
-    print(json.dumps(run('--quick' in sys.argv, None), indent=1))
+    if sys.argv[1:2] == ['--worker']:
+        worker(*sys.argv[2:4])
+    else:
+        import run_all
+        sys.exit(run_all.main(['--only', 'savings'] + sys.argv[1:]))

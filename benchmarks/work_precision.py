@@ -30,24 +30,23 @@ from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
+import functools
 import math
 import statistics
+import sys
 import time
 from dataclasses import dataclass, replace
 from typing import Callable
 
 import asap3
 import numpy as np
+import systems as bench_systems
 from ase import units
-from ase.build import bulk
-from ase.cluster import Icosahedron
 from ase.md.verlet import VelocityVerlet
 from scipy.spatial.distance import pdist
 
 from ase_reversible import ReversibleVerlet
-from ase_reversible.core.compositions import composition_for
-
-TITLE = 'Work against precision'
+from ase_reversible.app import systems as app_systems
 
 #: The relative energy error the summary asks each method to reach.
 TARGET = 1e-8
@@ -61,14 +60,10 @@ STOP_FRACTION = 0.5
 FLOOR_GAIN = 1.5
 FLOOR_STEP_RATIO = 4.0
 
-# Argon: Lennard-Jones parameters (eV, Å), lattice constant (Å).
-AR_EPSILON, AR_SIGMA, AR_LATTICE = 0.0104, 3.4, 5.26
 #: Larger than the cluster's diameter (22 Å for 147 atoms) with margin.
 AR_CUTOFF = 40.0
 AR_TEMPERATURE_K = 30.0
-# Copper: RGL parameters of Cleri and Rosato, Phys. Rev. B 48, 22 (1993).
-CU_RGL = dict(p=10.960, q=2.278, a=0.0855, xi=1.224, r0=2.556)
-CU_LATTICE = 3.615  # sqrt(2) * r0, the potential's own lattice constant
+# Copper: the RGL potential at its own lattice constant (benchmarks/systems.py).
 CU_TEMPERATURE_K = 300.0
 
 
@@ -82,7 +77,16 @@ class Method:
     def stages(self) -> int:
         if self.scheme is None:
             return 1
-        return composition_for(self.order).stages
+        return stages(self.order)
+
+
+@functools.cache
+def stages(order):
+    """Force calls per step of ReversibleVerlet at ``order``, as reported
+    by the integrator itself (on a small probe system)."""
+    atoms = app_systems.argon_cluster(2, AR_TEMPERATURE_K)
+    atoms.calc = app_systems.argon_lj()
+    return ReversibleVerlet(atoms, units.fs, order=order).composition.stages
 
 
 VV = Method('VelocityVerlet', None, 2)
@@ -107,16 +111,12 @@ class System:
 
 
 def argon_cluster(shells):
-    def build():
-        atoms = Icosahedron('Ar', shells, latticeconstant=AR_LATTICE)
-        atoms.center(vacuum=10.0)
-        return common.thermalised(atoms, AR_TEMPERATURE_K, seed=0)
-    return build
+    return functools.partial(app_systems.argon_cluster, shells,
+                             AR_TEMPERATURE_K)
 
 
-def raw_argon_lj():
-    return asap3.LennardJones([18], [AR_EPSILON], [AR_SIGMA],
-                              rCut=AR_CUTOFF, modified=True)
+#: A fresh bare asap3 LennardJones with the cutoff above, per call.
+raw_argon_lj = bench_systems.asap3_argon_lj(AR_CUTOFF)
 
 
 class ResultCache:
@@ -170,14 +170,11 @@ def argon_lj():
 
 
 def copper_crystal(repeat):
-    def build():
-        atoms = bulk('Cu', 'fcc', a=CU_LATTICE, cubic=True) * repeat
-        return common.thermalised(atoms, CU_TEMPERATURE_K, seed=0)
-    return build
+    return functools.partial(bench_systems.rgl_copper_crystal, repeat,
+                             CU_TEMPERATURE_K)
 
 
-def copper_rgl():
-    return asap3.RGL(['Cu'], **CU_RGL)
+copper_rgl = bench_systems.copper_rgl
 
 
 def systems(quick):
@@ -520,7 +517,7 @@ def emt_cutoff(template):
     atoms.calc = calc
     atoms.get_potential_energy()
     weight = 1.0 / (1.0 + math.exp(calc.acut * (calc.rc_list - calc.rc)))
-    fourth = CU_LATTICE * math.sqrt(2.0)
+    fourth = bench_systems.CU_RGL_LATTICE * math.sqrt(2.0)
     return {'list_cutoff': calc.rc_list, 'weight_at_cutoff': weight,
             'fourth_neighbour': fourth}
 
@@ -540,7 +537,7 @@ def emt_check(copper, template, dts_fs=(0.5, 0.125)):
 
 # -- section API -------------------------------------------------------------
 
-def run(quick, figures):
+def run(quick):
     settings = QUICK if quick else FULL
     out = {'target': TARGET, 'stop_fraction': STOP_FRACTION,
            'floor_gain': FLOOR_GAIN, 'floor_step_ratio': FLOOR_STEP_RATIO,
@@ -583,335 +580,10 @@ def run(quick, figures):
             print('  copper_crystal: EMT check', flush=True)
             result['emt_check'] = emt_check(system, template)
             result['emt_cutoff'] = emt_cutoff(template)
-        result['plot'] = plot(result, figures)
         out['systems'].append(result)
     return out
 
 
-STYLE = {2: 'C0', 4: 'C1', 6: 'C2', 8: 'C3', 10: 'C4'}
-
-
-def _style(sweep):
-    if sweep['scheme'] is None:
-        # On top: velocity 2 has the same errors and would hide it.
-        return dict(color='black', linestyle='-', marker='o', zorder=3,
-                    linewidth=1, markersize=3)
-    return dict(color=STYLE[sweep['order']], zorder=2,
-                linestyle='-' if sweep['scheme'] == 'velocity' else '--',
-                marker='s' if sweep['scheme'] == 'velocity' else '^',
-                markerfacecolor='none' if sweep['scheme'] == 'position'
-                else None)
-
-
-def plot(result, figures):
-    plt = common.pyplot()
-    fig, (ax_work, ax_dt) = plt.subplots(1, 2, figsize=(12, 5))
-    for s in result['sweeps']:
-        pts = [p for p in s['points'] if p['max_error'] is not None]
-        if not pts:
-            continue
-        style = _style(s)
-        ax_work.plot([p['wall_s'] for p in pts], [p['max_error'] for p in pts],
-                     label=s['method'], **{'markersize': 4, **style})
-        ax_dt.plot([p['dt_fs'] for p in pts], [p['max_error'] for p in pts],
-                   label=s['method'], **{'markersize': 4, **style})
-    for ax in (ax_work, ax_dt):
-        ax.set_xscale('log')
-        ax.set_yscale('log')
-        ax.axhline(TARGET, color='grey', linewidth=0.8, linestyle=':')
-        ax.grid(True, which='major', alpha=0.3)
-    ax_work.set_xlabel('wall time of the run without sampling (s)')
-    ax_dt.set_xlabel('time step (fs)')
-    for ax in (ax_work, ax_dt):
-        ax.set_ylabel('max relative total-energy error')
-    ax_work.set_title(f"{result['label']}: {result['formula']}, "
-                      f"{result['simulated_fs']:g} fs")
-    ax_dt.set_title('error against time step')
-    ax_dt.legend(fontsize=7, ncol=2)
-    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.11, top=0.93,
-                        wspace=0.22)
-    name = f"work_precision_{result['key']}.png"
-    fig.savefig(figures / name, dpi=110)
-    plt.close(fig)
-    return name
-
-
-# -- Markdown ----------------------------------------------------------------
-
-def _g(x, digits=3):
-    return '–' if x is None else f'{x:.{digits}g}'
-
-
-def _e(x):
-    return '–' if x is None else f'{x:.2e}'
-
-
-def _time_cell(row, key):
-    if row[key] is None:
-        return 'not reached'
-    prefix = '≤ ' if row['how'] == 'at most' else ''
-    return f'{prefix}{row[key]:.3g} s'
-
-
-def render(results):
-    target = results['target']
-    lines = [
-        'Relative total-energy error `|E(t) - E(0)| / |E(0)|` against the '
-        'time a run takes, over a sweep of time steps, for ASE\'s '
-        '`VelocityVerlet` and `ReversibleVerlet` with both schemes and '
-        'each order.  Every run covers the same simulated time and samples '
-        'the energy at the same simulated times (each time step divides the '
-        'sampling interval, which is also the largest step); the max and '
-        'RMS are over the samples after t = 0.  E(0) is each run\'s own '
-        'initial energy (ReversibleVerlet snaps the state to its grid '
-        'first).  ReversibleVerlet runs in its `guarded` force-purity mode, '
-        'the one `auto` picks for asap3 calculators.',
-        '',
-        '**Timing.**  Wall time (`time.perf_counter`) of `dyn.run(n)`, '
-        'minus the time spent in the sampling observer, which times itself: '
-        'for the `position` scheme each sample costs a force call that an '
-        'unobserved run does not make, so charging it would be unfair.  '
-        'The check below compares the subtracted time with runs that have '
-        'no observer at all.  CPU time (`time.process_time`, sampling '
-        'subtracted the same way) is reported too, as it is less sensitive '
-        'to other load on a shared machine.  A run shorter than '
-        f'{results["min_timed_seconds"]:g} s is repeated, up to '
-        f'{results["repeats"]} runs with fresh atoms and calculator (the '
-        'same trajectory bit for bit: the errors are checked equal), and '
-        'timed by the median.  '
-        '**Force calls** are counted from the schedule (one per stage per '
-        'step, plus the initial call of kick-drift-kick schemes and two '
-        'per clean recomputation of the guarded force mode), excluding the '
-        'sampling.',
-        '',
-        '**Sweeps.**  Each method starts at a coarse time step ('
-        'proportional to its number of stages, capped at the sampling '
-        'interval) and refines it through '
-        + ', '.join(map(str, results['ladder'][:7]))
-        + ', ... steps per sampling interval until its max error is below '
-        f'{results["stop_fraction"]:g} × {target:g}, or its best error has '
-        f'not improved by {results["floor_gain"]:g}× while the step shrank '
-        f'{results["floor_step_ratio"]:g}× (a floor), or the next run '
-        f'would take more than {results["max_run_seconds"]:g} s.  The time '
-        f'to reach {target:g} is interpolated log-log between the last '
-        f'point above and the first point at or below {target:g}.',
-        '',
-    ]
-    for r in results['systems']:
-        lines += _render_system(r, target)
-    return '\n'.join(lines)
-
-
-def _render_system(r, target):
-    e0_atom = r['initial_energy_eV'] / r['atoms']
-    lines = [f"### {r['label'][0].upper() + r['label'][1:]}", '']
-    if r['pbc']:
-        desc = (f"{r['formula']} ({r['atoms']} atoms), periodic fcc, "
-                f"`{r['calculator']}` (Cleri–Rosato parameters), "
-                f"thermalised at {r['temperature_K']:g} K from the perfect "
-                f"lattice; E(0) = {e0_atom:.4g} eV/atom.")
-    else:
-        desc = (f"{r['formula']} icosahedron ({r['atoms']} atoms) in "
-                f"vacuum, `{r['calculator']}` (behind `ResultCache`, see "
-                f"below) with cutoff "
-                f"{r['cutoff']:g} Å; the widest interatomic distance in "
-                f"any sample was {r['widest_distance']:.1f} Å, far inside "
-                f"the cutoff, so no pair crosses it.  Thermalised at "
-                f"{r['temperature_K']:g} K; E(0) = {e0_atom:.4g} eV/atom.")
-    lines += [desc + f"  Simulated time {r['simulated_fs']:g} fs, energy "
-              f"sampled every {r['interval_fs']:g} fs.", '']
-    lines += [f"![Work-precision, {r['label']}](benchmarks/{r['plot']})", '']
-
-    rows = r['summary']
-    table = []
-    for row in rows:
-        table.append([row['method'], row['stages'],
-                      _time_cell(row, 'wall_s'), _g(row['wall_s_ratio']),
-                      _time_cell(row, 'cpu_s'), _g(row['cpu_s_ratio']),
-                      _e(row['best_error']), row['stop']])
-    lines += [f'Time to reach a max relative error of {target:g} (ratio: '
-              'to VelocityVerlet; best: smallest max error in the sweep; '
-              'stop: why the sweep ended):', '',
-              common.markdown_table(
-                  ['method', 'force calls / step', 'wall to target',
-                   'wall ratio', 'CPU to target', 'CPU ratio', 'best error',
-                   'stop'], table), '']
-    lines += _observations(r, target)
-    lines += _checks(r)
-    lines += ['<details><summary>Every run</summary>', '']
-    table = []
-    for s in r['sweeps']:
-        for p in s['points']:
-            table.append([s['method'], f"{p['dt_fs']:.4g}", p['steps'],
-                          p['force_calls'], p['repeats'],
-                          f"{p['wall_s']:.3g}",
-                          f"{p['cpu_s']:.3g}",
-                          p.get('failure') or _e(p['max_error']),
-                          _e(p['rms_error'])])
-    lines += [common.markdown_table(
-        ['method', 'dt (fs)', 'steps', 'force calls', 'runs', 'wall (s)',
-         'CPU (s)',
-         'max error', 'RMS error'], table), '', '</details>', '']
-    return lines
-
-
-def _observations(r, target):
-    rows = r['summary']
-    vv = rows[0]
-    reached = [row for row in rows[1:] if row['wall_s'] is not None]
-    out = []
-    if vv['wall_s'] is None:
-        out.append(f'- VelocityVerlet did not reach {target:g} within the '
-                   f"sweep (best {_e(vv['best_error'])}).")
-    else:
-        out.append(f"- VelocityVerlet needs {vv['wall_s']:.3g} s "
-                   f"({vv['cpu_s']:.3g} s CPU) to reach {target:g}.")
-    if reached:
-        best = min(reached, key=lambda row: row['wall_s'])
-        out.append(f"- Fastest to {target:g}: {best['method']}, "
-                   f"{best['wall_s']:.3g} s"
-                   + (f", {1 / best['wall_s_ratio']:.3g}× faster than "
-                      'VelocityVerlet' if best['wall_s_ratio'] else '')
-                   + '.')
-    goal = [row for row in rows if row['method'].split()[-1] in ('4', '6')
-            and row['wall_s_ratio'] is not None]
-    if vv['wall_s'] is not None:
-        winners = [row for row in goal if row['wall_s_ratio'] < 1]
-        if winners:
-            out.append('- Goal (order 4 or 6 reaches the target in less wall '
-                       'time than VelocityVerlet): **met** by '
-                       + ', '.join(f"{row['method']} "
-                                   f"({row['wall_s_ratio']:.2g}× VV's time)"
-                                   for row in winners) + '.')
-        else:
-            out.append('- Goal (order 4 or 6 reaches the target in less wall '
-                       'time than VelocityVerlet): **not met**.')
-    missing = [row for row in rows[1:] if row['wall_s'] is None]
-    for row in missing:
-        out.append(f"- {row['method']} never reached {target:g} (best "
-                   f"{_e(row['best_error'])}, sweep stopped: {row['stop']}).")
-    bound = [row for row in rows if row['how'] == 'at most']
-    if bound:
-        out.append('- Already below the target at the coarsest step tried, '
-                   'so the time is an upper bound: '
-                   + ', '.join(row['method'] for row in bound) + '.')
-    disagree = [f"{s['method']} at {p['dt_fs']:.4g} fs" for s in r['sweeps']
-                for p in s['points'] if not p['repeats_agree']]
-    if disagree:
-        out.append('- Repeated runs gave different errors (not the same '
-                   'trajectory): ' + ', '.join(disagree) + '.')
-    order2 = [row for row in rows[1:]
-              if row['method'].endswith(' 2') and row['wall_s_ratio']]
-    if order2:
-        out.append('- At order 2, ReversibleVerlet needs '
-                   + ' and '.join(f"{row['wall_s_ratio']:.2g}× "
-                                  f"({row['cpu_s_ratio']:.2g}× CPU)"
-                                  for row in order2)
-                   + " VelocityVerlet's time to the target ("
-                   + ', '.join(row['method'] for row in order2) + ').')
-    same = _same_step_errors(r['sweeps'], 'velocity 2')
-    if same:
-        out.append(f"- At equal time steps ({same[0]} of them), velocity 2's "
-                   f"max errors are within {same[1]:.2g}% of "
-                   "VelocityVerlet's: the same integrator up to rounding, "
-                   'so its time ratio is the cost of the fixed-point step.')
-    rev = [row for row in rows[1:] if row['best_error'] is not None]
-    if rev:
-        floor = min(row['best_error'] for row in rev)
-        out.append(f"- Smallest max error reached by any ReversibleVerlet "
-                   f"run: {floor:.2e}; by VelocityVerlet: "
-                   f"{_e(vv['best_error'])}.")
-    return out + ['']
-
-
-def _same_step_errors(sweeps, label):
-    """(number of shared time steps, largest relative difference in %)."""
-    by_label = {s['method']: s for s in sweeps}
-    if VV.label not in by_label or label not in by_label:
-        return None
-    vv = {p['k']: p['max_error'] for p in by_label[VV.label]['points']
-          if p['max_error']}
-    diffs = [abs(p['max_error'] / vv[p['k']] - 1) * 100
-             for p in by_label[label]['points']
-             if p['max_error'] and p['k'] in vv]
-    return (len(diffs), max(diffs)) if diffs else None
-
-
-def _checks(r):
-    lines = []
-    c = r.get('sampling_check')
-    if c:
-        lines += [
-            f"**Sampling check.**  {c['method']} at dt = {c['dt_fs']:.4g} fs "
-            f"with the energy sampled after every step ({c['steps']} steps, "
-            f"the largest sampling share in the sweeps), median of "
-            f"{c['repeats']} interleaved pairs of runs: the observer took "
-            f"{c['sampling_wall_s']:.3g} s; the run time with it subtracted "
-            f"was {c['subtracted_wall_s']:.3g} s wall / "
-            f"{c['subtracted_cpu_s']:.3g} s CPU against "
-            f"{c['unobserved_wall_s']:.3g} s / {c['unobserved_cpu_s']:.3g} s "
-            f"for runs with no observer "
-            f"({c['subtracted_wall_s'] / c['unobserved_wall_s'] - 1:+.1%} / "
-            f"{c['subtracted_cpu_s'] / c['unobserved_cpu_s'] - 1:+.1%}).", '']
-    cc = r.get('cache_check')
-    if cc:
-        text = (f"**Cached results.**  The bare `{r['calculator']}`: a "
-                f"repeated `get_forces` at unchanged positions takes "
-                f"{cc['repeated_call_us']:.3g} µs, a real computation "
-                f"{cc['fresh_call_us']:.3g} µs.")
-        if 'vv_bare_us_per_step' in cc:
-            text += (f"  VelocityVerlet, which asks for the forces three "
-                     f"times per step, takes {cc['vv_bare_us_per_step']:.3g}"
-                     f" µs per step with the bare potential and "
-                     f"{cc['vv_cached_us_per_step']:.3g} µs behind "
-                     f"`ResultCache`, a cache of the last results keyed by "
-                     f"the exact positions, used for every run of this "
-                     f"section (ReversibleVerlet keeps its own cache and "
-                     f"asks once per stage).")
-        lines += [text, '']
-    q = r.get('quantum_check')
-    if q:
-        lines += [
-            f"**Momentum-quantum check.**  The most accurate "
-            f"ReversibleVerlet run ({q['method']}, dt = {q['dt_fs']:.4g} fs)"
-            f" used the default momentum quantum {q['default_quantum']:.3g} "
-            f"(raised by the guarded force mode so that clean "
-            f"recomputations stay rare) and reached {q['default_error']:.2e}"
-            f"; with a quantum of {q['fine_quantum']:.3g} it reaches "
-            f"{_e(q['fine_error'])} ({q['fine_clean_recomputations']} clean "
-            f"recomputations, {q['fine_force_calls']} force calls instead "
-            f"of {q['default_force_calls']}): "
-            + ('the default quantum, not the integrator, sets this floor.'
-               if q['fine_error'] is not None
-               and q['fine_error'] < q['default_error'] / 4 else
-               'this error is the integrator\'s, not the quantum\'s.'), '']
-    emt = r.get('emt_check')
-    cut = r.get('emt_cutoff')
-    if emt:
-        gap = cut['fourth_neighbour'] - cut['list_cutoff']
-        table = [[row['calculator'], f"{row['dt_fs']:.4g}",
-                  _e(row['max_error']), _e(row['rms_error'])]
-                 for row in emt]
-        gains = []
-        for name in dict.fromkeys(row['calculator'] for row in emt):
-            coarse, fine = [row for row in emt if row['calculator'] == name]
-            if coarse['max_error'] and fine['max_error']:
-                gain = coarse['max_error'] / fine['max_error']
-                gains.append(f'{name} {gain:.3g}×')
-            else:
-                gains.append(f'{name} –')
-            ratio = coarse['dt_fs'] / fine['dt_fs']
-        lines += [
-            '**Why not EMT.**  VelocityVerlet on the same crystal with '
-            "asap3's EMT and with RGL at two time steps.  For a smooth "
-            f'potential, dividing the step by {ratio:g} divides the max '
-            f'error by {ratio ** 2:g}; measured: ' + ', '.join(gains)
-            + f".  asap3's EMT cuts its neighbour list at "
-            f"{cut['list_cutoff']:.3f} Å, where its logistic cutoff "
-            f"function is still {cut['weight_at_cutoff']:.2g} (ASE's EMT "
-            "with `asap_cutoff=True`, which mirrors it, tells): the energy "
-            'jumps whenever a pair crosses that distance, and the 4th '
-            f"neighbours sit only {gap:.2f} Å outside it.", '',
-            common.markdown_table(['calculator', 'dt (fs)', 'max error',
-                                   'RMS error'], table), '']
-    return lines
+if __name__ == '__main__':
+    import run_all
+    sys.exit(run_all.main(['--only', 'work_precision'] + sys.argv[1:]))

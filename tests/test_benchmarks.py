@@ -1,7 +1,9 @@
-"""The benchmarks keep working: their quick mode runs end to end.
+"""The benchmarks keep working, measurement and rendering apart.
 
-Only behaviour is checked -- every section is rendered and its plots are
-written; no timing is asserted here (timings live in docs/benchmarks.md).
+Every section measures in its quick mode into a temporary directory, then
+the renderer builds the page and plots from that JSON alone.  Only
+behaviour is checked: no timing is asserted here (timings live in
+docs/benchmarks.md).
 """
 
 import json
@@ -15,26 +17,35 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / 'benchmarks'))
 
+import render  # noqa: E402  (from benchmarks/)
+
 
 @pytest.fixture(scope='module')
 def quick_run(tmp_path_factory):
     # The benchmarks measure asap3 beside ASE's calculators.
     pytest.importorskip('asap3', reason='the benchmarks need asap3')
     out = tmp_path_factory.mktemp('benchmarks')
-    result = subprocess.run(
+    measured = subprocess.run(
         [sys.executable, str(ROOT / 'benchmarks' / 'run_all.py'), '--quick',
+         '--out', str(out), '--only', *render.SECTIONS], cwd=ROOT,
+        capture_output=True, text=True, timeout=900)
+    assert measured.returncode == 0, measured.stderr[-3000:]
+    # Rendered again by the renderer alone, from the stored JSON.
+    (out / 'benchmarks.md').unlink()
+    for png in (out / 'benchmarks').glob('*.png'):
+        png.unlink()
+    rendered = subprocess.run(
+        [sys.executable, str(ROOT / 'benchmarks' / 'render.py'),
          '--out', str(out)], cwd=ROOT, capture_output=True, text=True,
-        timeout=600)
-    assert result.returncode == 0, result.stderr[-3000:]
+        timeout=300)
+    assert rendered.returncode == 0, rendered.stderr[-3000:]
     return out
 
 
-def test_quick_mode_renders_every_section(quick_run):
-    import run_all
+def test_quick_mode_stores_and_renders_every_section(quick_run):
     page = (quick_run / 'benchmarks.md').read_text()
-    for name in run_all.SECTIONS:
-        module = run_all._load(name)
-        assert f'## {module.TITLE}' in page
+    for name in render.SECTIONS:
+        assert f'## {render.page_module(name).TITLE}' in page
         stored = json.loads((quick_run / 'benchmarks' / f'{name}.json')
                             .read_text())
         assert stored['quick'] and stored['results']
@@ -47,3 +58,10 @@ def test_quick_mode_writes_the_plots_the_page_shows(quick_run):
     for image in images:
         path = quick_run / image
         assert path.exists() and path.stat().st_size > 1000, image
+
+
+def test_the_stored_results_render_to_the_committed_page():
+    stored = render.stored_sections(render.DOCS)
+    assert stored
+    assert render.render_page(stored) == (render.DOCS / 'benchmarks.md'
+                                          ).read_text()

@@ -1,0 +1,544 @@
+"""Cost per step: ReversibleVerlet against VelocityVerlet and the force call.
+
+Measured by benchmarks/step_cost.py; the method is described there and in
+the rendered text below.
+"""
+
+from __future__ import annotations
+
+from . import markdown_table, pyplot
+
+TITLE = 'Cost per step'
+PLOT = 'step_cost.png'
+
+#: The targets set for the integrator, judged on every run's numbers.
+TARGET_RATIO_TO_VV = 1.0
+TARGET_OVERHEAD_PERCENT = 5.0
+TARGET_OVERHEAD_CALCULATOR = 'asap3 EMT'
+TARGET_OVERHEAD_MIN_ATOMS = 4000
+#: Reversible velocity counts as "slower than VelocityVerlet" above this ratio.
+SLOWER_THRESHOLD = 1.05
+
+# -- derived numbers -------------------------------------------------------
+
+#: The process's CPU time: single-threaded here, so on a machine shared with
+#: other jobs it is the step's cost without the waits for a core.
+CPU = 'median_cpu_seconds'
+
+
+def ratio(r, name, reference='vv', clock='median_seconds'):
+    med = r[clock]
+    return med[name] / med[reference]
+
+
+def paired_ratios(r, name, reference='vv'):
+    """Per-round ratios: both blocks of a round ran close together."""
+    wall = r['per_step_seconds']
+    return [a / b for a, b in zip(wall[name], wall[reference])]
+
+
+def overhead_percent(r, name, floor='replay', clock='median_seconds'):
+    """Time beyond the floor, in % of the floor."""
+    med = r[clock]
+    return 100 * (med[name] - med[floor]) / med[floor]
+
+
+def in_force_calls(r, key):
+    return r[key] / r['median_seconds']['force']
+
+
+def wall_over_cpu(r):
+    """Largest wall/CPU ratio of a case's medians: 1.00 on a quiet machine."""
+    return max(r['median_seconds'][k] / r['median_cpu_seconds'][k]
+               for k in r['median_seconds'])
+
+
+def position_extra_calls(r):
+    """Extra cost of 'position' over 'velocity', in nudge force calls."""
+    med = r['median_seconds']
+    return (med['rv_position'] - med['rv_velocity']) / med['force']
+
+
+def by_calculator(results):
+    groups = {}
+    for r in results:
+        groups.setdefault(r['calculator'], []).append(r)
+    return {k: sorted(v, key=lambda r: r['n_atoms'])
+            for k, v in groups.items()}
+
+
+# -- plot ------------------------------------------------------------------
+
+def plot(results, figures):
+    steps = results['step_cost']
+    plt = pyplot()
+    from matplotlib.lines import Line2D
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.3))
+    colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
+    sizes = sorted({r['n_atoms'] for r in steps})
+    for colour, (label, rs) in zip(colours, by_calculator(steps).items()):
+        n = [r['n_atoms'] for r in rs]
+        left.plot(n, [ratio(r, 'rv_velocity') for r in rs], 'o-',
+                  color=colour, label=label)
+        right.plot(n, [overhead_percent(r, 'rv_velocity') for r in rs],
+                   'o-', color=colour)
+        right.plot(n, [overhead_percent(r, 'vv') for r in rs], 'x--',
+                   color=colour, alpha=0.7)
+    left.axhline(TARGET_RATIO_TO_VV, color='k', lw=0.8, ls=':',
+                 label=f'target: ≤ {TARGET_RATIO_TO_VV:g}')
+    left.set_ylabel('Reversible (velocity) / VelocityVerlet, per step')
+    left.set_title('Time per step relative to VelocityVerlet')
+    right.axhline(TARGET_OVERHEAD_PERCENT, color='k', lw=0.8, ls=':')
+    right.axhline(0, color='grey', lw=0.5)
+    # Overheads span from a few % (noise around 0) to a few hundred %.
+    right.set_yscale('symlog', linthresh=10)
+    right.margins(y=0.08)
+    low, high = right.get_ylim()
+    right.set_yticks([t for t in (-200, -100, -50, -20, -10, -5, 0, 5, 10,
+                                  20, 50, 100, 200, 500, 1000)
+                      if low <= t <= high])
+    right.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+    right.set_ylabel('time beyond the replay floor, % of the floor')
+    right.set_title('Overhead beyond the force calls of real MD')
+    right.legend(loc='best', handles=[
+        Line2D([], [], color='k', marker='o', label='Reversible (velocity)'),
+        Line2D([], [], color='k', marker='x', ls='--', alpha=0.7,
+               label='VelocityVerlet'),
+        Line2D([], [], color='k', lw=0.8, ls=':',
+               label=f'target ({TARGET_OVERHEAD_CALCULATOR}, '
+                     f'N ≥ {TARGET_OVERHEAD_MIN_ATOMS}): '
+                     f'< {TARGET_OVERHEAD_PERCENT:g}%')], fontsize=8)
+    left.legend(fontsize=8)
+    for ax in (left, right):
+        ax.set_xscale('log')
+        ax.set_xticks(sizes)
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel('number of atoms')
+        ax.grid(True, which='major', alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(figures / PLOT, dpi=110)
+    plt.close(fig)
+
+
+# -- Markdown --------------------------------------------------------------
+
+def ms(seconds):
+    """Milliseconds with three significant digits, no exponent."""
+    v = seconds * 1e3
+    for limit, decimals in ((100, 0), (10, 1), (1, 2)):
+        if abs(v) >= limit:
+            return f'{v:.{decimals}f}'
+    return f'{v:.3f}'
+
+
+def with_ratio(r, name):
+    return f"{ms(r['median_seconds'][name])} (×{ratio(r, name):.2f})"
+
+
+def beyond(r, name, floor):
+    med = r['median_seconds']
+    return (f'{ms(med[name] - med[floor])} '
+            f'({overhead_percent(r, name, floor):+.0f}%)')
+
+
+def clean_fraction(r, name):
+    entry = r['clean_recomputations'].get(name)
+    if entry is None or r['force_purity'][name]['mode'] != 'guarded':
+        return '—'
+    k, n = entry['recomputations'], entry['force_calls']
+    return f'{100 * k / n:.2g}% ({k}/{n})'
+
+
+def case_label(r):
+    return f"{r['calculator']}, N={r['n_atoms']}"
+
+
+def step_cost_table(results):
+    header = ('calculator', 'N', 'steps × rounds', 'purity (auto)',
+              'nudge floor (ms)', 'replay floor (ms)',
+              'VelocityVerlet (ms/step)',
+              'Reversible velocity (ms/step, ×VV)',
+              'Reversible position (ms/step, ×VV)',
+              'Reversible trust (ms/step, ×VV)')
+    rows = [(r['calculator'], r['n_atoms'],
+             f"{r['steps_per_block']} × {r['rounds']}",
+             r['force_purity']['rv_velocity']['mode'],
+             ms(r['median_seconds']['force']),
+             ms(r['median_seconds']['replay']),
+             ms(r['median_seconds']['vv']),
+             with_ratio(r, 'rv_velocity'), with_ratio(r, 'rv_position'),
+             with_ratio(r, 'rv_trust'))
+            for r in results]
+    return markdown_table(header, rows)
+
+
+def overhead_table(results):
+    header = ('calculator', 'N', 'replay − nudge floor (ms, %)',
+              'VV beyond replay floor (ms, %)',
+              'Reversible velocity beyond replay floor (ms, %)',
+              'Reversible velocity beyond nudge floor (ms, %)',
+              'clean recomputations, velocity / position',
+              'round spread', 'wall / CPU')
+    rows = [(r['calculator'], r['n_atoms'],
+             beyond(r, 'replay', 'force'),
+             beyond(r, 'vv', 'replay'),
+             beyond(r, 'rv_velocity', 'replay'),
+             beyond(r, 'rv_velocity', 'force'),
+             f"{clean_fraction(r, 'rv_velocity')} / "
+             f"{clean_fraction(r, 'rv_position')}",
+             f"{100 * max(r['spread'].values()):.0f}%",
+             f'{wall_over_cpu(r):.2f}')
+            for r in results]
+    return markdown_table(header, rows)
+
+
+def logging_table(results):
+    header = ('calculator', 'N', 'nudge floor (ms)',
+              'VelocityVerlet + logger (ms/step)',
+              'Reversible velocity + logger (ms/step, ×VV)',
+              'Reversible position + logger (ms/step, ×VV)',
+              'position − velocity (ms/step, in nudge force calls)',
+              'round spread', 'wall / CPU')
+    rows = []
+    for r in results:
+        med = r['median_seconds']
+        rows.append((r['calculator'], r['n_atoms'], ms(med['force']),
+                     ms(med['vv']), with_ratio(r, 'rv_velocity'),
+                     with_ratio(r, 'rv_position'),
+                     f"{ms(med['rv_position'] - med['rv_velocity'])} "
+                     f'({position_extra_calls(r):.2f})',
+                     f"{100 * max(r['spread'].values()):.0f}%",
+                     f'{wall_over_cpu(r):.2f}'))
+    return markdown_table(header, rows)
+
+
+def checks_table(results):
+    header = ('calculator', 'N', 'Reversible velocity (ms/step)',
+              'checks bypassed (ms/step)',
+              'with / without checks (per-round range)',
+              'difference of medians (µs/step)',
+              'changes() in the steps (µs/call, % of step)',
+              'changes() in a tight loop (µs/call)', 'round spread')
+    rows = []
+    for r in results:
+        med = r['median_seconds']
+        paired = paired_ratios(r, 'rv_velocity', 'rv_unwatched')
+        diff = 1e6 * (med['rv_velocity'] - med['rv_unwatched'])
+        watch = r['watch_changes_seconds']
+        spread = max(r['spread'][k] for k in ('rv_velocity', 'rv_unwatched'))
+        rows.append((r['calculator'], r['n_atoms'], ms(med['rv_velocity']),
+                     ms(med['rv_unwatched']),
+                     f"×{ratio(r, 'rv_velocity', 'rv_unwatched'):.3f} "
+                     f'(×{min(paired):.2f} to ×{max(paired):.2f})',
+                     f'{diff:+.1f}' if abs(diff) < 100 else f'{diff:+.0f}',
+                     f'{1e6 * watch:.2f} '
+                     f"({100 * watch / med['rv_velocity']:.2g}%)",
+                     f"{1e6 * r['watch_changes_loop_seconds']:.2f}",
+                     f'{100 * spread:.0f}%'))
+    return markdown_table(header, rows)
+
+
+def checks_lines(results):
+    """The per-step checks, alone and in the step loop."""
+    def share(r):
+        return r['watch_changes_seconds'] / r['median_seconds']['rv_velocity']
+
+    def with_without(r):
+        return ratio(r, 'rv_velocity', 'rv_unwatched')
+
+    alone = sorted(results, key=lambda r: r['watch_changes_seconds'])
+    tight = [1e6 * r['watch_changes_loop_seconds'] for r in results]
+    top = max(results, key=share)
+    loop = sorted(results, key=with_without)
+    unresolved = sum(min(p) <= 1 <= max(p) for p in (
+        paired_ratios(r, 'rv_velocity', 'rv_unwatched') for r in results))
+    return (f'- The per-step checks (`SystemWatch.changes`, timed in the '
+            f"steps) cost {1e6 * alone[0]['watch_changes_seconds']:.2f} µs "
+            f'({case_label(alone[0])}) to '
+            f"{1e6 * alone[-1]['watch_changes_seconds']:.2f} µs "
+            f'({case_label(alone[-1])}) per call, at most '
+            f'{100 * share(top):.2g}% of a Reversible velocity step '
+            f'({case_label(top)}); in a tight loop {min(tight):.2f} to '
+            f'{max(tight):.2f} µs.\n'
+            f'- In the step loop, Reversible velocity with / without the '
+            f'checks ranges from ×{with_without(loop[0]):.3f} '
+            f'({case_label(loop[0])}) to ×{with_without(loop[-1]):.3f} '
+            f'({case_label(loop[-1])}); the per-round ratios lie on both '
+            f'sides of 1 in {unresolved} of {len(results)} cases.')
+
+
+def cache_table(results):
+    header = ('calculator', 'N', 'nudge floor (ms)',
+              'get_forces() again (ms, in force calls)',
+              'get_potential_energy() after get_forces() '
+              '(ms, in force calls)')
+    rows = [(r['calculator'], r['n_atoms'], ms(r['median_seconds']['force']),
+             *(f'{ms(r[key])} ({in_force_calls(r, key):.2f})'
+               for key in ('get_forces_again_seconds',
+                           'energy_after_forces_seconds')))
+            for r in results]
+    return markdown_table(header, rows)
+
+
+def target_lines(results):
+    """The issue's targets, judged on this run's numbers."""
+    out = []
+    for name, scheme in (('rv_velocity', 'velocity'),
+                         ('rv_position', 'position')):
+        missed = [r for r in results
+                  if ratio(r, name) > TARGET_RATIO_TO_VV]
+        head = (f"- Reversible '{scheme}' (force_purity='auto') per step "
+                f'≤ VelocityVerlet: met in {len(results) - len(missed)} of '
+                f'{len(results)} cases')
+        if not missed:
+            out.append(head + '.')
+            continue
+
+        def item(r):
+            paired = paired_ratios(r, name)
+            med = r['median_seconds']
+            consistent = ('slower in every round'
+                          if min(paired) > TARGET_RATIO_TO_VV
+                          else 'not slower in every round')
+            return (f'{case_label(r)}: ×{ratio(r, name):.3f} '
+                    f"(+{ms(med[name] - med['vv'])} ms/step; per-round "
+                    f'ratios ×{min(paired):.2f} to ×{max(paired):.2f}, '
+                    f'{consistent}; on CPU time '
+                    f'×{ratio(r, name, clock=CPU):.3f})')
+        out.append(head + '; missed in ' + '; '.join(map(item, missed))
+                   + '.')
+    big = [r for r in results
+           if r['calculator'] == TARGET_OVERHEAD_CALCULATOR
+           and r['n_atoms'] >= TARGET_OVERHEAD_MIN_ATOMS]
+    if not big:
+        out.append(f'- Overhead target ({TARGET_OVERHEAD_CALCULATOR}, '
+                   f'N ≥ {TARGET_OVERHEAD_MIN_ATOMS}): no such case in '
+                   f'this run.')
+    for r in big:
+        value = overhead_percent(r, 'rv_velocity')
+        verdict = 'met' if value < TARGET_OVERHEAD_PERCENT else 'missed'
+        out.append(f"- Reversible 'velocity' beyond the replay floor "
+                   f'< {TARGET_OVERHEAD_PERCENT:g}% ({case_label(r)}): '
+                   f'{value:+.1f}%, {verdict} (on CPU time '
+                   f"{overhead_percent(r, 'rv_velocity', clock=CPU):+.1f}%; "
+                   f"VelocityVerlet: {overhead_percent(r, 'vv'):+.1f}%, "
+                   f"on CPU time {overhead_percent(r, 'vv', clock=CPU):+.1f}%)"
+                   '.')
+    return '\n'.join(out)
+
+
+def summary(step_results, log_results):
+    """Observations computed from this run's numbers."""
+    out = []
+    vel = sorted(step_results, key=lambda r: ratio(r, 'rv_velocity'))
+    lo, hi = vel[0], vel[-1]
+    out.append(f"- Reversible velocity / VelocityVerlet ranges from "
+               f"×{ratio(lo, 'rv_velocity'):.2f} ({case_label(lo)}) to "
+               f"×{ratio(hi, 'rv_velocity'):.2f} ({case_label(hi)}).")
+    cpu = sorted(step_results,
+                 key=lambda r: ratio(r, 'rv_velocity', clock=CPU))
+    out.append(f"- On CPU time the same ratio ranges from "
+               f"×{ratio(cpu[0], 'rv_velocity', clock=CPU):.2f} "
+               f"({case_label(cpu[0])}) to "
+               f"×{ratio(cpu[-1], 'rv_velocity', clock=CPU):.2f} "
+               f"({case_label(cpu[-1])}).")
+    slower = [r for r in step_results
+              if ratio(r, 'rv_velocity') > SLOWER_THRESHOLD]
+    if slower:
+        def excess(r):
+            med = r['median_seconds']
+            return (f"{case_label(r)}: "
+                    f"+{100 * (ratio(r, 'rv_velocity') - 1):.0f}% "
+                    f"(+{ms(med['rv_velocity'] - med['vv'])} ms/step)")
+        out.append(f'- Reversible velocity is more than '
+                   f'{100 * (SLOWER_THRESHOLD - 1):.0f}% slower than '
+                   f'VelocityVerlet in: '
+                   + '; '.join(map(excess, slower)) + '.')
+    else:
+        out.append(f'- Reversible velocity is nowhere more than '
+                   f'{100 * (SLOWER_THRESHOLD - 1):.0f}% slower than '
+                   f'VelocityVerlet.')
+    rebuild = sorted(step_results,
+                     key=lambda r: overhead_percent(r, 'replay', 'force'))
+    out.append(f'- The replay floor (force calls of real MD, list rebuilds '
+               f'included) exceeds the nudge floor by '
+               f"{overhead_percent(rebuild[0], 'replay', 'force'):+.0f}% "
+               f'({case_label(rebuild[0])}) to '
+               f"{overhead_percent(rebuild[-1], 'replay', 'force'):+.0f}% "
+               f'({case_label(rebuild[-1])}).')
+    purity_cost = [ratio(r, 'rv_velocity', 'rv_trust') for r in step_results]
+    out.append(f"- Force purity handling (auto vs 'trust', velocity scheme) "
+               f"costs ×{min(purity_cost):.2f} to ×{max(purity_cost):.2f}.")
+    out.append(checks_lines(step_results))
+    fractions = []
+    for r in step_results:
+        for name in ('rv_velocity', 'rv_position'):
+            entry = r['clean_recomputations'].get(name)
+            if entry and r['force_purity'][name]['mode'] == 'guarded':
+                fractions.append(entry['recomputations']
+                                 / entry['force_calls'])
+    if fractions:
+        out.append(f'- Guarded (asap3) force calls needing a clean '
+                   f'recomputation: {100 * min(fractions):.2g}% to '
+                   f'{100 * max(fractions):.2g}% (each recomputes the '
+                   f'forces from a freshly built neighbour list).')
+
+    def recomputes(key, threshold):
+        hits = [r for r in step_results
+                if in_force_calls(r, key) > threshold]
+        return '; '.join(f'{case_label(r)}: {in_force_calls(r, key):.2f}'
+                         for r in hits)
+
+    items = recomputes('get_forces_again_seconds', 0.5)
+    if items:
+        out.append(f'- get_forces() at unchanged positions recomputes '
+                   f'(cost in force calls) for {items}. VelocityVerlet, which '
+                   f'asks for the forces again at the start and end of '
+                   f'each step, pays for that; ReversibleVerlet keeps its '
+                   f'own copy of the forces and does not.')
+    items = recomputes('energy_after_forces_seconds', 0.1)
+    if items:
+        out.append(f'- get_potential_energy() right after get_forces() '
+                   f'computes the energy again (cost in force calls) for '
+                   f'{items}. A logger then pays that with every '
+                   f'integrator, and the logged energy at the end of a '
+                   f"'position' step is no extra work.")
+    for r in log_results:
+        out.append(f"- With a logger every step, 'position' costs "
+                   f'{position_extra_calls(r):.2f} nudge force calls per '
+                   f"step more than 'velocity' ({case_label(r)}).")
+    worst = max(step_results + log_results, key=wall_over_cpu)
+    out.append(f'- Largest wall / CPU time ratio: {wall_over_cpu(worst):.2f} '
+               f'({case_label(worst)}); well above 1 means other processes '
+               f'took the CPU during the blocks and the wall times there are '
+               f'noisier.')
+    return '\n'.join(out)
+
+
+def markdown(results):
+    s = results['settings']
+    steps, logging = results['step_cost'], results['logging']
+    systems = '; '.join(sorted({f"{r['calculator']}: {r['system']}"
+                                for r in steps}))
+    return f"""\
+How much a step of `ReversibleVerlet` costs against ASE's `VelocityVerlet`
+and against the calculator's force call alone, for periodic crystals
+({systems}) at {s['ar_temperature_K']:g} K (Ar) and \
+{s['cu_temperature_K']:g} K (Cu), time step {s['timestep_fs']:g} fs.
+
+![Reversible velocity / VelocityVerlet per step (left) and time beyond the \
+replay floor in % of the floor (right), against the number of atoms]\
+(benchmarks/{PLOT})
+
+### Method
+
+Each contestant runs on its own copy of the same thermalised atoms
+(Maxwell-Boltzmann, seed 0) with its own fresh calculator. After
+{s['warmup_steps']} warm-up steps each, the contestants run blocks of the
+same number of steps, chosen per case so that a VelocityVerlet block takes
+about {s['block_seconds']:g} s (at least {s['min_steps']} steps), in
+{s['rounds']} rounds with the order rotating each round. Times are medians
+over rounds of block time / steps; ratios are ratios of medians. "Round
+spread" is the largest (max − min) / median over the contestants of a case:
+differences smaller than that are noise. "Wall / CPU" is the largest ratio
+of a contestant's median wall time to its median CPU time
+(`time.process_time`, also in the JSON): near 1.00 the process had the CPU
+to itself. BLAS runs on one thread so that numpy's thread hand-offs do not
+add scheduler delays to the steps.
+
+- **nudge floor**: one atom moved by {s['floor_nudge_angstrom']:g} Å, then
+  `atoms.get_forces(md=True)`: a full calculation that never rebuilds the
+  neighbour list.
+- **replay floor**: the positions of a VelocityVerlet run of the same system
+  from the same start (recorded before the rounds, fresh calculator), set
+  frame by frame with `atoms.set_positions` followed by
+  `atoms.get_forces(md=True)`. It includes the neighbour-list updates and
+  rebuilds that MD really causes, so time beyond it is the integrator's
+  own work (plus its extra force calls, if any).
+- **VelocityVerlet**: `ase.md.verlet.VelocityVerlet`.
+- **Reversible velocity / position**: `ReversibleVerlet(scheme=...)` with
+  `force_purity='auto'` (exact reversal): 'sorted' for ASE calculators,
+  'guarded' for asap3.
+- **Reversible trust**: `ReversibleVerlet(scheme='velocity',
+  force_purity='trust')`: the cost without any purity handling. *Not exact*
+  for these calculators; a baseline only.
+- **checks bypassed** (`rv_unwatched` in the JSON): Reversible velocity
+  with the integrator's `SystemWatch` replaced by a stub that never reports
+  a change (benchmark only): the control for the checks made before every
+  step. See "Cost of the per-step checks".
+- **clean recomputations**: for 'guarded', the share of force evaluations
+  (one per step) whose kick was recomputed from a freshly built neighbour
+  list, during the timed blocks, as count / force evaluations.
+
+### Time per step
+
+{step_cost_table(steps)}
+
+### Overhead beyond the force call
+
+Median step time minus a floor, in ms and in % of that floor.
+
+{overhead_table(steps)}
+
+### Cost of the per-step checks
+
+Before every step `ReversibleVerlet` compares the calculator, its
+parameters, the constraints, cell, pbc, atomic numbers and masses with a
+snapshot (`SystemWatch.changes`, `ase_reversible/watch.py`), then the
+positions and momenta. "Checks bypassed" is Reversible velocity with that
+comparison replaced by a stub reporting no change, timed in the same
+rounds: the difference of the medians is the checks' cost in the step loop,
+noise where it is within the round spread (of these two contestants) or
+the per-round ratios lie on both sides of 1. The comparison is also timed
+directly on the Reversible velocity contestant after the rounds, with
+nothing changed (the path of every step): "in the steps" is the median of
+its calls (`time.perf_counter` around each) during one more block of the
+same number of steps, in µs and in % of that contestant's median step;
+"in a tight loop" is the median over {s['watch_blocks']} blocks of
+{s['watch_calls']} back-to-back calls. The tight loop runs with warm caches
+and is the lower bound; in the steps the force call has left the caches
+cold, and that is what a step pays.
+
+{checks_table(steps)}
+
+### Targets
+
+Judged on the wall-time medians above; a ratio within the round spread of
+1 is not resolved by this run. CPU time is given beside them: the process
+is single-threaded, so where wall / CPU is well above 1 (other processes
+held the CPU), CPU time is the steadier estimate of the cost.
+
+{target_lines(steps)}
+
+### Scheme cost under logging
+
+The same measurement with an `MDLogger` (writing to an `io.StringIO`)
+attached every step (no replay floor). Kick-drift-kick ('velocity') ends a
+step with a force calculation at the new positions, so the logger finds the
+energy in the calculator's cache (if the calculator keeps it; see the
+diagnostic below); drift-kick-drift ('position') ends a step between force
+calculations, so the logger's energy is a calculation of its own at every
+logged step. The second to last column gives that difference in units of
+the nudge floor.
+
+{logging_table(logging)}
+
+### Diagnostic: what the calculators cache
+
+Asked again at unchanged positions (on the nudge-floor contestant after the
+rounds; median of three blocks): `get_forces()` repeated, as VelocityVerlet
+does at the start and end of each step, and `get_potential_energy()` right
+after `get_forces()`, as a logger does. A cache hit costs microseconds; a
+recomputation costs up to a whole force call.
+
+{cache_table(steps)}
+
+### Observations (computed from this run)
+
+{summary(steps, logging)}
+"""
+
+
+
