@@ -79,12 +79,12 @@ class Grid:
 
     @property
     def position_range(self) -> float:
-        """Largest representable |position| (exclusive), Å."""
+        """Largest representable ``|position|`` (exclusive), Å."""
         return _FLIMIT * self.position_quantum
 
     @property
     def momentum_range(self) -> float:
-        """Largest representable |momentum| (exclusive), ASE units."""
+        """Largest representable ``|momentum|`` (exclusive), ASE units."""
         return _FLIMIT * self.momentum_quantum
 
     def todict(self) -> dict:
@@ -121,7 +121,7 @@ def choose_position_quantum(positions_nc, cell, pbc,
     """Position quantum (Å) for a system, leaving ``room`` times its size.
 
     ``positions_nc`` is ``[n_atoms, 3]`` (Å), ``cell`` ``[3, 3]`` (Å), ``pbc``
-    three booleans.  The size is the largest |coordinate| of the atoms or
+    three booleans.  The size is the largest ``|coordinate|`` of the atoms or
     of the periodic cell vectors' span, and at least 1 Å.  With the default room of 1024 a
     20 Å system gets a quantum of 2**-38 Å (3.6e-12 Å) and can spread to
     about 3e4 Å before an atom leaves the range.
@@ -140,7 +140,7 @@ def momentum_scale(masses_n, momenta_nc,
                    ) -> float:
     """The momentum a grid must resolve, amu Å / ASE time unit.
 
-    The largest |momentum| component of ``momenta_nc`` ``[n_atoms, 3]``, or
+    The largest ``|momentum|`` component of ``momenta_nc`` ``[n_atoms, 3]``, or
     the thermal momentum ``sqrt(m kB T)`` of the heaviest atom (``masses_n``
     ``[n_atoms]``, amu) at ``temperature_floor`` K, whichever is larger.
     """
@@ -241,7 +241,7 @@ class FixedPointArray:
     an update never overwrites the checkpoint, and :meth:`rollback` puts it
     back without copying anything.
 
-    Each buffer carries an upper bound on its largest |count|: an update
+    Each buffer carries an upper bound on its largest ``|count|``: an update
     adds the increment's largest magnitude to it and checks the sum itself
     only when the bound reaches ``LIMIT``.  With the default head room that
     is rare, so most updates skip two passes over the array.
