@@ -74,7 +74,7 @@ AR_TEMPERATURE_K, CU_TEMPERATURE_K = 60.0, 300.0
 #: Repeats of the 4-atom cubic fcc cell: 144, 1000, 4000 and 32000 atoms.
 REPEATS = ((3, 3, 4), (5, 5, 10), (10, 10, 10), (20, 20, 20))
 
-#: Issue targets, checked against every run's numbers in the observations.
+#: The cost targets, checked against every run's numbers in the observations.
 TARGET_RATIO_TO_VV = 1.0
 TARGET_OVERHEAD_PERCENT = 5.0
 TARGET_OVERHEAD_CALCULATOR = 'asap3 EMT'
@@ -743,7 +743,7 @@ def cache_table(results):
 
 
 def target_lines(results):
-    """The issue's targets, judged on this run's numbers."""
+    """The cost targets, judged on this run's numbers."""
     out = []
     for name, scheme in (('rv_velocity', 'velocity'),
                          ('rv_position', 'position')):
