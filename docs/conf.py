@@ -3,13 +3,16 @@ generated from the package.
 
     python -m sphinx -W --keep-going -b html docs docs/_build/html
 
-The API pages are written at build time into docs/api/ (not committed) by
-autosummary, which walks the package recursively: a module that is added,
-moved or renamed appears in the reference without editing any file here.
+The API pages are written anew at each build into docs/api/ (not
+committed) by autosummary, which walks the package recursively: a module
+that is added, moved or renamed appears in the reference without editing
+any file here.
 """
 
 import importlib
 import re
+import shutil
+from pathlib import Path
 
 import ase_reversible
 
@@ -41,6 +44,9 @@ myst_heading_anchors = 4
 # -- API reference ----------------------------------------------------------
 
 autosummary_generate = True
+# Written anew at each build: a page left from a module that has since
+# moved would fail to import and fail the build.
+shutil.rmtree(Path(__file__).resolve().parent / 'api', ignore_errors=True)
 # Submodules come from walking the package, not from __all__ (the package's
 # __all__ lists the names to import, not its modules).
 autosummary_ignore_module_all = True
@@ -198,7 +204,8 @@ def _resolve_package_name(app, env, node, contnode):
     (``ase_reversible.ReversibleVerlet``) or as their module imports them
     (``Grid`` in verlet.py); each object is documented once, under the
     module that defines it, so such a name is looked up in Python and the
-    reference sent to that place.  A name of another project resolves to plain text.
+    reference sent to that place.  A name of another project resolves to
+    plain text.
     A name that does not exist, or one of this package that is not
     documented, stays unresolved and fails the build.
     """
