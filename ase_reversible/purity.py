@@ -91,8 +91,8 @@ class TrustedForces:
     def min_momentum_quantum(self, n_atoms, max_kick_time, extent=0.0):
         """Lower bound on the momentum quantum this provider needs.
 
-        ``max_kick_time``: the largest |c h| of a kick, ASE time units;
-        ``extent``: the largest |coordinate|, Å.  Returns amu Å / ASE time
+        ``max_kick_time``: the largest ``|c h|`` of a kick, ASE time units;
+        ``extent``: the largest ``|coordinate|``, Å.  Returns amu Å / ASE time
         unit; 0 means no bound.
         """
         return 0.0
@@ -160,7 +160,8 @@ class GuardedForces(TrustedForces):
         self.force_noise = force_noise
         #: Number of kicks whose forces were recomputed from a clean list.
         self.clean_recomputations = 0
-        #: Largest |F_history - F_clean| seen in those recomputations, eV/Å.
+        #: Largest ``|F_history - F_clean|`` seen in those recomputations,
+        #: eV/Å.
         self.max_observed_noise = 0.0
         self._warned = False
         self._clean_nc = None  # the last clean forces: need no guard

@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 #: Largest displacement of any atom in a finite-difference product, Å.
-#: The central difference errs by ~ step**2 |F'''| / 6 (truncation) plus
+#: The central difference errs by ~ ``step**2 |F'''| / 6`` (truncation) plus
 #: ~ (force rounding and noise) / step (cancellation).  Measured against
 #: exact products (docs/adjoint.md): 4e-8 relative at 1e-4 Å, 4e-10 at
 #: 1e-5 Å, 1e-9 at 3e-6 Å for argon.  A small step also makes it unlikely

@@ -56,6 +56,9 @@ def _mirror(first_half):
 _CBRT2 = 2.0 ** (1.0 / 3.0)
 _SUZUKI_P = 1.0 / (4.0 - 4.0 ** (1.0 / 3.0))
 
+#: The built-in compositions, by name.
+#:
+#: :meta hide-value:
 COMPOSITIONS = {c.name: c for c in (
     Composition('verlet', 2, (1.0,)),
     # Yoshida's and Suzuki's triple jump: the cheapest order 4.

@@ -283,7 +283,7 @@ def cache_table(results):
 
 
 def target_lines(results):
-    """The issue's targets, judged on this run's numbers."""
+    """The cost targets, judged on this run's numbers."""
     out = []
     for name, scheme in (('rv_velocity', 'velocity'),
                          ('rv_position', 'position')):
