@@ -21,17 +21,18 @@ from .adjoint import AnalyticHVP, FiniteDifferenceHVP, Gradients
 from .chain import PendulumChain
 from .app.flipbook import Flipbook
 from .core.quanta import Grid
-from .core.record import INFO_KEY
+from .core.record import INFO_KEY  # noqa: F401  (the restart record's key)
 from .gravity import SoftenedGravity
 from .lennardjones import LennardJones
 from .md import FixedPointState, ReversibleVerlet
-from .purity import probe_purity
+from .purity import CalculatorCheck, check_calculator, probe_purity
 
 __version__ = '0.1.0'
 
 __all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
+           'check_calculator', 'CalculatorCheck',
            'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',
-           'Flipbook', 'AnalyticHVP', 'FiniteDifferenceHVP', 'INFO_KEY',
+           'Flipbook', 'AnalyticHVP', 'FiniteDifferenceHVP',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
            'NonFiniteForcesError', 'ImpureForcesError', 'CoarseQuantumError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

@@ -87,7 +87,7 @@ def _exported():
         obj = getattr(ase_reversible, name)
         module = getattr(obj, '__module__', None) or ''
         try:
-            home = importlib.import_module(module)
+            home = importlib.import_module(module) if module else None
         except ImportError:
             home = None
         if module.startswith(ase_reversible.__name__ + '.') \

@@ -57,7 +57,7 @@ def quantum_for(max_abs: float) -> float:
 
 
 def value_range(quantum: float) -> float:
-    """Largest representable |value| (exclusive) for ``quantum``."""
+    """Largest representable ``|value|`` (exclusive) for ``quantum``."""
     return _FLIMIT * quantum
 
 

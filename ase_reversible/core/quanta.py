@@ -55,12 +55,12 @@ class Grid:
 
     @property
     def position_range(self) -> float:
-        """Largest representable |position| (exclusive), Å."""
+        """Largest representable ``|position|`` (exclusive), Å."""
         return value_range(self.position_quantum)
 
     @property
     def momentum_range(self) -> float:
-        """Largest representable |momentum| (exclusive), ASE units."""
+        """Largest representable ``|momentum|`` (exclusive), ASE units."""
         return value_range(self.momentum_quantum)
 
     def todict(self) -> dict:
@@ -74,7 +74,7 @@ def choose_position_quantum(positions_nc, cell, pbc,
     """Position quantum (Å) for a system, leaving ``room`` times its size.
 
     ``positions_nc`` is ``[n_atoms, 3]`` (Å), ``cell`` ``[3, 3]`` (Å), ``pbc``
-    three booleans.  The size is the largest |coordinate| of the atoms or
+    three booleans.  The size is the largest ``|coordinate|`` of the atoms or
     of the periodic cell vectors' span, and at least 1 Å.  With the default
     room of 1024 a 20 Å system gets a quantum of 2**-38 Å (3.6e-12 Å) and
     can spread to about 3e4 Å before an atom leaves the range.
@@ -93,7 +93,7 @@ def momentum_scale(masses_n, momenta_nc,
                    ) -> float:
     """The momentum a grid must resolve, amu Å / ASE time unit.
 
-    The largest |momentum| component of ``momenta_nc`` ``[n_atoms, 3]``, or
+    The largest ``|momentum|`` component of ``momenta_nc`` ``[n_atoms, 3]``, or
     the thermal momentum ``sqrt(m kB T)`` of the heaviest atom (``masses_n``
     ``[n_atoms]``, amu) at ``temperature_floor`` K, whichever is larger.
     """

@@ -33,7 +33,7 @@ class ExactVariable:
     an update never overwrites the checkpoint, and :meth:`rollback` puts it
     back without copying anything.
 
-    Each buffer carries an upper bound on its largest |count|: an update
+    Each buffer carries an upper bound on its largest ``|count|``: an update
     adds the increment's largest magnitude to it and checks the sum itself
     only when the bound reaches ``LIMIT``.  With the default head room that
     is rare, so most updates skip two passes over the array.

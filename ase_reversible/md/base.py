@@ -14,29 +14,32 @@ from __future__ import annotations
 
 import warnings
 
-import numpy as np
 from ase import units
 from ase.md.md import MolecularDynamics
 
 from ..adjoint import Cotangents, Gradients, hvp_for
 from ..adjoint.cotangents import checked_gradient, checked_parameters
 from ..core.codec import encode
-from ..core.record import write_record
+from ..core.record import INFO_KEY, read_record, record_mismatch, write_record
 from ..errors import AnchorMovedWarning
 from ..purity import calculator_members, discard_results, force_provider
-from .checks import (check_calculator, check_steps, check_timestep,
+from .checks import (check_calculator, check_energy_watch, check_steps,
+                     check_timestep,
                      checked_masses)
 from .constraints import constraint_projection
-from .watch import EQUAL_CALCULATOR, SystemWatch, same_values
+from .state import FixedPointState
+from .watch import EQUAL_CALCULATOR, same_values
 
 
 
 
 class ReversibleDynamics(MolecularDynamics):
-    """Base of the reversible integrators; see :class:`ReversibleVerlet`.
+    """Base of the reversible integrators; see
+    :class:`ase_reversible.md.verlet.ReversibleVerlet`.
 
-    A subclass's constructor checks its arguments, then calls
-    :meth:`_attach` with the system and engine it declared.
+    A subclass's constructor checks its arguments, declares its system
+    and engine and hands them to ``_attach`` before ASE's constructor
+    runs, then calls ``_start`` with the watch of the atoms.
     """
 
     engine = None
@@ -57,7 +60,13 @@ class ReversibleDynamics(MolecularDynamics):
 
     @property
     def dt(self):
-        """The time step, ASE time units; negative runs backwards."""
+        """The time step, ASE time units; its sign is the direction of time.
+
+        Setting it is honoured at the next step: a negated ``dt`` runs
+        backwards exactly like :meth:`reverse`; a new size moves the anchor
+        of reversal there (:class:`~ase_reversible.AnchorMovedWarning` if
+        steps were taken since the anchor).
+        """
         return self._dt if self.engine is None else self.engine.dt
 
     @dt.setter
@@ -157,6 +166,80 @@ class ReversibleDynamics(MolecularDynamics):
     def _committed(self):
         self.system.show_momenta()
         write_record(self.atoms.info, self._quanta(), self.get_time())
+
+    # -- state and settings ----------------------------------------------
+
+    @property
+    def energy_check(self):
+        """Steps between energy checks (0: off)."""
+        return self.engine.invariant.interval
+
+    @energy_check.setter
+    def energy_check(self, value):
+        self.engine.invariant.interval = check_energy_watch(value, None)[0]
+
+    @property
+    def energy_tolerance(self):
+        """eV, as passed; None means the default described above."""
+        return self.engine.invariant.tolerance
+
+    @energy_tolerance.setter
+    def energy_tolerance(self, value):
+        self.engine.invariant.tolerance = check_energy_watch(0, value)[1]
+
+    @property
+    def anchor(self) -> FixedPointState:
+        """A copy of the state reversal leads back to (int64 counts).
+
+        The state right after the constructor, or right after the last
+        change that was taken (:class:`AnchorMovedWarning`); same layout as
+        :attr:`state`.
+        """
+        anchor = self.engine.anchor
+        return FixedPointState(anchor['position'].copy(),
+                               anchor['momentum'].copy())
+
+    @property
+    def state(self) -> FixedPointState:
+        """A copy of the exact state: int64 positions and momenta in quanta.
+
+        ``.ix_nc`` and ``.ip_nc``, int64 ``[n_atoms, 3]``; times
+        ``grid.position_quantum`` (Å) and ``grid.momentum_quantum`` (amu Å
+        / ASE time unit) they are exactly ``atoms.positions`` and
+        ``atoms.get_momenta()``.
+        """
+        return FixedPointState(self.system.x.ints.copy(),
+                               self.system.p.ints.copy())
+
+    @property
+    def force_purity(self):
+        """The force provider in use (:mod:`ase_reversible.purity`).
+
+        ``.mode`` is ``'sorted'``, ``'guarded'`` or ``'trust'``; a guarded
+        provider also counts ``.clean_recomputations`` and keeps
+        ``.max_observed_noise`` (eV/Å).
+        """
+        return self.system.purity
+
+    @staticmethod
+    def _resumable_record(atoms):
+        """The restart record in ``atoms.info`` if it fits the atoms."""
+        record = read_record(atoms.info)
+        if record is None:
+            return None
+        mismatch = record_mismatch(record, {
+            'position': atoms.positions,
+            'momentum': atoms.arrays.get('momenta')})
+        if mismatch is None:
+            return record
+        warnings.warn(
+            f'The restart record in atoms.info does not fit these '
+            f'atoms ({mismatch}); this is a new run: new quanta, '
+            'time from 0. To resume a run exactly, start from an '
+            'unedited trajectory frame; to silence this, remove the '
+            f'record (atoms.info.pop({INFO_KEY!r})).',
+            AnchorMovedWarning, stacklevel=4)
+        return None
 
     # -- the adjoint ------------------------------------------------------
 

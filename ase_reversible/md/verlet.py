@@ -9,8 +9,6 @@ drifts and kicks, and a composition; the engine
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 from ase import Atoms
 
@@ -19,15 +17,12 @@ from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
 from ..core.plans import compose
 from ..core.quanta import choose_grid
-from ..core.record import INFO_KEY, read_record, record_mismatch
-from ..errors import AnchorMovedWarning
 from ..purity import force_provider
 from .base import ReversibleDynamics
 from .checks import (check_calculator, check_energy_watch, check_timestep,
                      checked_masses, fixed, refuse_coarse_momentum_quantum)
 from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian, explain_energy_drift
-from .state import FixedPointState
 from .watch import SystemWatch
 
 DRIFT, KICK = 'drift', 'kick'
@@ -116,27 +111,10 @@ class ReversibleVerlet(ReversibleDynamics):
         Passed to :class:`ase.md.md.MolecularDynamics`, e.g.
         ``append_trajectory=True``.
 
-    Attributes
-    ----------
-    dt : float
-        The time step, ASE time units; its sign is the direction of time.
-        Setting it is honoured at the next step: a negated ``dt`` runs
-        backwards exactly like :meth:`reverse`; a new size moves the
-        anchor of reversal there (:class:`AnchorMovedWarning` if steps
-        were taken since the anchor).
-    anchor : FixedPointState
-        The state that reversal leads back to.
-    grid : Grid
-        The two quanta (Å; amu Å / ASE time unit) and their ranges.
-    scheme : str
-        ``'velocity'`` or ``'position'``.
-    composition : Composition
-        The composition in use: ``.name``, ``.order``, ``.stages`` (force
-        calls per step) and ``.fractions``.
-    energy_check : int
-        Steps between energy checks (0: off).
-    energy_tolerance : float or None
-        eV, as passed; None means the default described above.
+    The time step, the anchor, the quanta and the settings are
+    properties (:attr:`dt`, :attr:`anchor`, :attr:`state`, :attr:`grid`,
+    :attr:`scheme`, :attr:`composition`, :attr:`energy_check`,
+    :attr:`energy_tolerance`, :attr:`force_purity`).
 
     Raises
     ------
@@ -223,26 +201,6 @@ class ReversibleVerlet(ReversibleDynamics):
                          logfile=logfile, loginterval=loginterval, **kwargs)
         self._start(SystemWatch(atoms))
 
-    @staticmethod
-    def _resumable_record(atoms):
-        """The restart record in ``atoms.info`` if it fits the atoms."""
-        record = read_record(atoms.info)
-        if record is None:
-            return None
-        mismatch = record_mismatch(record, {
-            'position': atoms.positions,
-            'momentum': atoms.arrays.get('momenta')})
-        if mismatch is None:
-            return record
-        warnings.warn(
-            f'The restart record in atoms.info does not fit these '
-            f'atoms ({mismatch}); this is a new run: new quanta, '
-            'time from 0. To resume a run exactly, start from an '
-            'unedited trajectory frame; to silence this, remove the '
-            f'record (atoms.info.pop({INFO_KEY!r})).',
-            AnchorMovedWarning, stacklevel=4)
-        return None
-
     def _explain_drift(self, number, drift, tolerance):
         return explain_energy_drift(number, drift, tolerance, self.dt)
 
@@ -267,58 +225,6 @@ class ReversibleVerlet(ReversibleDynamics):
                     lambda self, value: fixed('grid (the quanta)'),
                     doc='The two quanta, a :class:`Grid` (fixed at '
                         'construction).')
-
-    @property
-    def energy_check(self):
-        """Steps between energy checks (0: off)."""
-        return self.engine.invariant.interval
-
-    @energy_check.setter
-    def energy_check(self, value):
-        self.engine.invariant.interval = check_energy_watch(value, None)[0]
-
-    @property
-    def energy_tolerance(self):
-        """eV, as passed; None means the default described above."""
-        return self.engine.invariant.tolerance
-
-    @energy_tolerance.setter
-    def energy_tolerance(self, value):
-        self.engine.invariant.tolerance = check_energy_watch(0, value)[1]
-
-    @property
-    def anchor(self) -> FixedPointState:
-        """A copy of the state reversal leads back to (int64 counts).
-
-        The state right after the constructor, or right after the last
-        change that was taken (:class:`AnchorMovedWarning`); same layout as
-        :attr:`state`.
-        """
-        anchor = self.engine.anchor
-        return FixedPointState(anchor['position'].copy(),
-                               anchor['momentum'].copy())
-
-    @property
-    def state(self) -> FixedPointState:
-        """A copy of the exact state: int64 positions and momenta in quanta.
-
-        ``.ix_nc`` and ``.ip_nc``, int64 ``[n_atoms, 3]``; times
-        ``grid.position_quantum`` (Å) and ``grid.momentum_quantum`` (amu Å
-        / ASE time unit) they are exactly ``atoms.positions`` and
-        ``atoms.get_momenta()``.
-        """
-        return FixedPointState(self.system.x.ints.copy(),
-                               self.system.p.ints.copy())
-
-    @property
-    def force_purity(self):
-        """The force provider in use (:mod:`ase_reversible.purity`).
-
-        ``.mode`` is ``'sorted'``, ``'guarded'`` or ``'trust'``; a guarded
-        provider also counts ``.clean_recomputations`` and keeps
-        ``.max_observed_noise`` (eV/Å).
-        """
-        return self.system.purity
 
     def todict(self):
         """ASE's description of the dynamics (written into trajectory
