@@ -33,7 +33,11 @@ COMMITS = (
     ('dfceefa', 'the half kick reused; range checks on a running bound'),
     ('9082669', 'the energy check (steps 1, 2, 4, ..., then every 100)'),
     ('d48a84e', "guard bound scaled with the coordinates' extent"),
+    ('bedad94', 'before the engine rewrite: the integrator as one class'),
 )
+#: The reference every commit's cost is also given against, run by a worker
+#: of its own in the same rounds.
+REFERENCE = 'VelocityVerlet'
 
 #: (label, steps per block in the full and the quick run; None: not run).
 CASES = (
@@ -67,17 +71,19 @@ def build(label):
     raise ValueError(label)
 
 
-def worker(source, case_file):
+def worker(source, case_file, integrator='ReversibleVerlet'):
     """Run blocks of steps on request: a line with a number of steps on
     stdin, a line with the seconds they took on stdout."""
     from ase import units
+    from ase.md.verlet import VelocityVerlet
 
     import ase_reversible
     from ase_reversible import ReversibleVerlet
     assert ase_reversible.__file__.startswith(source), ase_reversible.__file__
     atoms, calc = pickle.loads(Path(case_file).read_bytes())
     atoms.calc = calc() if callable(calc) else calc
-    dyn = ReversibleVerlet(atoms, TIMESTEP_FS * units.fs)
+    md = VelocityVerlet if integrator == REFERENCE else ReversibleVerlet
+    dyn = md(atoms, TIMESTEP_FS * units.fs)
     dyn.run(WARMUP_STEPS)
     print('ready', flush=True)
     for line in sys.stdin:
@@ -109,8 +115,10 @@ def head_commits():
 def time_case(label, steps, sources, quick, case_file):
     workers = {}
     for name, path in sources.items():
+        integrator = REFERENCE if name == REFERENCE else 'ReversibleVerlet'
         workers[name] = subprocess.Popen(
-            [sys.executable, __file__, '--worker', str(path), str(case_file)],
+            [sys.executable, __file__, '--worker', str(path), str(case_file),
+             integrator],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
             env={**common.os.environ, 'PYTHONPATH': str(path)})
         assert workers[name].stdout.readline().strip() == 'ready'
@@ -155,6 +163,7 @@ def run(quick):
             sources[label] = common.ROOT
         if len(sources) < 2:
             return results
+        sources[REFERENCE] = common.ROOT
         for label, (full_steps, quick_steps) in CASES:
             steps = quick_steps if quick else full_steps
             if steps is None:
@@ -169,7 +178,7 @@ def run(quick):
 
 if __name__ == '__main__':
     if sys.argv[1:2] == ['--worker']:
-        worker(*sys.argv[2:4])
+        worker(*sys.argv[2:5])
     else:
         import run_all
         sys.exit(run_all.main(['--only', 'savings'] + sys.argv[1:]))

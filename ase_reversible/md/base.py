@@ -326,7 +326,7 @@ class ReversibleDynamics(MolecularDynamics):
     # -- changes made around the run --------------------------------------
 
     def _sync(self):
-        """Take or refuse changes made around the run (see watch.py)."""
+        """Take or refuse changes made around the run (see :mod:`.watch`)."""
         atoms = self.atoms
         changes = self._watch.changes(atoms)
         if changes and self._take_changes(changes):

@@ -20,6 +20,11 @@ def markdown(results):
                 f"{', '.join(results['skipped'])} are not in this clone.")
     commits = [c['commit'] for c in results['commits']
                if c['commit'] not in results['skipped']]
+    reference = 'VelocityVerlet'
+    versus = [[case['case']] + [
+        f"{case['ms_per_step'][c] / case['ms_per_step'][reference]:.3f}"
+        for c in commits] for case in results['cases']
+        if reference in case['ms_per_step']]
     rows = []
     for case in results['cases']:
         base = case['ms_per_step'][commits[0]]
@@ -38,4 +43,9 @@ Default settings (`scheme='velocity'`, `force_purity='auto'`, 5 fs).
 ms per step (ratio to the first commit):
 
 {markdown_table(['case'] + commits + ['round spread'], rows)}
-"""
+""" + (f"""
+Ratio to ASE's VelocityVerlet, run by a worker of its own in the same
+rounds:
+
+{markdown_table(['case'] + commits, versus)}
+""" if versus else '')
