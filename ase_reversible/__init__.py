@@ -12,12 +12,10 @@ from .errors import (CoarseQuantumError, ImpureForcesError,
                      QuantumRangeError, ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
 from .adjoint import Gradients
-from .chain import PendulumChain
+from .calculators import LennardJones, PendulumChain, SoftenedGravity
 from .fixedpoint import FixedPointState, Grid
 from .flipbook import Flipbook
-from .gravity import SoftenedGravity
 from .hessian import AnalyticHVP, FiniteDifferenceHVP
-from .lennardjones import LennardJones
 from .purity import probe_purity
 from .verlet import AnchorMovedWarning, ReversibleVerlet
 

@@ -11,7 +11,7 @@ import pytest
 from ase.constraints import FixAtoms
 
 from ase_reversible import ReversibleVerlet, probe_purity
-from ase_reversible.chain import PendulumChain, make_chain
+from ase_reversible.calculators import PendulumChain, make_chain
 from ase_reversible.io import INFO_KEY
 
 from conftest import energy_gradient, hessian_times

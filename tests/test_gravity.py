@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ase_reversible import ReversibleVerlet, probe_purity
-from ase_reversible.gravity import SoftenedGravity, make_ring
+from ase_reversible.calculators import SoftenedGravity, make_ring
 from ase_reversible.io import INFO_KEY
 
 from conftest import energy_gradient, hessian_times
