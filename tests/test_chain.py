@@ -14,7 +14,7 @@ from ase_reversible import ReversibleVerlet, probe_purity
 from ase_reversible.calculators import PendulumChain, make_chain
 from ase_reversible.io import INFO_KEY
 
-from conftest import energy_gradient, hessian_times
+from finite_differences import energy_gradient, hessian_times
 
 STIFFNESS, GRAVITY = 1000.0, 1.0  # eV/Å², eV/(Å amu): as in the example
 DT = 0.0125  # ASE time units; at most 0.8 rad per step, as in the example

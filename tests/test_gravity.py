@@ -12,7 +12,7 @@ from ase_reversible import ReversibleVerlet, probe_purity
 from ase_reversible.calculators import SoftenedGravity, make_ring
 from ase_reversible.io import INFO_KEY
 
-from conftest import energy_gradient, hessian_times
+from finite_differences import energy_gradient, hessian_times
 
 G, EPS, DT = 1.0, 0.3, 0.002  # eV Å/amu², Å, ASE time: as in the scene
 

@@ -9,9 +9,9 @@ from ase.cluster import Icosahedron
 
 from ase_reversible import LennardJones, ReversibleVerlet, probe_purity
 
-from conftest import (AR_EPSILON, AR_SIGMA, DT, assert_same_state,
-                      at_positions, central_difference,
-                      forward_and_back, thermalize)
+from conftest import AR_EPSILON, AR_SIGMA, DT, thermalize
+from exactness import assert_same_state, forward_and_back
+from finite_differences import at_positions, central_difference
 
 
 def lj(**kwargs):
