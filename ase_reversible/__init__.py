@@ -18,12 +18,10 @@ from .errors import (AnchorMovedWarning, CoarseQuantumError,
                      QuantumRangeError, ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
 from .adjoint import AnalyticHVP, FiniteDifferenceHVP, Gradients
-from .chain import PendulumChain
 from .app.flipbook import Flipbook
+from .calculators import LennardJones, PendulumChain, SoftenedGravity
 from .core.quanta import Grid
 from .core.record import INFO_KEY  # noqa: F401  (the restart record's key)
-from .gravity import SoftenedGravity
-from .lennardjones import LennardJones
 from .md import FixedPointState, ReversibleVerlet
 from .purity import CalculatorCheck, check_calculator, probe_purity
 

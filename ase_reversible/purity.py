@@ -385,36 +385,6 @@ def _round_up(value):
     return math.ceil(value / 10.0**digits) * 10.0**digits
 
 
-#: How to read each quantity :func:`exact_system_changes` can compare.
-_SYSTEM_QUANTITIES = {
-    'positions': lambda atoms: atoms.arrays['positions'],
-    'numbers': lambda atoms: atoms.arrays['numbers'],
-    'cell': lambda atoms: atoms.cell.array,
-    'pbc': lambda atoms: atoms.pbc,
-    'masses': lambda atoms: atoms.get_masses(),
-}
-
-
-def exact_system_changes(old, atoms, names):
-    """Which of ``names`` differ between ``old`` and ``atoms``, bit for bit.
-
-    ``names`` from ``'positions'``, ``'numbers'``, ``'cell'``, ``'pbc'``,
-    ``'masses'``; returns a list of those that differ (all of ASE's
-    ``all_changes`` if ``old`` is None or has another number of atoms).
-
-    For a calculator's ``check_state``.  ASE's default treats positions
-    within 1e-15 Å as unchanged, which a fine fixed-point grid can move
-    by (stale forces would then break exact reversal), and its
-    ``allclose`` costs more than the forces of a small system.
-    """
-    from ase.calculators.calculator import all_changes
-    if old is None or len(old) != len(atoms):
-        return list(all_changes)
-    return [name for name in names
-            if not np.array_equal(_SYSTEM_QUANTITIES[name](old),
-                                  _SYSTEM_QUANTITIES[name](atoms))]
-
-
 def _is_ase_neighborlist_calculator(calc):
     from ase.calculators.emt import EMT
     from ase.calculators.lj import LennardJones

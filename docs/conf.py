@@ -170,7 +170,7 @@ def _lookup(dotted):
 
     The canonical name is where the object is defined and documented:
     ``ase_reversible.ReversibleVerlet.backpropagate`` gives
-    ``ase_reversible.verlet.ReversibleVerlet.backpropagate``.
+    ``ase_reversible.md.base.ReversibleDynamics.backpropagate``.
     """
     parts = dotted.split('.')
     for cut in range(len(parts), 0, -1):

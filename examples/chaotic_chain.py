@@ -52,7 +52,7 @@ from ase import units
 from ase.md.verlet import VelocityVerlet
 
 from ase_reversible import ReversibleVerlet
-from ase_reversible.chain import PendulumChain, make_chain
+from ase_reversible.calculators import PendulumChain, make_chain
 from ase_reversible import INFO_KEY
 
 RV_COLOUR = 'tab:blue'
@@ -69,7 +69,7 @@ class Setup:
     mass: float = 1.0
     #: Degrees from straight down: released from horizontal, at rest.
     start_angle: float = 90.0
-    #: eV/Å², as in :class:`~ase_reversible.chain.PendulumChain`'s default.
+    #: eV/Å², as in :class:`~ase_reversible.calculators.PendulumChain`'s default.
     stiffness: float = 1000.0
     #: eV/(Å amu).
     gravity: float = 1.0

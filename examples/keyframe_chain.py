@@ -34,7 +34,7 @@ from ase import units
 from scipy.optimize import minimize
 
 from ase_reversible import ReversibleVerlet
-from ase_reversible.chain import PendulumChain, make_chain
+from ase_reversible.calculators import PendulumChain, make_chain
 from ase_reversible import INFO_KEY
 
 

@@ -2,7 +2,7 @@
 
 The first figure of J. Stam, "An Exact Bitwise Reversible Integrator":
 bodies evenly spaced on a circle, at rest, attract each other with
-softened Newtonian gravity (:class:`ase_reversible.gravity.SoftenedGravity`).
+softened Newtonian gravity (:class:`ase_reversible.calculators.SoftenedGravity`).
 The ring clumps, falls in, passes through its centre and flies apart.  Then
 the time step is negated and every step is undone: the bodies fall back
 through the centre, un-clump, and land on the ring exactly where they
@@ -37,7 +37,7 @@ from matplotlib.figure import Figure
 
 from ase_reversible import Flipbook, ReversibleVerlet
 from ase_reversible.app.view import AtomsView
-from ase_reversible.gravity import SoftenedGravity, make_ring
+from ase_reversible.calculators import SoftenedGravity, make_ring
 
 
 @dataclass(frozen=True)

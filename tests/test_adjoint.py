@@ -25,8 +25,8 @@ from ase_reversible import (FiniteDifferenceHVP, LennardJones,
                             ReversibleVerlet)
 from ase_reversible.core.compositions import COMPOSITIONS, DEFAULT_FOR_ORDER
 
-from conftest import (AR_EPSILON, AR_SIGMA, DT, asap_emt, assert_same_state,
-                      snapshot, thermalize)
+from conftest import AR_EPSILON, AR_SIGMA, DT, asap_emt, thermalize
+from exactness import assert_same_state, snapshot
 
 #: Fine quanta: finite differences of whole runs see rounding as noise.
 FINE = {'position_quantum': 2.0**-44, 'momentum_quantum': 2.0**-46}

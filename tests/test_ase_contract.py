@@ -16,9 +16,10 @@ from ase.io.trajectory import Trajectory
 from ase.md.verlet import VelocityVerlet
 
 from ase_reversible import ReversibleVerlet
-from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, DT, argon_cluster,
-                      asap_lj, ase_lj, assert_frame_is_state,
-                      assert_frame_on_grid, assert_same_state, snapshot)
+from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, DT, argon_cluster, asap_lj,
+                      ase_lj)
+from exactness import (assert_frame_is_state, assert_frame_on_grid,
+                       assert_same_state, snapshot)
 
 
 class CountingLennardJones(LennardJones):

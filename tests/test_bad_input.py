@@ -16,9 +16,9 @@ from ase.constraints import (FixAtoms, FixBondLengths, FixCartesian, FixCom,
 from ase_reversible import (AnchorMovedWarning, NonFiniteForcesError,
                             QuantumRangeError, ReversibleVerlet,
                             UnsupportedConstraintError)
-from conftest import (AR_RC, AR_SIGMA, DT, argon_cluster, asap_lj, ase_lj,
-                      assert_atoms_show_committed_state, assert_same_state,
-                      forward_and_back, run_back, snapshot)
+from conftest import AR_RC, AR_SIGMA, DT, argon_cluster, asap_lj, ase_lj
+from exactness import (assert_atoms_show_committed_state, assert_same_state,
+                       forward_and_back, run_back, snapshot)
 
 EARLIER_RUN = b'frames of an earlier run\n'
 

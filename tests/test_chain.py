@@ -1,4 +1,4 @@
-"""PendulumChain: derivatives, purity, exact reversal and the adjoint.
+"""PendulumChain: the shared checks, the model and the adjoint.
 
 The chain is the model of the keyframe-control example
 (examples/keyframe_chain.py): beads on stiff springs under gravity, pinned
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from ase.constraints import FixAtoms
 
-from ase_reversible import ReversibleVerlet, probe_purity
-from ase_reversible.chain import PendulumChain, make_chain
+from ase_reversible import ReversibleVerlet
+from ase_reversible.calculators import PendulumChain, make_chain
 from ase_reversible import INFO_KEY
 
-from conftest import energy_gradient, hessian_times
+from calculator_conformance import CalculatorConformance
 
 STIFFNESS, GRAVITY = 1000.0, 1.0  # eV/Å², eV/(Å amu): as in the example
 DT = 0.0125  # ASE time units; at most 0.8 rad per step, as in the example
@@ -42,25 +42,43 @@ def swinging_chain(seed, n_links=6):
     return atoms, rng
 
 
+def _with_momenta(atoms, seed=8):
+    p_nc = np.zeros((len(atoms), 3))
+    p_nc[1:] = np.random.default_rng(seed).normal(0.0, 1.0,
+                                                  (len(atoms) - 1, 3))
+    atoms.set_momenta(p_nc, apply_constraint=False)
+    return atoms
+
+
+class TestPendulumChain(CalculatorConformance):
+    # Off their rest lengths: a straight chain would feel gravity alone,
+    # which no check of the springs can see.
+    systems = {'7 links': lambda: _with_momenta(bent_chain(5)[0]),
+               '3 links': lambda: _with_momenta(bent_chain(9, 3)[0])}
+    # Stretched springs swing fast: a quarter of the example's step keeps
+    # the energy within ReversibleVerlet's check.
+    timestep = DT / 4
+    reversal_steps = 2000  # 6 time units: a swing of the chain
+    external_field = True
+    masses_matter = True
+    # Measured 0.6-1.3e-10 of max|F| (gradient) and 2-9e-10 of max|Hv| on
+    # five chains, falling 100-fold per 10-fold smaller h: truncation.
+    gradient_tolerance = 1e-8
+    hessian_tolerance = 1e-8
+    parameter_change = {'gravity': 2 * GRAVITY}
+    bad_parameters = [({'stiffness': 0.0}, ValueError, 'stiffness'),
+                      ({'stiffness': float('nan')}, ValueError, 'stiffness'),
+                      ({'rest_length': -1.0}, ValueError, 'rest_length'),
+                      ({'gravity': -9.8}, ValueError, 'gravity'),
+                      ({'gravity': 'down'}, TypeError, 'gravity')]
+
+    def make_calc(self, **parameters):
+        parameters = {'stiffness': STIFFNESS, 'gravity': GRAVITY,
+                      **parameters}
+        return PendulumChain(**parameters)
+
+
 # -- the model ------------------------------------------------------------
-
-def test_forces_are_minus_the_energy_gradient():
-    atoms, _ = bent_chain(0)
-    f_nc = atoms.get_forces(apply_constraint=False)
-    grad_nc = energy_gradient(atoms, 1e-5)  # Å
-    # Central difference: truncation h²/6 |E'''| plus rounding of E
-    # (~200 eV) over h.  Measured 0.6-1.3e-10 of max|F| on five chains
-    # (and 100 times more at h = 1e-4: truncation dominates).
-    assert np.abs(f_nc + grad_nc).max() < 1e-8 * np.abs(f_nc).max()
-
-
-def test_energies_add_up_to_the_energy():
-    atoms, _ = bent_chain(1)
-    energies_n = atoms.get_potential_energies()
-    assert energies_n.shape == (len(atoms),)
-    assert np.isclose(energies_n.sum(), atoms.get_potential_energy(),
-                      rtol=1e-13, atol=1e-12)
-
 
 def test_unstretched_chain_feels_gravity_only():
     atoms = make_chain(5, angle=0.0, mass=[1, 2, 3, 4, 5, 6])
@@ -73,54 +91,6 @@ def test_unstretched_chain_feels_gravity_only():
     heights = atoms.positions[:, 2]
     assert np.isclose(atoms.get_potential_energy(),
                       GRAVITY * np.dot(atoms.get_masses(), heights))
-
-
-def test_changing_masses_changes_gravity():
-    atoms, _ = bent_chain(2)
-    f_nc = atoms.get_forces(apply_constraint=False)
-    atoms.set_masses(2 * atoms.get_masses())
-    # ASE's default state check ignores masses; the chain's does not.
-    assert not np.array_equal(atoms.get_forces(apply_constraint=False),
-                              f_nc)
-
-
-def test_hessian_vector_product_matches_finite_difference_of_forces():
-    atoms, rng = bent_chain(3)
-    x0_nc = atoms.get_positions()
-    v_nc = rng.normal(size=x0_nc.shape)
-    hv_nc = atoms.calc.hessian_vector_product(atoms, v_nc)
-    fd_nc = hessian_times(atoms, v_nc, 1e-5)
-    # Truncation h²/6 |F'''(v, v, v)|: measured 2-9e-10 of max|Hv| on five
-    # chains, falling 100-fold per 10-fold smaller h.
-    assert np.abs(hv_nc - fd_nc).max() < 1e-8 * np.abs(hv_nc).max()
-    assert np.array_equal(atoms.positions, x0_nc)
-
-
-def test_hessian_vector_product_is_symmetric():
-    atoms, rng = bent_chain(4)
-    v_nc, w_nc = rng.normal(size=(2, len(atoms), 3))
-    hv_nc = atoms.calc.hessian_vector_product(atoms, v_nc)
-    hw_nc = atoms.calc.hessian_vector_product(atoms, w_nc)
-    # Exact in real numbers; measured below 2e-16 relative in floats.
-    assert abs(np.vdot(w_nc, hv_nc) - np.vdot(v_nc, hw_nc)) < \
-        1e-13 * np.linalg.norm(w_nc) * np.linalg.norm(hv_nc)
-
-
-def test_forces_are_pure():
-    atoms, _ = bent_chain(5)
-    assert PendulumChain.forces_are_pure is True
-    assert probe_purity(atoms) == 0.0
-    dyn = ReversibleVerlet(atoms, DT)
-    assert dyn.force_purity.mode == 'trust'
-
-
-@pytest.mark.parametrize('kwargs', [{'stiffness': 0.0},
-                                    {'stiffness': float('nan')},
-                                    {'rest_length': -1.0},
-                                    {'gravity': -9.8}])
-def test_bad_parameters_are_refused(kwargs):
-    with pytest.raises(ValueError):
-        PendulumChain(**kwargs)
 
 
 def test_coincident_atoms_are_refused():
@@ -146,21 +116,6 @@ def test_make_chain():
 
 
 # -- with ReversibleVerlet ------------------------------------------------
-
-@pytest.mark.parametrize('scheme', SCHEMES)
-def test_reversal_is_exact(scheme):
-    atoms, _ = swinging_chain(6)
-    dyn = ReversibleVerlet(atoms, DT, scheme=scheme)
-    x_start_nc, p_start_nc = atoms.get_positions(), atoms.get_momenta()
-    steps = 2000  # 40 time units: many swings of a chaotic pendulum
-    dyn.run(steps)
-    assert np.abs(atoms.positions - x_start_nc).max() > 1.0
-    assert np.array_equal(atoms.positions[0], x_start_nc[0])  # pinned
-    dyn.reverse()
-    dyn.run(steps)
-    assert np.array_equal(atoms.positions, x_start_nc)
-    assert np.array_equal(atoms.get_momenta(), p_start_nc)
-
 
 @pytest.mark.parametrize('scheme', SCHEMES)
 def test_backpropagate_matches_finite_difference_of_the_run(scheme):

@@ -38,9 +38,9 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from ase_reversible import (AnchorMovedWarning, CoarseQuantumError,
                             ReversibleVerlet, UnsupportedConstraintError)
-from conftest import (DT, argon_cluster, ase_lj,
-                      assert_atoms_show_committed_state, assert_same_state,
-                      copper_bulk, run_back, snapshot, thermalize)
+from conftest import DT, argon_cluster, ase_lj, copper_bulk, thermalize
+from exactness import (assert_atoms_show_committed_state, assert_same_state,
+                       run_back, snapshot)
 
 
 # -- helpers --------------------------------------------------------------------

@@ -139,13 +139,13 @@ def ar55_own_lj_velocity_given_quanta():
 
 
 def ring_gravity_velocity():
-    from ase_reversible.gravity import make_ring
+    from ase_reversible.calculators import make_ring
     atoms = make_ring(24, spin=0.5)
     return _run(atoms, SoftenedGravity(), 200, timestep=0.05)
 
 
 def chain_pendulum_position_order4():
-    from ase_reversible.chain import make_chain
+    from ase_reversible.calculators import make_chain
     atoms = make_chain(5)
     return _run(atoms, PendulumChain(), 200, scheme='position', order=4,
                 timestep=0.01)

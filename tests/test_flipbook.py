@@ -17,7 +17,7 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 from ase_reversible import ReversibleVerlet, UnstableIntegrationError
-from ase_reversible.chain import PendulumChain, make_chain
+from ase_reversible.calculators import PendulumChain, make_chain
 from ase_reversible.app import cli
 from ase_reversible.app.flipbook import Flipbook
 from ase_reversible.app.scenes import SCENES

@@ -11,9 +11,9 @@ from ase_reversible import ReversibleVerlet
 from ase_reversible.core.compositions import (COMPOSITIONS, DEFAULT_FOR_ORDER,
                                          composition_for)
 
-from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS, DT,
-                      argon_bulk, argon_cluster, assert_same_state,
-                      copper_bulk, forward_and_back)
+from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS, DT, argon_bulk,
+                      argon_cluster, copper_bulk)
+from exactness import assert_same_state, forward_and_back
 from test_ase_contract import CountingLennardJones
 
 ORDERS = sorted(DEFAULT_FOR_ORDER)

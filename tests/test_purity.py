@@ -16,9 +16,9 @@ from ase_reversible import ImpureForcesError, ReversibleVerlet, probe_purity
 from ase_reversible.purity import (GuardedForces, SortedNeighborListForces,
                                    TrustedForces, force_provider)
 
-from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS, DT,
-                      argon_bulk, argon_cluster, assert_runs_back,
-                      assert_same_state, copper_bulk, forward_and_back)
+from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS, DT, argon_bulk,
+                      argon_cluster, copper_bulk)
+from exactness import assert_runs_back, assert_same_state, forward_and_back
 
 
 def forces_after_history(atoms, provider, seed):

@@ -6,9 +6,9 @@ from ase.io import read
 
 from ase_reversible import AnchorMovedWarning, ReversibleVerlet
 
-from conftest import (CALCULATORS, DT, argon_cluster, assert_frame_is_state,
-                      assert_frame_on_grid, assert_same_state, copper_bulk,
-                      forward_and_back, snapshot)
+from conftest import CALCULATORS, DT, argon_cluster, copper_bulk
+from exactness import (assert_frame_is_state, assert_frame_on_grid,
+                       assert_same_state, forward_and_back, snapshot)
 
 CASES = {
     'Ar55 ase-lj': (lambda: argon_cluster(3, 120), 'ase-lj', 60, 10),

@@ -12,9 +12,9 @@ from ase.constraints import FixAtoms, FixCartesian, FixedPlane
 
 from ase_reversible import ReversibleVerlet
 
-from conftest import (CALCULATORS, DT, argon_bulk, argon_cluster,
-                      assert_same_state, copper_bulk, copper_cluster,
-                      forward_and_back)
+from conftest import (CALCULATORS, DT, argon_bulk, argon_cluster, copper_bulk,
+                      copper_cluster)
+from exactness import assert_same_state, forward_and_back
 
 SCHEMES = ['velocity', 'position']
 

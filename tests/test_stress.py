@@ -18,8 +18,9 @@ from ase_reversible import (QuantumRangeError,
                             ReversibleVerlet, UnstableIntegrationError)
 from ase_reversible.md.verlet import ENERGY_CHECK_INTERVAL
 from conftest import (AR_RC, AR_SIGMA, CALCULATORS, DT, argon_cluster,
-                      assert_atoms_show_committed_state, assert_same_state,
-                      copper_bulk, run_back, snapshot, thermalize)
+                      copper_bulk, thermalize)
+from exactness import (assert_atoms_show_committed_state, assert_same_state,
+                       run_back, snapshot)
 
 CU_BOND = 3.61 / np.sqrt(2)  # nearest-neighbour distance of ase.build's Cu
 

@@ -7,8 +7,8 @@ kick is what the adjoint needs.  Two ways to get it:
 
 :class:`AnalyticHVP`
     From the calculator, exact: ``calc.hessian_vector_product(atoms, v)``
-    (this package's :class:`~ase_reversible.lennardjones.LennardJones` and
-    :class:`~ase_reversible.chain.PendulumChain` have it).
+    (this package's :class:`~ase_reversible.calculators.lennardjones.LennardJones` and
+    :class:`~ase_reversible.calculators.chain.PendulumChain` have it).
 
 :class:`FiniteDifferenceHVP`
     From any calculator, by a central difference of the forces along

@@ -16,8 +16,7 @@ from ase import units
 from .. import LennardJones, PendulumChain, SoftenedGravity
 # The builders stay at their modules' paths: only the calculators are
 # exported by the package.
-from ..chain import make_chain
-from ..gravity import make_ring
+from ..calculators import make_chain, make_ring
 from .systems import (AR_EPSILON, AR_RC, AR_SIGMA, ICOSAHEDRON_SHELLS,
                       argon_cluster)
 from .view import AtomsView

@@ -132,7 +132,7 @@ def memory_table(points):
 
 def memory_observations(memory):
     points = memory['points']
-    first, last = points[0], points[-1]
+    last = points[-1]
     ours = [p['reversible']['traced_peak_bytes'] for p in points]
     stored = [p['stored']['traced_peak_bytes'] for p in points]
     n = [p['steps'] for p in points]

@@ -212,7 +212,7 @@ def _render_sweep(sweeps, settings):
         if stopped:
             kinds = sorted({f'{r["error"]["type"]}: {_what(r["error"])}'
                             for r in stopped})
-            text.append(f'It stopped at '
+            text.append('It stopped at '
                         + ', '.join(f'{r["dt_fs"]:g}' for r in stopped)
                         + ' fs (' + '; '.join(kinds) + ').')
         text.append('Every run, completed or stopped, ran back exactly.'

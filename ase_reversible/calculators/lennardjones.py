@@ -18,26 +18,25 @@ are continuous at both ends, so the forces are continuously differentiable
 and the map from the start of a run to its end is too -- which is what a
 gradient of that map needs.
 
-Array names follow one convention: a suffix gives the shape (``_nc``:
-``[n_atoms, 3]``, ``_pc``: ``[n_pairs, 3]``, ``_p``: ``[n_pairs]``), ``i_p``
-and ``j_p`` index the two atoms of each pair (each pair once, ``i < j`` or
-an image), and ``d_pc = x[j] - x[i] + image shift``.  Pair terms are
-summed onto atoms with :func:`numpy.bincount`, which adds them in pair
-order: with pairs in a canonical order, the sums are reproducible bit for
-bit.
+Array names follow :mod:`ase_reversible.calculators.base`; each pair is
+there once (``i < j``, or an image of one atom), and ``d_pc = x[j] - x[i]
++ image shift``.  Pair terms are summed onto atoms in pair order
+(:meth:`ExactCalculator.scatter_pairs
+<ase_reversible.calculators.base.ExactCalculator.scatter_pairs>`): with
+pairs in a canonical order, the sums are reproducible bit for bit.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from ase.calculators.calculator import Calculator, all_changes
+from ase.calculators.calculator import all_changes
 from ase.neighborlist import neighbor_list
 from ase.stress import full_3x3_to_voigt_6_stress
 
-from .purity import exact_system_changes
+from .base import ExactCalculator
 
 
-class LennardJones(Calculator):
+class LennardJones(ExactCalculator):
     """Smoothly cut-off Lennard-Jones pair potential, one species.
 
     Parameters
@@ -64,28 +63,21 @@ class LennardJones(Calculator):
                               'stress']
     default_parameters = {'epsilon': 1.0, 'sigma': 1.0, 'rc': None,
                           'ro': None, 'skin': 1.0}
-    nolabel = True
+    parameter_bounds = {'epsilon': 'positive', 'sigma': 'positive',
+                        'rc': 'positive', 'ro': 'non-negative',
+                        'skin': 'non-negative'}
+    # Pairs through periodic images make the results depend on the cell.
+    system_quantities = ('positions', 'numbers', 'cell', 'pbc')
 
-    #: The forces depend on the positions alone: pair search results are
-    #: reduced to the pairs inside ``rc``, sorted, before any sum.
-    forces_are_pure = True
+    # Pure (see the base class): pair search results are reduced to the
+    # pairs inside ``rc``, sorted, before any sum.
+
     #: Parameters :meth:`force_parameter_derivative` differentiates.
     differentiable_parameters = ('epsilon', 'sigma')
 
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self._check_parameters()
+    def _forget(self):
         self._search = None   # (positions, cell, pbc, i_p, j_p, shift_pc)
         self._pairs = None    # (positions bytes, i_p, j_p, d_pc, r_p)
-
-    def set(self, **kwargs):
-        """Change parameters (``epsilon=...``, ...); checks them and drops
-        cached pairs and results.  Returns the changed parameters (dict)."""
-        changed = super().set(**kwargs)
-        if changed:
-            self._check_parameters()
-            self._search = self._pairs = None
-        return changed
 
     @property
     def cutoffs(self):
@@ -95,30 +87,13 @@ class LennardJones(Calculator):
         ro = 0.66 * rc if p['ro'] is None else float(p['ro'])
         return ro, rc
 
-    def _check_parameters(self):
-        p = self.parameters
-        for name in ('epsilon', 'sigma', 'skin'):
-            value = p[name]
-            if not (np.isfinite(value) and value >= 0
-                    and (value > 0 or name == 'skin')):
-                raise ValueError(f'{name} must be a positive number, got '
-                                 f'{value!r}')
+    def _check_relations(self):
         ro, rc = self.cutoffs
-        if not (np.isfinite(rc) and 0 <= ro < rc):
+        if not ro < rc:
             raise ValueError(f'Need 0 <= ro < rc, got ro={ro!r}, rc={rc!r} '
                              '(Å)')
 
     # -- ASE calculator interface ---------------------------------------
-
-    def check_state(self, atoms, tol=1e-15):
-        """What changed since the last calculation, compared exactly.
-
-        A list of names from ``'positions'``, ``'numbers'``, ``'cell'``,
-        ``'pbc'``; ``tol`` is ignored (ASE's default would treat moves
-        below 1e-15 Å as none).
-        """
-        return exact_system_changes(self.atoms, atoms,
-                                    ('positions', 'numbers', 'cell', 'pbc'))
 
     def calculate(self, atoms=None, properties=('energy',),
                   system_changes=all_changes):
@@ -135,13 +110,9 @@ class LennardJones(Calculator):
         u_p, du_p, _ = self._pair_terms(r_p, second=False)
         # Force on i from the pair: du/dr * d / r (d points from i to j).
         g_pc = (du_p / r_p)[:, None] * d_pc
-        f_nc = _scatter(i_p, g_pc, n) - _scatter(j_p, g_pc, n)
-        energies_n = 0.5 * (np.bincount(i_p, u_p, minlength=n)
-                            + np.bincount(j_p, u_p, minlength=n))
-        energy = float(np.sum(u_p))
-        self.results['energy'] = self.results['free_energy'] = energy
-        self.results['energies'] = energies_n
-        self.results['forces'] = f_nc
+        f_nc = self.scatter_pairs(g_pc, i_p, j_p, n)
+        energies_n = self.split_pair_energies(u_p, i_p, j_p, n)
+        self.store_results(float(np.sum(u_p)), energies_n, f_nc)
         if 'stress' in properties:  # only on request: MD never asks
             if self.atoms.cell.rank != 3:
                 raise ValueError('Stress needs a cell with three non-zero '
@@ -158,7 +129,7 @@ class LennardJones(Calculator):
         symmetric, so this is also ``-(dF/dx)^T v``, the product the
         adjoint of a kick needs.
         """
-        v_nc = np.asarray(v_nc, dtype=float)
+        v_nc = self.as_vector(atoms, v_nc)
         n = len(atoms)
         i_p, j_p, d_pc, r_p = self._pair_geometry(atoms)
         _, du_p, d2u_p = self._pair_terms(r_p, second=True)
@@ -169,7 +140,9 @@ class LennardJones(Calculator):
         dv_pc = v_nc[j_p] - v_nc[i_p]
         jv_pc = g_p[:, None] * dv_pc + (h_p * np.einsum(
             'pc,pc->p', d_pc, dv_pc))[:, None] * d_pc
-        return _scatter(j_p, jv_pc, n) - _scatter(i_p, jv_pc, n)
+        # +jv on j, -jv on i: the indices swapped rather than the sum
+        # negated, which would turn a zero sum into -0.0.
+        return self.scatter_pairs(jv_pc, j_p, i_p, n)
 
     def force_parameter_derivative(self, atoms, name):
         """``dF/d(name)`` ``[n_atoms, 3]`` at the atoms' positions.
@@ -197,7 +170,7 @@ class LennardJones(Calculator):
             ddphi_p = 4 * epsilon * (-144 * s12_p + 36 * s6_p) / (r_p * sigma)
             ddu_p = ddphi_p * switch_p + dphi_p * dswitch_p
         g_pc = (ddu_p / r_p)[:, None] * d_pc
-        return _scatter(i_p, g_pc, n) - _scatter(j_p, g_pc, n)
+        return self.scatter_pairs(g_pc, i_p, j_p, n)
 
     # -- pairs ------------------------------------------------------------
 
@@ -277,11 +250,3 @@ def _positive_image(s_pc):
     first_p = np.where(s_pc[:, 0] != 0, s_pc[:, 0],
                        np.where(s_pc[:, 1] != 0, s_pc[:, 1], s_pc[:, 2]))
     return first_p > 0
-
-
-def _scatter(index_p, values_pc, n):
-    """Sum rows of ``values_pc`` onto atoms ``index_p``, in pair order."""
-    out_nc = np.empty((n, 3))
-    for c in range(3):
-        out_nc[:, c] = np.bincount(index_p, values_pc[:, c], minlength=n)
-    return out_nc

@@ -16,15 +16,15 @@ Units are ASE's: ``G`` in eV Å / amu², ``eps`` in Å, masses from the atoms
 no cut-off, and a ring or cluster in vacuum needs none.
 
 Every pair is summed, each once, in the fixed order of
-:func:`numpy.triu_indices`, and pair terms go onto the atoms with
-:func:`numpy.bincount`: the forces are a pure function of the positions,
-reproducible bit for bit, so :class:`~ase_reversible.ReversibleVerlet`
-trusts them without a probe.  The cost is O(n_atoms²), fine up to a few
-hundred atoms.
+:func:`numpy.triu_indices`, and pair terms go onto the atoms in that order
+(:meth:`ExactCalculator.scatter_pairs
+<ase_reversible.calculators.base.ExactCalculator.scatter_pairs>`): the
+forces are a pure function of the positions, reproducible bit for bit, so
+:class:`~ase_reversible.ReversibleVerlet` trusts them without a probe.
+The cost is O(n_atoms²), fine up to a few hundred atoms.
 
-Array names: ``_nc`` is ``[n_atoms, 3]``, ``_n`` is ``[n_atoms]``, ``_pc``
-and ``_p`` are ``[n_pairs, 3]`` and ``[n_pairs]``; ``i_p < j_p`` are the
-two atoms of each pair and ``d_pc = x[j] - x[i]``.
+Array names follow :mod:`ase_reversible.calculators.base`; ``i_p < j_p``
+are the two atoms of each pair and ``d_pc = x[j] - x[i]``.
 """
 
 from __future__ import annotations
@@ -32,12 +32,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from ase.calculators.calculator import Calculator, all_changes
+from ase.calculators.calculator import all_changes
 
-from .purity import exact_system_changes
+from .base import ExactCalculator
 
 
-class SoftenedGravity(Calculator):
+class SoftenedGravity(ExactCalculator):
     """Newtonian attraction between every pair of atoms, softened.
 
     Parameters
@@ -55,43 +55,18 @@ class SoftenedGravity(Calculator):
 
     implemented_properties = ['energy', 'free_energy', 'energies', 'forces']
     default_parameters = {'G': 1.0, 'softening': 0.5}
-    nolabel = True
+    parameter_bounds = {'G': 'positive', 'softening': 'positive'}
+    # The pull of a pair is proportional to both masses; ASE's default
+    # check ignores masses.
+    system_quantities = ('positions', 'masses', 'numbers')
 
-    #: A closed-form sum over all pairs in a fixed order: no neighbour
-    #: list, no history.
-    forces_are_pure = True
+    # Pure (see the base class): a closed-form sum over all pairs in a
+    # fixed order, with no neighbour list and no history.
 
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self._check_parameters()
+    def _forget(self):
         self._pairs = (0, np.empty(0, int), np.empty(0, int))
 
-    def set(self, **kwargs):
-        """Change ``G`` or ``softening`` (checked as in the constructor)."""
-        changed = super().set(**kwargs)
-        if changed:
-            self._check_parameters()
-        return changed
-
-    def _check_parameters(self):
-        for name in ('G', 'softening'):
-            value = self.parameters[name]
-            try:
-                value = float(value)
-            except (TypeError, ValueError):
-                raise TypeError(f'{name} must be a number, got '
-                                f'{value!r}') from None
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f'{name} must be a finite, positive number, '
-                                 f'got {value!r}')
-            self.parameters[name] = value
-
     # -- ASE calculator interface ---------------------------------------
-
-    def check_state(self, atoms, tol=1e-15):
-        """What changed since the last calculation, compared exactly."""
-        return exact_system_changes(self.atoms, atoms,
-                                    ('positions', 'masses', 'numbers'))
 
     def calculate(self, atoms=None, properties=('energy',),
                   system_changes=all_changes):
@@ -104,12 +79,9 @@ class SoftenedGravity(Calculator):
         inv_root_p = 1.0 / np.sqrt(s_p)
         u_p = -gmm_p * inv_root_p
         t_pc = (gmm_p * inv_root_p / s_p)[:, None] * d_pc
-        self.results['forces'] = _onto_atoms(t_pc, i_p, j_p, n)
-        energies_n = 0.5 * (np.bincount(i_p, u_p, minlength=n)
-                            + np.bincount(j_p, u_p, minlength=n))
-        energy = float(np.sum(u_p))
-        self.results['energy'] = self.results['free_energy'] = energy
-        self.results['energies'] = energies_n
+        f_nc = self.scatter_pairs(t_pc, i_p, j_p, n)
+        energies_n = self.split_pair_energies(u_p, i_p, j_p, n)
+        self.store_results(float(np.sum(u_p)), energies_n, f_nc)
 
     # -- derivatives ------------------------------------------------------
 
@@ -121,16 +93,13 @@ class SoftenedGravity(Calculator):
         r**2 + eps**2``, changes along ``dv = v_j - v_i`` by ``w dv - 3 G m
         m s**-2.5 (d . dv) d``; ``H v`` is minus the change of the forces.
         """
-        v_nc = np.asarray(v_nc, dtype=float)
-        if v_nc.shape != (len(atoms), 3):
-            raise ValueError(f'v_nc must have shape ({len(atoms)}, 3), got '
-                             f'{v_nc.shape}')
+        v_nc = self.as_vector(atoms, v_nc)
         i_p, j_p, d_pc, s_p, gmm_p = self._pair_terms(atoms)
         dv_pc = v_nc[j_p] - v_nc[i_p]
         w_p = gmm_p / (s_p * np.sqrt(s_p))
         along_p = 3.0 * w_p / s_p * np.einsum('pc,pc->p', d_pc, dv_pc)
         kdv_pc = w_p[:, None] * dv_pc - along_p[:, None] * d_pc
-        return -_onto_atoms(kdv_pc, i_p, j_p, len(atoms))
+        return -self.scatter_pairs(kdv_pc, i_p, j_p, len(atoms))
 
     def _pair_terms(self, atoms):
         n = len(atoms)
@@ -144,19 +113,6 @@ class SoftenedGravity(Calculator):
         s_p = np.einsum('pc,pc->p', d_pc, d_pc) + eps * eps
         gmm_p = self.parameters['G'] * m_n[i_p] * m_n[j_p]
         return i_p, j_p, d_pc, s_p, gmm_p
-
-
-def _onto_atoms(t_pc, i_p, j_p, n):
-    """``[n, 3]``: ``+t`` onto each pair's first atom, ``-t`` onto its second.
-
-    :func:`numpy.bincount` adds in pair order, so the sums are the same
-    bits whenever the pair terms are.
-    """
-    out_nc = np.empty((n, 3))
-    for c in range(3):
-        out_nc[:, c] = (np.bincount(i_p, t_pc[:, c], minlength=n)
-                        - np.bincount(j_p, t_pc[:, c], minlength=n))
-    return out_nc
 
 
 def make_ring(n_atoms, radius=10.0, mass=1.0, symbol='X', spin=0.0,

@@ -23,10 +23,9 @@ calculator gives the exact Hessian-vector product
 Links are plain differences of positions: periodic boundary conditions are
 ignored (a chain needs no images).
 
-Array names follow :mod:`ase_reversible.lennardjones`: a suffix gives the
-shape -- ``_nc``: ``[n_atoms, 3]``, ``_lc``: ``[n_links, 3]``, ``_l``:
-``[n_links]`` with ``n_links = n_atoms - 1`` -- and link ``l`` joins atoms
-``l`` and ``l + 1``.
+Array names follow :mod:`ase_reversible.calculators.base`, with links for
+pairs -- ``_lc``: ``[n_links, 3]``, ``_l``: ``[n_links]`` with ``n_links =
+n_atoms - 1`` -- and link ``l`` joins atoms ``l`` and ``l + 1``.
 """
 
 from __future__ import annotations
@@ -35,13 +34,13 @@ import math
 
 import numpy as np
 from ase import Atoms
-from ase.calculators.calculator import Calculator, all_changes
+from ase.calculators.calculator import all_changes
 from ase.constraints import FixAtoms
 
-from .purity import exact_system_changes
+from .base import ExactCalculator
 
 
-class PendulumChain(Calculator):
+class PendulumChain(ExactCalculator):
     """Harmonic springs between consecutive atoms, plus uniform gravity.
 
     Parameters
@@ -67,52 +66,17 @@ class PendulumChain(Calculator):
     implemented_properties = ['energy', 'free_energy', 'energies', 'forces']
     default_parameters = {'stiffness': 1000.0, 'rest_length': 1.0,
                           'gravity': 1.0}
-    nolabel = True
+    parameter_bounds = {'stiffness': 'positive',
+                        'rest_length': 'non-negative',
+                        'gravity': 'non-negative'}
+    # Gravity pulls each atom by its mass; ASE's default check ignores
+    # masses.
+    system_quantities = ('positions', 'masses', 'numbers')
 
-    #: The forces are a closed-form function of the positions (and masses):
-    #: no neighbour list, no cache, no history, so ReversibleVerlet can
-    #: trust them without a probe.
-    forces_are_pure = True
-
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self._check_parameters()
-
-    def set(self, **kwargs):
-        """Change parameters (``stiffness=...``, ...); checks them and drops
-        cached results.  Returns the changed parameters (dict)."""
-        changed = super().set(**kwargs)
-        if changed:
-            self._check_parameters()
-        return changed
-
-    def _check_parameters(self):
-        p = self.parameters
-        for name, strict in (('stiffness', True), ('rest_length', False),
-                             ('gravity', False)):
-            value = p[name]
-            try:
-                value = float(value)
-            except (TypeError, ValueError):
-                raise TypeError(f'{name} must be a number, got '
-                                f'{value!r}') from None
-            if not (math.isfinite(value) and (value > 0 if strict
-                                              else value >= 0)):
-                bound = 'positive' if strict else 'non-negative'
-                raise ValueError(f'{name} must be a finite, {bound} number, '
-                                 f'got {value!r}')
-            p[name] = value
+    # Pure (see the base class): a closed-form function of the positions
+    # and masses, with no neighbour list and no cache.
 
     # -- ASE calculator interface ---------------------------------------
-
-    def check_state(self, atoms, tol=1e-15):
-        """What changed since the last calculation, compared exactly.
-
-        The results depend on positions and masses only; ASE's default
-        comparison ignores masses, which gravity needs.
-        """
-        return exact_system_changes(self.atoms, atoms,
-                                    ('positions', 'masses', 'numbers'))
 
     def calculate(self, atoms=None, properties=('energy',),
                   system_changes=all_changes):
@@ -141,9 +105,7 @@ class PendulumChain(Calculator):
         energies_n[:-1] += 0.5 * u_l
         energies_n[1:] += 0.5 * u_l
         energy = float(np.sum(u_l) + np.sum(height_n))
-        self.results['energy'] = self.results['free_energy'] = energy
-        self.results['energies'] = energies_n
-        self.results['forces'] = f_nc
+        self.store_results(energy, energies_n, f_nc)
 
     # -- derivatives ------------------------------------------------------
 
@@ -159,10 +121,7 @@ class PendulumChain(Calculator):
         than ``L/2``: then no mode of a chain of beads of mass ``m`` is
         faster than ``2 sqrt(k/m)``, whatever its pose or speed.
         """
-        v_nc = np.asarray(v_nc, dtype=float)
-        if v_nc.shape != (len(atoms), 3):
-            raise ValueError(f'v_nc must have shape ({len(atoms)}, 3), got '
-                             f'{v_nc.shape}')
+        v_nc = self.as_vector(atoms, v_nc)
         k = self.parameters['stiffness']
         rest = self.parameters['rest_length']
         d_lc, r_l = _links(atoms.positions)
@@ -194,16 +153,9 @@ def _tension(pull_l, r_l, d_lc):
 
 
 def _onto_atoms(t_lc, n):
-    """``[n, 3]``: ``+t`` on each link's first atom, ``-t`` on its second.
-
-    Slices, not a scatter: each atom gets at most one term from each side,
-    always added in the same order, so the result is reproducible bit for
-    bit.
-    """
-    out_nc = np.zeros((n, 3))
-    out_nc[:-1] += t_lc
-    out_nc[1:] -= t_lc
-    return out_nc
+    """``[n, 3]``: ``+t`` on each link's first atom, ``-t`` on its second."""
+    return ExactCalculator.scatter_pairs(t_lc, np.arange(n - 1),
+                                         np.arange(1, n), n)
 
 
 def make_chain(n_links, link_length=1.0, mass=1.0, angle=90.0, symbol='X'):

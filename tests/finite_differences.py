@@ -1,0 +1,41 @@
+"""Finite differences, for checking derivatives against energies and forces."""
+
+import numpy as np
+
+
+def central_difference(function, x0, direction, h):
+    """``(f(x0 + h d) - f(x0 - h d)) / 2h``."""
+    return (function(x0 + h * direction) - function(x0 - h * direction)) \
+        / (2 * h)
+
+
+def at_positions(atoms, quantity):
+    """``quantity()`` as a function of the positions ``[n_atoms, 3]``."""
+    def evaluate(x_nc):
+        atoms.positions = x_nc
+        return quantity()
+    return evaluate
+
+
+def energy_gradient(atoms, h):
+    """dE/dx ``[n_atoms, 3]`` (eV/Å), one coordinate at a time."""
+    x0_nc = atoms.get_positions()
+    energy = at_positions(atoms, atoms.get_potential_energy)
+    grad_nc = np.zeros_like(x0_nc)
+    for i in range(len(atoms)):
+        for c in range(3):
+            unit_nc = np.zeros_like(x0_nc)
+            unit_nc[i, c] = 1.0
+            grad_nc[i, c] = central_difference(energy, x0_nc, unit_nc, h)
+    atoms.positions = x0_nc
+    return grad_nc
+
+
+def hessian_times(atoms, v_nc, h):
+    """``H v`` from the forces along ``v_nc`` (constraints not applied)."""
+    x0_nc = atoms.get_positions()
+    forces = at_positions(
+        atoms, lambda: atoms.get_forces(apply_constraint=False))
+    hv_nc = -central_difference(forces, x0_nc, v_nc, h)
+    atoms.positions = x0_nc
+    return hv_nc
