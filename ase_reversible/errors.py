@@ -75,7 +75,7 @@ class AnchorMovedWarning(UserWarning):
     from what the integrator last saw, and when the size of ``dt`` changes
     after steps were taken.  The change is taken (positions and momenta
     snapped to the grid); reversal then leads back to that point
-    (:attr:`~ase_reversible.ReversibleVerlet.anchor`), not beyond.  Also issued by the
-    constructor when a restart record in ``atoms.info`` does not fit the
-    atoms (new quanta are chosen).
+    (:attr:`~ase_reversible.md.base.ReversibleDynamics.anchor`), not
+    beyond.  Also issued by the constructor when a restart record in
+    ``atoms.info`` does not fit the atoms (new quanta are chosen).
     """

@@ -108,7 +108,7 @@ def test_a_run_that_ends_unstable_between_checks_still_runs_back():
     start = snapshot(atoms)
     e0 = atoms.get_total_energy()
     dyn.run(399)
-    assert abs(atoms.get_total_energy() - e0) > dyn._tolerance  # control
+    assert abs(atoms.get_total_energy() - e0) > dyn.engine.invariant.limit
     run_back(dyn, 399, start)
 
 

@@ -91,6 +91,8 @@ class Cotangents(dict):
 
 
 def checked_gradient(value, n, name):
+    """``value`` as a float array ``[n, 3]`` (zeros for None), refused
+    with a message naming ``name`` if it is not one."""
     if value is None:
         return np.zeros((n, 3))
     try:
@@ -107,6 +109,8 @@ def checked_gradient(value, n, name):
 
 
 def checked_parameters(calc, names):
+    """``names`` as a tuple, refused unless ``calc`` can differentiate its
+    forces with respect to each."""
     if isinstance(names, str):
         names = (names,)
     names = tuple(names)

@@ -75,8 +75,8 @@ class ExactCalculator(Calculator):
       :meth:`split_pair_energies`, and storing them with
       :meth:`store_results`.
 
-    It may override :meth:`_check_relations` (checks between parameters)
-    and :meth:`_forget` (drop caches that depend on the parameters).
+    It may override ``_check_relations`` (checks between parameters)
+    and ``_forget`` (drop caches that depend on the parameters).
     """
 
     #: Numeric parameter -> ``'positive'`` or ``'non-negative'``.

@@ -4,7 +4,7 @@ The reversible adjoint (:mod:`ase_reversible.adjoint`) needs, besides the
 forces, products of the Hessian with a vector and the derivatives of the
 forces with respect to the potential's parameters.  This calculator gives
 all three analytically, and its forces are a pure function of the
-positions (see :data:`LennardJones.forces_are_pure`), so
+positions (see ``LennardJones.forces_are_pure``), so
 :class:`~ase_reversible.ReversibleVerlet` needs no force-purity remedy.
 
 Pair energy, with ``s = sigma / r`` and a switch that takes it smoothly to

@@ -71,6 +71,7 @@ class Engine:
 
     @property
     def dt(self) -> float:
+        """The time step; change it with :meth:`set_dt`."""
         return self._dt
 
     @property
@@ -196,6 +197,10 @@ class Engine:
 class InvariantCheck:
     """Stops a run whose conserved quantity drifted beyond a tolerance.
 
+    Attributes ``interval`` and ``tolerance`` are the parameters;
+    ``reference`` is the value at the anchor and ``limit`` the tolerance in
+    force, both set by the first check after the anchor.
+
     Parameters
     ----------
     interval : int
@@ -218,7 +223,7 @@ class InvariantCheck:
 
     def reset(self):
         """Take the next value checked as the reference."""
-        self.reference = None
+        self.reference = self.limit = None
         self.alarm = False
 
     def arm_for_retrace(self):
@@ -227,6 +232,7 @@ class InvariantCheck:
         self.alarm = True
 
     def due(self, number) -> bool:
+        """Whether step ``number`` is one that is checked."""
         # The early checks catch a time step that blows up at once; after
         # that one value per interval keeps the cost low.
         return bool(self.interval) and (number % self.interval == 0

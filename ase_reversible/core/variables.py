@@ -82,6 +82,7 @@ class ExactVariable:
 
     @property
     def label(self) -> int:
+        """Equal labels mean equal values (see the class docstring)."""
         return self._labels[self._current]
 
     def add_integers(self, r: np.ndarray):

@@ -65,9 +65,11 @@ class Hamiltonian:
         self.purity = purity
 
     def show_positions(self):
+        """Write the exact positions into the atoms' own array."""
         self.atoms.arrays['positions'][:] = self.x.floats
 
     def show_momenta(self):
+        """Write the exact momenta into the atoms (creating the array)."""
         momenta = self.atoms.arrays.get('momenta')
         if momenta is None:
             self.atoms.set_momenta(self.p.floats, apply_constraint=False)
@@ -75,6 +77,7 @@ class Hamiltonian:
             momenta[:] = self.p.floats
 
     def show(self):
+        """Write positions and momenta."""
         self.show_positions()
         self.show_momenta()
 

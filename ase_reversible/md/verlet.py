@@ -112,9 +112,10 @@ class ReversibleVerlet(ReversibleDynamics):
         ``append_trajectory=True``.
 
     The time step, the anchor, the quanta and the settings are
-    properties (:attr:`dt`, :attr:`anchor`, :attr:`state`, :attr:`grid`,
-    :attr:`scheme`, :attr:`composition`, :attr:`energy_check`,
-    :attr:`energy_tolerance`, :attr:`force_purity`).
+    properties: ``dt``, ``anchor``, ``state``, ``energy_check``,
+    ``energy_tolerance`` and ``force_purity`` (documented on
+    :class:`~ase_reversible.md.base.ReversibleDynamics`), :attr:`grid`,
+    :attr:`scheme` and :attr:`composition`.
 
     Raises
     ------
@@ -212,19 +213,35 @@ class ReversibleVerlet(ReversibleDynamics):
             self.system.kick.forces()
 
     # Fixed at construction: an assignment would otherwise be ignored.
-    scheme = property(lambda self: self._scheme,
-                      lambda self, value: fixed('scheme'),
-                      doc="``'velocity'`` or ``'position'`` (fixed at "
-                          'construction).')
-    composition = property(
-        lambda self: self.engine.composition,
-        lambda self, value: fixed('composition (and order)'),
-        doc='The :class:`~ase_reversible.core.compositions.Composition` in '
-            'use (fixed at construction).')
-    grid = property(lambda self: self._grid,
-                    lambda self, value: fixed('grid (the quanta)'),
-                    doc='The two quanta, a :class:`Grid` (fixed at '
-                        'construction).')
+    @property
+    def scheme(self):
+        """``'velocity'`` or ``'position'`` (fixed at construction)."""
+        return self._scheme
+
+    @scheme.setter
+    def scheme(self, value):
+        fixed('scheme')
+
+    @property
+    def composition(self):
+        """The :class:`~ase_reversible.core.compositions.Composition` in use:
+        ``.name``, ``.order``, ``.stages`` (force calls per step),
+        ``.fractions`` (fixed at construction)."""
+        return self.engine.composition
+
+    @composition.setter
+    def composition(self, value):
+        fixed('composition (and order)')
+
+    @property
+    def grid(self):
+        """The two quanta (Å; amu Å / ASE time unit) and their ranges, a
+        :class:`~ase_reversible.core.quanta.Grid` (fixed at construction)."""
+        return self._grid
+
+    @grid.setter
+    def grid(self, value):
+        fixed('grid (the quanta)')
 
     def todict(self):
         """ASE's description of the dynamics (written into trajectory
