@@ -1,6 +1,7 @@
 """The engine on its own: dynamics declared as exact variables and shears,
 with no ASE in sight.  Exactness over a matrix of plans and compositions."""
 
+import json
 import math
 
 import numpy as np
@@ -10,6 +11,7 @@ from ase_reversible.core.codec import round_odd
 from ase_reversible.core.compositions import COMPOSITIONS
 from ase_reversible.core.engine import Engine
 from ase_reversible.core.plans import SubStep
+from ase_reversible.core.record import read_record, write_record
 from ase_reversible.core.variables import ExactVariable
 from ase_reversible.errors import QuantumRangeError
 
@@ -161,3 +163,23 @@ def test_a_new_step_size_keeps_the_clock_exact_and_moves_the_anchor():
     for _ in range(7):
         engine.step()
     assert engine.elapsed() == 0.0
+
+
+def test_the_restart_record_keeps_every_variable():
+    variables, drift, kick, thermo = oscillator()
+    engine = Engine(variables, SCHEMES['extended'](drift, kick, thermo),
+                    COMPOSITIONS['verlet'], 0.05)
+    for _ in range(30):
+        engine.step()
+    info = {}
+    quanta = {name: v.quantum for name, v in variables.items()}
+    write_record(info, quanta, engine.elapsed(),
+                 hidden={'z': variables['z'].ints})
+    json_info = json.loads(json.dumps(info))  # as a trajectory stores it
+    record = read_record(json_info, names=('x', 'p', 'z'), hidden=('z',))
+    assert record['time'] == engine.elapsed()
+    assert [record[f'{n}_quantum'] for n in 'xpz'] == [2.0**-40] * 3
+    assert np.array_equal(record['z'], variables['z'].ints)
+    assert record['z'].dtype == np.int64
+    assert read_record({'reversible': {**info['reversible'], 'z': 'x'}},
+                       names=('x',), hidden=('z',)) is None

@@ -38,11 +38,13 @@ def write_record(info: dict, quanta: dict, time: float,
     info[INFO_KEY] = record
 
 
-def read_record(info: dict, names=('position', 'momentum')) -> dict | None:
+def read_record(info: dict, names=('position', 'momentum'),
+                hidden=()) -> dict | None:
     """The record in ``info``, or None if absent or malformed.
 
     A dict of floats with the keys ``'<name>_quantum'`` for each of
-    ``names`` and ``'time'`` (units as in :func:`write_record`).
+    ``names`` and ``'time'`` (units as in :func:`write_record`), and an
+    int64 array of counts for each name in ``hidden``.
     """
     record = info.get(INFO_KEY)
     if not isinstance(record, dict):
@@ -54,6 +56,12 @@ def read_record(info: dict, names=('position', 'momentum')) -> dict | None:
         return None
     if not all(math.isfinite(v) for v in out.values()):
         return None
+    for name in hidden:
+        try:
+            counts = np.array(record[name], dtype=np.int64)
+        except (KeyError, TypeError, ValueError, OverflowError):
+            return None
+        out[name] = counts
     return out
 
 

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import warnings
 
-from ase import units
+import numpy as np
+from ase import Atoms, units
 from ase.md.md import MolecularDynamics
 
 from ..adjoint import Cotangents, Gradients, hvp_for
@@ -31,6 +32,21 @@ from .state import FixedPointState
 from .watch import EQUAL_CALCULATOR, same_values
 
 
+
+
+def projected_momenta(atoms, project):
+    """The atoms' momenta ``[n_atoms, 3]`` projected onto the constraints."""
+    p_nc = atoms.get_momenta()
+    project(p_nc)
+    return p_nc
+
+
+def encoded(atoms, position_quantum, momentum_quantum, project):
+    """The atoms' positions and projected momenta snapped to the grid, as
+    int64 counts by variable name."""
+    return {'position': encode(atoms.positions, position_quantum, 'position'),
+            'momentum': encode(projected_momenta(atoms, project),
+                               momentum_quantum, 'momentum')}
 
 
 class ReversibleDynamics(MolecularDynamics):
@@ -394,12 +410,30 @@ class ReversibleDynamics(MolecularDynamics):
         return True
 
     def _encode(self, atoms, project):
-        """Snap the atoms' positions and (projected) momenta to the grid."""
-        p_nc = atoms.get_momenta()
-        project(p_nc)
-        return {'position': encode(atoms.positions, self.system.x.quantum,
-                                   'position'),
-                'momentum': encode(p_nc, self.system.p.quantum, 'momentum')}
+        return encoded(atoms, self.system.x.quantum, self.system.p.quantum,
+                       project)
+
+    @staticmethod
+    def _admit(atoms, force_purity, force_noise):
+        """Check the atoms a dynamics is constructed on, and read what it
+        needs from them: ``(masses_n, project, purity, record)``, the
+        record None unless a restart record fits the atoms."""
+        if not isinstance(atoms, Atoms):
+            raise TypeError(
+                f'The reversible integrators run ase.Atoms at a fixed cell, '
+                f'got {type(atoms).__name__}: filters that move the cell '
+                '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
+                'pass the Atoms themselves.')
+        check_calculator(atoms.calc, 'constructing the integrator')
+        masses_n = checked_masses(atoms)
+        for name in ('positions', 'momenta'):
+            values = atoms.arrays.get(name)
+            if values is not None and not np.all(np.isfinite(values)):
+                raise ValueError(f'The atoms have non-finite {name}.')
+        project = constraint_projection(atoms)
+        purity = force_provider(atoms, force_purity, force_noise)
+        return masses_n, project, purity, \
+            ReversibleDynamics._resumable_record(atoms)
 
     def _install(self, counts):
         """Make ``counts`` the anchor of reversal and show it on the atoms."""

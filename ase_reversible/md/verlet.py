@@ -10,18 +10,14 @@ drifts and kicks, and a composition; the engine
 from __future__ import annotations
 
 import numpy as np
-from ase import Atoms
 
-from ..core.codec import encode
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
 from ..core.plans import compose
 from ..core.quanta import choose_grid
-from ..purity import force_provider
-from .base import ReversibleDynamics
-from .checks import (check_calculator, check_energy_watch, check_timestep,
-                     checked_masses, fixed, refuse_coarse_momentum_quantum)
-from .constraints import constraint_projection
+from .base import ReversibleDynamics, encoded, projected_momenta
+from .checks import (check_energy_watch, check_timestep, fixed,
+                     refuse_coarse_momentum_quantum)
 from .hamiltonian import Hamiltonian, explain_energy_drift
 from .watch import SystemWatch
 
@@ -152,24 +148,9 @@ class ReversibleVerlet(ReversibleDynamics):
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
         composition = composition_for(order, composition)
-        if not isinstance(atoms, Atoms):
-            raise TypeError(
-                f'ReversibleVerlet integrates ase.Atoms at a fixed cell, got '
-                f'{type(atoms).__name__}: filters that move the cell '
-                '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
-                'pass the Atoms themselves.')
-        check_calculator(atoms.calc, 'constructing ReversibleVerlet')
-        masses_n = checked_masses(atoms)
-        for name in ('positions', 'momenta'):
-            values = atoms.arrays.get(name)
-            if values is not None and not np.all(np.isfinite(values)):
-                raise ValueError(f'The atoms have non-finite {name}.')
-        project = constraint_projection(atoms)
-        purity = force_provider(atoms, force_purity, force_noise)
+        masses_n, project, purity, record = self._admit(
+            atoms, force_purity, force_noise)
         momenta = atoms.arrays.get('momenta', np.zeros((len(atoms), 3)))
-        record, time0 = self._resumable_record(atoms), 0.0
-        if record is not None:
-            time0 = record['time']
         max_kick = abs(timestep) * max(
             abs(c) for kind, c in compose(SCHEMES[scheme], composition)
             if kind == KICK)
@@ -180,13 +161,11 @@ class ReversibleVerlet(ReversibleDynamics):
             momentum_floor=purity.min_momentum_quantum(
                 len(atoms), max_kick,
                 extent=float(np.abs(atoms.positions).max(initial=0.0))))
-        p_nc = atoms.get_momenta()
-        project(p_nc)
         # Refusals end here, before the base class opens any file.
-        refuse_coarse_momentum_quantum(masses_n, p_nc, grid, origin, purity)
-        counts = {'position': encode(atoms.positions, grid.position_quantum,
-                                     'position'),
-                  'momentum': encode(p_nc, grid.momentum_quantum, 'momentum')}
+        refuse_coarse_momentum_quantum(
+            masses_n, projected_momenta(atoms, project), grid, origin, purity)
+        counts = encoded(atoms, grid.position_quantum, grid.momentum_quantum,
+                         project)
         system = Hamiltonian(atoms, grid, counts, masses_n, project, purity)
         substep = {KICK: system.kick, DRIFT: system.drift}
         invariant = InvariantCheck(energy_check, energy_tolerance,
@@ -197,7 +176,8 @@ class ReversibleVerlet(ReversibleDynamics):
         self._scheme, self._grid = scheme, grid
         # Before the base class: older ASE writes todict() into a
         # trajectory's header as soon as it is attached.
-        self._attach(system, engine, (force_purity, force_noise), time0)
+        self._attach(system, engine, (force_purity, force_noise),
+                     record['time'] if record else 0.0)
         super().__init__(atoms, timestep, trajectory=trajectory,
                          logfile=logfile, loginterval=loginterval, **kwargs)
         self._start(SystemWatch(atoms))
