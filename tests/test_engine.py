@@ -48,6 +48,17 @@ def oscillator(n=5, seed=0):
     return {'x': x, 'p': p, 'z': z}, drift, kick, thermo
 
 
+def steps(engine, n):
+    for _ in range(n):
+        engine.step()
+
+
+def oscillator_engine(scheme, composition, dt):
+    variables, drift, kick, thermo = oscillator()
+    return variables, Engine(variables, SCHEMES[scheme](drift, kick, thermo),
+                             COMPOSITIONS[composition], dt)
+
+
 SCHEMES = {
     'kdk': lambda d, k, t: ((k, 0.5), (d, 1.0), (k, 0.5)),
     'dkd': lambda d, k, t: ((d, 0.5), (k, 1.0), (d, 0.5)),
@@ -59,17 +70,12 @@ SCHEMES = {
 @pytest.mark.parametrize('composition', list(COMPOSITIONS))
 @pytest.mark.parametrize('scheme', list(SCHEMES))
 def test_any_declared_plan_runs_back_bit_for_bit(scheme, composition):
-    variables, drift, kick, thermo = oscillator()
-    engine = Engine(variables, SCHEMES[scheme](drift, kick, thermo),
-                    COMPOSITIONS[composition], 0.05)
+    variables, engine = oscillator_engine(scheme, composition, 0.05)
     start = engine.snapshot()
-    for _ in range(60):
-        engine.step()
-    moved = engine.snapshot()
-    assert not np.array_equal(moved['x'], start['x'])
+    steps(engine, 60)
+    assert not np.array_equal(engine.snapshot()['x'], start['x'])
     engine.reverse()
-    for _ in range(60):
-        engine.step()
+    steps(engine, 60)
     for name, counts in start.items():
         assert np.array_equal(engine.variables[name].ints, counts)
     assert engine.step_index == 0 and engine.elapsed() == 0.0
@@ -146,31 +152,22 @@ def test_an_out_of_range_update_is_refused_and_leaves_the_value():
 
 
 def test_a_new_step_size_keeps_the_clock_exact_and_moves_the_anchor():
-    variables, drift, kick, thermo = oscillator()
-    engine = Engine(variables, SCHEMES['kdk'](drift, kick, thermo),
-                    COMPOSITIONS['verlet'], 0.1)
-    for _ in range(7):
-        engine.step()
+    variables, engine = oscillator_engine('kdk', 'verlet', 0.1)
+    steps(engine, 7)
     assert engine.set_dt(0.03) == 7  # seven steps taken since the anchor
     assert np.array_equal(engine.anchor['x'], variables['x'].ints)
-    for _ in range(5):
-        engine.step()
+    steps(engine, 5)
     assert engine.elapsed() == math.fsum([7 * 0.1, 5 * 0.03])
     engine.reverse()
-    for _ in range(5):
-        engine.step()
+    steps(engine, 5)
     engine.set_dt(-0.1)
-    for _ in range(7):
-        engine.step()
+    steps(engine, 7)
     assert engine.elapsed() == 0.0
 
 
 def test_the_restart_record_keeps_every_variable():
-    variables, drift, kick, thermo = oscillator()
-    engine = Engine(variables, SCHEMES['extended'](drift, kick, thermo),
-                    COMPOSITIONS['verlet'], 0.05)
-    for _ in range(30):
-        engine.step()
+    variables, engine = oscillator_engine('extended', 'verlet', 0.05)
+    steps(engine, 30)
     info = {}
     quanta = {name: v.quantum for name, v in variables.items()}
     write_record(info, quanta, engine.elapsed(),
