@@ -368,7 +368,13 @@ def test_positional_arguments_of_velocity_verlet_work(tmp_path):
     reversible.close()
     reference.close()
 
-    assert reversible.trajectory == tmp_path / 'rv.traj'
+    # What ASE keeps in .trajectory depends on its version (3.23: None, 3.29:
+    # the path); the integrator keeps what VelocityVerlet keeps.
+    if reference.trajectory is None:
+        assert reversible.trajectory is None
+    else:
+        assert reversible.trajectory == tmp_path / 'rv.traj'
+        assert reference.trajectory == tmp_path / 'vv.traj'
     frames = read(tmp_path / 'rv.traj', ':')
     reference_frames = read(tmp_path / 'vv.traj', ':')
     assert len(frames) == len(reference_frames) == 4
