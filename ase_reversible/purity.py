@@ -235,12 +235,51 @@ class GuardedForces(TrustedForces):
         return {'mode': self.mode, 'force_noise': self.force_noise}
 
 
+class ColdStartForces(TrustedForces):
+    """Every force call starts from the calculator's initial state.
+
+    For self-consistent-field calculators (tight binding, DFT) that start
+    each SCF from the previous solution: their forces then differ, at
+    identical positions, by about the convergence threshold, depending on
+    where they were before.  Dropping the previous solution before each
+    call makes the forces a pure function of the positions again, at the
+    cost of the extra SCF iterations a cold start needs.  How the state is
+    dropped is :func:`cold_start`.
+    """
+
+    mode = 'cold-start'
+
+    def forces(self, atoms):
+        cold_start(atoms.calc)
+        return atoms.get_forces(md=True)
+
+
+def cold_start(calc):
+    """Make the next calculation of ``calc`` (and of every calculator it
+    mixes) start from scratch at the present positions.
+
+    tblite's ASE calculator keeps its last SCF solution as the next guess,
+    and its ``reset()`` keeps it too (unless ``cache_api=False``, which
+    also rebuilds the whole setup on every call): the guess is dropped
+    directly, the setup kept.  Any other calculator gets ASE's
+    ``reset()``, the documented way to forget a calculation's state.
+    """
+    for c in calculator_members(calc):
+        if type(c).__module__.startswith('tblite.'):
+            discard_results(c)
+            c._res = None  # the previous SCF solution
+        elif callable(getattr(c, 'reset', None)):
+            c.reset()
+        else:
+            discard_results(c)
+
+
 def _extent_factor(extent):
     return max(1.0, extent / NOISE_REFERENCE_EXTENT)
 
 
 def probe_purity(atoms, trials: int = 2, displacement: float = 0.3,
-                 seed: int = 0) -> float:
+                 seed: int = 0, forces=None) -> float:
     """Largest force difference (eV/Å) at identical positions.
 
     ``atoms`` needs a calculator.  Costs ``1 + 3 * trials`` force calls.
@@ -250,23 +289,26 @@ def probe_purity(atoms, trials: int = 2, displacement: float = 0.3,
     the start (0.05 Å rms: lists are rebuilt there, not at the start), then
     back bit for bit, and computes again.  Zero means no history dependence
     was seen, which is evidence, not proof, of purity.  The atoms are left
-    at their original positions.
+    at their original positions.  ``forces(atoms)``, if given, is how the
+    forces are obtained (a provider's ``forces``, to probe its handling).
     """
+    if forces is None:
+        def forces(atoms):
+            return atoms.get_forces(md=True)
     rng = np.random.default_rng(seed)
     x_nc = atoms.positions.copy()
     discard_results(atoms.calc)
-    f0_nc = atoms.get_forces(md=True)
+    f0_nc = np.array(forces(atoms))
     worst = 0.0
     try:
         for _ in range(trials):
             atoms.positions = (x_nc + REBUILD_SHIFT
                                + rng.normal(0.0, displacement, x_nc.shape))
-            atoms.get_forces(md=True)
+            forces(atoms)
             atoms.positions = x_nc + rng.normal(0.0, 0.05, x_nc.shape)
-            atoms.get_forces(md=True)
+            forces(atoms)
             atoms.positions = x_nc
-            worst = max(worst, float(np.abs(atoms.get_forces(md=True)
-                                            - f0_nc).max()))
+            worst = max(worst, float(np.abs(forces(atoms) - f0_nc).max()))
     finally:
         atoms.positions = x_nc
     return worst
@@ -280,7 +322,7 @@ def force_provider(atoms, mode: str = 'auto',
     ----------
     atoms : ase.Atoms
         With its calculator attached.
-    mode : {'auto', 'sorted', 'guarded', 'trust'}
+    mode : {'auto', 'sorted', 'guarded', 'cold-start', 'trust'}
         ``'auto'`` looks at the calculator and, for a mixing calculator
         (anything with members in ``.calcs``: SumCalculator,
         LinearCombinationCalculator, MixedCalculator), at every member,
@@ -289,19 +331,22 @@ def force_provider(atoms, mode: str = 'auto',
         sorted neighbour lists (``'sorted'``); members that are neither
         these nor declare ``forces_are_pure = True`` (a guarantee that
         forces are a function of the positions alone) make it probe the
-        whole calculator with :func:`probe_purity` and refuse it if its
-        forces depend on its history.
+        whole calculator with :func:`probe_purity`.  If its forces depend
+        on its history by more than summation order explains, it probes
+        again with every call started cold (:class:`ColdStartForces`) and
+        takes ``'cold-start'`` if that makes them pure; otherwise it
+        refuses the calculator.
     force_noise : float, optional
         Noise bound for ``'guarded'`` (eV/Å).
 
     Returns
     -------
-    TrustedForces, SortedNeighborListForces or GuardedForces
+    TrustedForces, SortedNeighborListForces, GuardedForces or ColdStartForces
         Raises :class:`ImpureForcesError` if ``'auto'`` probes the
         calculator and sees history noise.
     """
     calc = atoms.calc
-    modes = ('auto', 'sorted', 'guarded', 'trust')
+    modes = ('auto', 'sorted', 'guarded', 'cold-start', 'trust')
     if mode not in modes:
         raise ValueError(f'force_purity must be one of {modes}, got {mode!r}')
     if force_noise is not None and mode not in ('auto', 'guarded'):
@@ -325,11 +370,21 @@ def force_provider(atoms, mode: str = 'auto',
             if listed:  # sorted lists in place before the probe
                 provider.forces(atoms)
             noise = probe_purity(atoms)
-            if noise:
-                raise ImpureForcesError(_impurity_advice(
-                    calc, noise, np.abs(provider.forces(atoms)).max(
-                        initial=0.0)))
-            return provider
+            if not noise:
+                return provider
+            f_max = np.abs(provider.forces(atoms)).max(initial=0.0)
+            if not listed and noise > SUMMATION_NOISE_LIMIT * max(1.0, f_max):
+                # Noise this large is state carried between calls (an SCF
+                # started from its last solution): try starting cold.
+                cold = ColdStartForces()
+                left = probe_purity(atoms, forces=cold.forces)
+                if not left:
+                    return cold
+                if left <= SUMMATION_NOISE_LIMIT * max(1.0, f_max):
+                    raise ImpureForcesError(_parallel_noise_advice(
+                        calc, noise, left))
+            raise ImpureForcesError(_impurity_advice(
+                calc, noise, f_max, cold_start_tried=not listed))
     if mode == 'sorted':
         if not listed:
             raise ValueError(
@@ -341,6 +396,8 @@ def force_provider(atoms, mode: str = 'auto',
     if mode == 'guarded':
         return GuardedForces(DEFAULT_FORCE_NOISE if force_noise is None
                              else force_noise)
+    if mode == 'cold-start':
+        return ColdStartForces()
     return TrustedForces()
 
 
@@ -352,7 +409,7 @@ def force_provider(atoms, mode: str = 'auto',
 SUMMATION_NOISE_LIMIT = 1e-9
 
 
-def _impurity_advice(calc, noise, f_max):
+def _impurity_advice(calc, noise, f_max, cold_start_tried=False):
     """The ImpureForcesError message, with the remedy for the likely cause."""
     name = type(calc).__name__
     head = (f'{name} returned forces that differ by {noise:.3g} eV/Å at '
@@ -371,12 +428,30 @@ def _impurity_advice(calc, noise, f_max):
     return (f'{head} Noise this large does not come from summation order '
             'but from state the calculator carries between calls, such as '
             'a self-consistent field (DFT, tight binding) that starts from '
-            'the previous solution. Make every calculation start from '
+            'the previous solution. '
+            + ("Calling the calculator's reset() before every call "
+               "(force_purity='cold-start') did not remove it. "
+               if cold_start_tried else '')
+            + 'Make every calculation start from '
             'scratch (reset the initial guess or wavefunction before each '
             'call, for example in a subclass whose calculate() does that '
             'first), then construct the integrator again. Guarded rounding '
             'cannot absorb noise this large: the momentum quantum would '
             'have to be so coarse that the momenta lose their precision.')
+
+
+def _parallel_noise_advice(calc, noise, left):
+    """The message for forces that a cold start makes nearly, not fully,
+    pure: what is left varies from call to call at the same state."""
+    return (f'{type(calc).__name__} returned forces that differ by '
+            f'{noise:.3g} eV/Å at identical positions after the atoms had '
+            'been moved elsewhere (a self-consistent field started from its '
+            "last solution). Starting every call cold (force_purity="
+            f"'cold-start') leaves {left:.3g} eV/Å: a difference at the "
+            'level of rounding that varies from call to call even at the '
+            'same state, as parallel sums do whose order depends on the '
+            'threads (OpenMP). Run with one thread (set OMP_NUM_THREADS=1 '
+            'before Python starts) and construct the integrator again.')
 
 
 def _round_up(value):
@@ -487,7 +562,8 @@ class CalculatorCheck:
     probe_noise : float
         Largest force difference at identical positions that the probe
         saw after the mode's handling (eV/Å); 0.0 for a declared-pure
-        calculator, which is not probed.
+        calculator, which is not probed; NaN for a refused one (its
+        message has the numbers).
     cost : str
         What the mode costs, in force calls and in momentum precision.
     advice : str or None
@@ -502,8 +578,10 @@ class CalculatorCheck:
     advice: str | None = None
 
     def __str__(self):
+        if self.mode is None:
+            return f'{self.calculator}: refused. {self.advice}'
         verdict = (f"exact, force_purity='{self.mode}'" if self.exact
-                   else 'refused')
+                   else f"not exact under force_purity='{self.mode}'")
         text = (f'{self.calculator}: {verdict}; probe noise '
                 f'{self.probe_noise:.3g} eV/Å. Cost: {self.cost}')
         return text + (f' {self.advice}' if self.advice else '')
@@ -513,6 +591,9 @@ _COSTS = {
     'trust': 'none: forces are used as the calculator returns them.',
     'sorted': 'one extra force call when the sorted neighbour list is '
               'installed, nothing per step.',
+    'cold-start': 'every force call starts its self-consistent field from '
+                  'scratch instead of from the previous solution (more '
+                  'iterations per call).',
     'guarded': 'a clean recomputation (a neighbour-list rebuild and a '
                'force call) for about {rate:.0%} of the kicks, and a '
                'momentum quantum raised so that they stay that rare.',
@@ -550,10 +631,11 @@ def check_calculator(atoms, timestep=None, force_noise=None):
     try:
         provider = force_provider(atoms, 'auto', force_noise)
     except ImpureForcesError as error:
-        return CalculatorCheck(name, False, None, 0.0,
+        return CalculatorCheck(name, False, None, math.nan,
                                'not runnable as it is.', str(error))
     provider.forces(atoms)  # sorted lists in place before the probe
-    noise = 0.0 if _declares_pure(calc) else probe_purity(atoms)
+    noise = (0.0 if _declares_pure(calc)
+             else probe_purity(atoms, forces=provider.forces))
     cost = _COSTS[provider.mode].format(rate=TARGET_CLEAN_RATE)
     exact, advice = noise == 0.0, None
     if provider.mode == 'guarded':

@@ -231,9 +231,9 @@ class ReversibleDynamics(MolecularDynamics):
     def force_purity(self):
         """The force provider in use (:mod:`ase_reversible.purity`).
 
-        ``.mode`` is ``'sorted'``, ``'guarded'`` or ``'trust'``; a guarded
-        provider also counts ``.clean_recomputations`` and keeps
-        ``.max_observed_noise`` (eV/Å).
+        ``.mode`` is ``'sorted'``, ``'guarded'``, ``'cold-start'`` or
+        ``'trust'``; a guarded provider also counts
+        ``.clean_recomputations`` and keeps ``.max_observed_noise`` (eV/Å).
         """
         return self.system.purity
 

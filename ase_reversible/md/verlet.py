@@ -84,7 +84,7 @@ class ReversibleVerlet(ReversibleDynamics):
         amu Å / ASE time unit, a power of two.  Default: from a restart
         record, otherwise 256 times the momentum scale over 2**53, raised
         if the force-purity mode needs it coarser.
-    force_purity : {'auto', 'sorted', 'guarded', 'trust'}
+    force_purity : {'auto', 'sorted', 'guarded', 'cold-start', 'trust'}
         How forces are made a pure function of positions; see
         :mod:`ase_reversible.purity`.
     force_noise : float, optional
