@@ -17,7 +17,7 @@ from ase import units
 from ase.calculators.calculator import all_changes
 from ase.calculators.morse import MorsePotential
 
-from ase_reversible import ImpureForcesError, ReversibleVerlet
+from ase_reversible import ReversibleVerlet
 from ase_reversible.app.systems import AR_EPSILON, argon_cluster
 
 
