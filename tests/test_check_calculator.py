@@ -5,7 +5,6 @@ integrator then does."""
 import numpy as np
 import pytest
 from ase import units
-from ase.calculators.calculator import all_changes
 from ase.calculators.emt import EMT
 from ase.calculators.lj import LennardJones as AseLJ
 
@@ -14,22 +13,13 @@ from ase_reversible.app.systems import (AR_EPSILON, AR_RC, AR_SIGMA,
                                         argon_cluster, argon_lj, copper_bulk)
 
 from conftest import needs_asap3
+from warm_start import WarmStart
 
 DT = 5 * units.fs
 
 
-class WarmStartedLJ(AseLJ):
-    """Forces refined from the previous call's, as a self-consistent field
-    that starts from its last solution: history far above summation noise."""
-
-    def calculate(self, atoms=None, properties=('energy',),
-                  system_changes=all_changes):
-        super().calculate(atoms, properties, system_changes)
-        guess = getattr(self, 'guess', None)
-        exact = self.results['forces']
-        if guess is None or guess.shape != exact.shape:
-            guess = np.zeros_like(exact)
-        self.guess = self.results['forces'] = guess + 0.9 * (exact - guess)
+class WarmStartedLJ(WarmStart, AseLJ):
+    """ASE's LennardJones with the history of an SCF."""
 
 
 def checked(atoms, **kwargs):

@@ -14,26 +14,17 @@ import textwrap
 import numpy as np
 import pytest
 from ase import units
-from ase.calculators.calculator import all_changes
 from ase.calculators.morse import MorsePotential
 
 from ase_reversible import ReversibleVerlet
 from ase_reversible.app.systems import AR_EPSILON, argon_cluster
 
+from warm_start import WarmStart
 
-class ResettableWarmStart(MorsePotential):
-    """Forces refined from the previous call's, as an SCF that starts from
-    its last solution; ``reset()`` drops that solution, as a calculator's
-    documented way to start over does."""
 
-    def calculate(self, atoms=None, properties=('energy',),
-                  system_changes=all_changes):
-        super().calculate(atoms, properties, system_changes)
-        guess = getattr(self, 'guess', None)
-        exact = self.results['forces']
-        if guess is None or guess.shape != exact.shape:
-            guess = np.zeros_like(exact)
-        self.guess = self.results['forces'] = guess + 0.9 * (exact - guess)
+class ResettableWarmStart(WarmStart, MorsePotential):
+    """Morse with the history of an SCF; ``reset()`` drops that history, as
+    a calculator's documented way to start over does."""
 
     def reset(self):
         super().reset()
