@@ -605,7 +605,9 @@ def check_calculator(atoms, timestep=None, force_noise=None):
 
     Chooses the force-purity mode as ``ReversibleVerlet(...,
     force_purity='auto')`` would, then probes the forces under that
-    handling with :func:`probe_purity` (about 7 force calls).  Nothing
+    handling with :func:`probe_purity`: 7 force calls, and 7 more for
+    each probe the choice itself made (an unknown calculator is probed,
+    and probed again from a cold start if its history noise is large).  Nothing
     about the atoms is changed; an ASE LennardJones or EMT gets its
     sorted neighbour list, as it would from the integrator.
 

@@ -25,12 +25,6 @@ class SubStep:
     so that a failed step leaves no stale cache behind.
     """
 
-    #: Variables the sub-step reads, as a tuple of names (documentation,
-    #: and the adjoint's bookkeeping).
-    reads = ()
-    #: The variable it changes.
-    writes = None
-
     def prepare(self, ch: float):
         """Whatever :meth:`apply` needs for the coefficient ``ch`` (``c h``,
         the fraction times the time step), computed once per time step."""

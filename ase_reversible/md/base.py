@@ -65,6 +65,9 @@ class ReversibleDynamics(MolecularDynamics):
         self.system, self.engine = system, engine
         self._purity_choice = purity_choice  # (mode, force_noise)
         self._time0 = time0
+        # Fixed for the integrator's life; the record needs them every step.
+        self._quanta = {name: v.quantum
+                        for name, v in engine.variables.items()}
 
     def _start(self, watch):
         """After ASE's constructor: watch the atoms, show the exact state."""
@@ -181,7 +184,7 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _committed(self):
         self.system.show_momenta()
-        write_record(self.atoms.info, self._quanta(), self.get_time())
+        write_record(self.atoms.info, self._quanta, self.get_time())
 
     # -- state and settings ----------------------------------------------
 
@@ -442,8 +445,6 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _show_anchor(self):
         self.system.show()
-        write_record(self.atoms.info, self._quanta(), self.get_time())
+        write_record(self.atoms.info, self._quanta, self.get_time())
 
-    def _quanta(self):
-        return {name: v.quantum for name, v in self.engine.variables.items()}
 

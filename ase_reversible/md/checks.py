@@ -7,6 +7,11 @@ import math
 
 import numpy as np
 
+from ..core.quanta import momentum_resolution_problem
+from ..core.record import INFO_KEY
+from ..errors import CoarseQuantumError
+from ..purity import DEFAULT_FORCE_NOISE
+
 
 def check_timestep(timestep):
     """The time step as a finite, non-zero float (ASE time units)."""
@@ -88,10 +93,6 @@ def refuse_coarse_momentum_quantum(masses_n, momenta_nc, grid, origin,
     constraints; ``origin`` as returned by
     :func:`ase_reversible.core.quanta.choose_grid`.
     """
-    from ..core.quanta import momentum_resolution_problem
-    from ..core.record import INFO_KEY
-    from ..errors import CoarseQuantumError
-    from ..purity import DEFAULT_FORCE_NOISE
     qp = grid.momentum_quantum
     problem = momentum_resolution_problem(masses_n, momenta_nc, qp)
     if problem is None:

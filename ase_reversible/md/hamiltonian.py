@@ -95,8 +95,6 @@ class Hamiltonian:
 class Drift(SubStep):
     """``x += round_odd(c h P p / m / q_x)``; shown on the atoms at once."""
 
-    reads, writes = ('momentum',), 'position'
-
     def __init__(self, system):
         self.system = system
         self._y_nc = np.empty(system.x.ints.shape)
@@ -132,8 +130,6 @@ class Kick(SubStep):
     step and starts the next with the same kick at the same positions, so
     its rounding is reused, not recomputed.
     """
-
-    reads, writes = ('position',), 'momentum'
 
     def __init__(self, system):
         self.system = system
