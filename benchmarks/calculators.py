@@ -57,7 +57,7 @@ from ase_reversible.app.systems import (AR_EPSILON, AR_RC, AR_SIGMA,
                                         argon_bulk, argon_lj, copper_bulk,
                                         thermalize)
 
-FULL = Settings(rounds=5, block_seconds=0.3, min_steps=2, max_steps=2000,
+FULL = Settings(rounds=7, block_seconds=0.3, min_steps=2, max_steps=2000,
                 warmup_steps=2)
 QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=1, max_steps=200,
                  warmup_steps=1)
