@@ -123,6 +123,18 @@ def row_cells(r):
             notes(r))
 
 
+def load_line(results):
+    loads = [x for r in results['rows'] if 'cost' in r
+             for x in r['cost'].get('load_average', ())]
+    if not loads:
+        return ''
+    return (f'The 1-minute load average of the machine was {min(loads):.1f} '
+            f'to {max(loads):.1f} around the timings. Where it exceeds the '
+            'number of cores, other processes competed for them: the wall '
+            'times and their per-round ranges are then noisier than the CPU '
+            'times.')
+
+
 def markdown(results):
     s = results['settings']
     rows = [row_cells(r) for r in results['rows']]
@@ -165,4 +177,6 @@ installed are listed with the reason.
 {markdown_table(('calculator', 'system', "force_purity='auto'", 'exact',
                  'momentum quantum', 'per step / VelocityVerlet', 'notes'),
                 rows)}
+
+{load_line(results)}
 """
