@@ -257,7 +257,7 @@ class GuardedForces(TrustedForces):
         if not guard_band_crossed(y_nc, out, abs(scale) * noise):
             return f_nc
         clean_nc = self.clean_forces(atoms)
-        self._record_noise(np.abs(clean_nc - f_nc).max(), noise)
+        self._record_noise(atoms, np.abs(clean_nc - f_nc).max(), noise)
         np.multiply(clean_nc, scale, out=out)
         project(out)
         round_odd(out, out=out)
@@ -278,11 +278,7 @@ class GuardedForces(TrustedForces):
         bound the guard relies on."""
         noise = float(np.nanmax(np.abs(f_again - f_kept)))
         bound = self.noise_bound(atoms, f_kept)
-        if noise <= bound:
-            self._record_noise(noise, bound)
-            return
-        raise ImpureForcesError(_spot_check_advice(
-            atoms.calc, self.mode, noise, calls, bound))
+        self._record_noise(atoms, noise, bound, calls)
 
     def clean_forces(self, atoms):
         """Forces ``[n_atoms, 3]`` (eV/Å) from a neighbour list built at
@@ -306,9 +302,17 @@ class GuardedForces(TrustedForces):
         self._clean_nc = atoms.get_forces(md=True)
         return self._clean_nc
 
-    def _record_noise(self, noise, bound):
+    def _record_noise(self, atoms, noise, bound, calls=None):
+        """Keep the largest noise seen; raise if it broke the bound (an
+        earlier kick may then have been rounded from noisy forces), warn
+        once when it comes within a factor of 8.  ``calls``: how many
+        force calls apart the two forces were (a spot check), or None (a
+        clean recomputation)."""
         noise = float(noise)
         self.max_observed_noise = max(self.max_observed_noise, noise)
+        if not noise <= bound:
+            raise ImpureForcesError(_spot_check_advice(
+                atoms.calc, self.mode, noise, calls, bound))
         if noise > bound / 8 and not self._warned:
             self._warned = True
             warnings.warn(
@@ -554,10 +558,14 @@ def _impurity_advice(calc, noise, f_max, cold_start_tried=False):
 
 
 def _spot_check_advice(calc, mode, noise, calls, bound=None):
-    """The message of a spot check that found forces depending on history."""
+    """The message for forces found depending on history during a run: by
+    a spot check ``calls`` force calls apart, or (``calls`` None) by a
+    clean recomputation; ``bound``: the guard's, if one was broken."""
     head = (f'{type(calc).__name__} gave forces {noise:.3g} eV/Å different '
-            f'from those it gave at the same positions {calls} force calls '
-            'earlier in this run')
+            + (f'from those it gave at the same positions {calls} force '
+               'calls earlier in this run' if calls is not None else
+               'from those of a neighbour list built at exactly these '
+               'positions'))
     tail = (' The run so far may not reverse exactly past the point where '
             'this started; the step was not taken.')
     if bound is not None:
@@ -640,10 +648,18 @@ def _install_sorted_list(calc):
 
 
 def discard_results(calc):
-    """Forget a calculator's cached results (if it keeps ASE's dict)."""
+    """Forget a calculator's cached results (if it keeps ASE's dict), so
+    that the next call computes them again."""
     results = getattr(calc, 'results', None)
     if isinstance(results, dict):
         results.clear()
+        # Some calculators (LAMMPSlib) compute nothing when check_state()
+        # sees the atoms unchanged: forget the atoms too.  Not ASE's
+        # LennardJones and EMT, which would then rebuild the sorted list
+        # as for new atomic numbers; they compute whatever is missing.
+        if (getattr(calc, 'atoms', None) is not None
+                and not _is_ase_neighborlist_calculator(calc)):
+            calc.atoms = None
 
 
 def calculator_members(calc):
