@@ -12,9 +12,10 @@ from ase.calculators.mixing import (LinearCombinationCalculator,
 from ase.calculators.morse import MorsePotential
 
 from ase_reversible import ImpureForcesError, ReversibleVerlet, probe_purity
-from ase_reversible.purity import (SPOT_CHECK_INTERVAL, GuardedForces,
+from ase_reversible.purity import (DEFAULT_FORCE_NOISE, MEASURED_NOISE_FLOOR,
+                                   SPOT_CHECK_INTERVAL, GuardedForces,
                                    SortedNeighborListForces, TrustedForces,
-                                   force_provider)
+                                   force_provider, measured_force_noise)
 
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS, DT, argon_bulk,
                       argon_cluster, copper_bulk)
@@ -336,3 +337,32 @@ def test_bad_purity_requests_are_refused(mode):
     atoms.calc = CALCULATORS['asap-lj']()
     with pytest.raises(ValueError, match='force_purity'):
         ReversibleVerlet(atoms, DT, force_purity=mode)
+
+
+@pytest.mark.parametrize('shells', [2, 4])
+def test_auto_measures_a_fine_bound_for_asap3_on_a_cluster_and_stays_exact(
+        shells):
+    # asap3 LennardJones on a free cluster shows almost no history noise:
+    # 'auto' measures it and takes a bound far below the fixed one, so the
+    # momentum quantum is far finer, and the run still comes back exactly.
+    def cluster():
+        atoms = argon_cluster(shells, 60)
+        atoms.calc = CALCULATORS['asap-lj']()
+        return atoms
+
+    fixed = ReversibleVerlet(cluster(), DT, force_noise=DEFAULT_FORCE_NOISE)
+    dyn = ReversibleVerlet(cluster(), DT)
+    assert dyn.force_purity.force_noise == MEASURED_NOISE_FLOOR
+    assert (dyn.grid.momentum_quantum
+            <= 2.0**-10 * fixed.grid.momentum_quantum)
+    start, moved = forward_and_back(dyn, 2000)
+    assert moved
+    assert_same_state(dyn.atoms, start)
+    assert dyn.force_purity.max_observed_noise <= MEASURED_NOISE_FLOOR / 8
+
+
+def test_auto_keeps_the_fixed_bound_where_the_noise_is_near_it():
+    atoms = copper_bulk((5, 5, 5), 600)
+    atoms.calc = CALCULATORS['asap-emt']()
+    noise = measured_force_noise(atoms)
+    assert noise == DEFAULT_FORCE_NOISE
