@@ -10,6 +10,7 @@ from . import markdown_table, pyplot
 
 TITLE = 'Cost per step'
 PLOT = 'step_cost.png'
+OVERHEAD_PLOT = 'step_cost_overhead.png'
 
 #: The targets set for the integrator, judged on every run's numbers.
 TARGET_RATIO_TO_VV = 1.0
@@ -18,6 +19,9 @@ TARGET_OVERHEAD_CALCULATOR = 'asap3 EMT'
 TARGET_OVERHEAD_MIN_ATOMS = 4000
 #: Reversible velocity counts as "slower than VelocityVerlet" above this ratio.
 SLOWER_THRESHOLD = 1.05
+#: Target of the overhead cases: ReversibleVerlet's time beyond the force
+#: call at most VelocityVerlet's, at every size.
+TARGET_OVERHEAD_RATIO = 1.0
 
 # -- derived numbers -------------------------------------------------------
 
@@ -67,9 +71,23 @@ def by_calculator(results):
             for k, v in groups.items()}
 
 
+def overhead_ratio(r, name, key='overhead_seconds'):
+    """A contestant's overhead over VelocityVerlet's."""
+    return r[key][name] / r[key]['vv']
+
+
+def paired_overhead_ratios(r, name):
+    """Per-round overhead ratios, each round's floor subtracted."""
+    wall = r['per_step_seconds']
+    return [(a - f) / (b - f) for a, b, f in
+            zip(wall[name], wall['vv'], wall['force'])]
+
+
 # -- plot ------------------------------------------------------------------
 
 def plot(results, figures):
+    if results.get('overhead'):
+        plot_overhead(results['overhead'], figures)
     steps = results['step_cost']
     plt = pyplot()
     from matplotlib.lines import Line2D
@@ -122,6 +140,33 @@ def plot(results, figures):
     plt.close(fig)
 
 
+def plot_overhead(overheads, figures):
+    plt = pyplot()
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+    fig, ax = plt.subplots(figsize=(6.5, 4.3))
+    n = [r['n_atoms'] for r in overheads]
+    for name, label, style in (('vv', 'VelocityVerlet', 'x--'),
+                               ('rv_velocity', 'Reversible velocity', 'o-'),
+                               ('rv_position', 'Reversible position', 's:')):
+        ax.plot(n, [1e6 * r['overhead_seconds'][name] for r in overheads],
+                style, label=label)
+    ax.plot(n, [1e6 * r['median_seconds']['force'] for r in overheads],
+            'k.-', lw=0.8, alpha=0.6, label='the force call (floor)')
+    ax.set_xscale('log')
+    ax.set_yscale('log')
+    ax.set_xticks(n)
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel('number of atoms')
+    ax.set_ylabel('µs per step beyond the force call')
+    ax.set_title('Integrator overhead (CachedForces calculator)')
+    ax.grid(True, which='major', alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(figures / OVERHEAD_PLOT, dpi=110)
+    plt.close(fig)
+
+
 # -- Markdown --------------------------------------------------------------
 
 def ms(seconds):
@@ -149,6 +194,87 @@ def clean_fraction(r, name):
         return '—'
     k, n = entry['recomputations'], entry['force_calls']
     return f'{100 * k / n:.2g}% ({k}/{n})'
+
+
+def us(seconds):
+    """Microseconds, one decimal."""
+    return f'{seconds * 1e6:.1f}'
+
+
+def integrator_overhead_table(results):
+    header = ('system', 'N', 'steps × rounds', 'force call (µs)',
+              'VelocityVerlet overhead (µs)',
+              'Reversible velocity overhead (µs, ×VV)',
+              'Reversible position overhead (µs, ×VV)',
+              'velocity ×VV, per-round range', 'on CPU time: velocity ×VV',
+              'round spread', 'wall / CPU')
+    rows = []
+    for r in results:
+        o = r['overhead_seconds']
+        paired = paired_overhead_ratios(r, 'rv_velocity')
+        rows.append((
+            r['system'], r['n_atoms'],
+            f"{r['steps_per_block']} × {r['rounds']}",
+            us(r['median_seconds']['force']), us(o['vv']),
+            f"{us(o['rv_velocity'])} "
+            f"(×{overhead_ratio(r, 'rv_velocity'):.2f})",
+            f"{us(o['rv_position'])} "
+            f"(×{overhead_ratio(r, 'rv_position'):.2f})",
+            f'×{min(paired):.2f} to ×{max(paired):.2f}',
+            f"×{overhead_ratio(r, 'rv_velocity', 'overhead_cpu_seconds'):.2f}",
+            f"{100 * max(r['spread'].values()):.0f}%",
+            f'{wall_over_cpu(r):.2f}'))
+    return markdown_table(header, rows)
+
+
+def overhead_target_lines(results):
+    out = []
+    for name, scheme in (('rv_velocity', 'velocity'),
+                         ('rv_position', 'position')):
+        missed = [r for r in results
+                  if overhead_ratio(r, name) > TARGET_OVERHEAD_RATIO]
+        line = (f"- Reversible '{scheme}' overhead ≤ VelocityVerlet's: met "
+                f'at {len(results) - len(missed)} of {len(results)} sizes')
+        if missed:
+            line += '; missed at ' + '; '.join(
+                f"N={r['n_atoms']}: ×{overhead_ratio(r, name):.2f} "
+                f"(+{us(r['overhead_seconds'][name] - r['overhead_seconds']['vv'])}"
+                ' µs/step)' for r in missed)
+        out.append(line + '.')
+    return '\n'.join(out)
+
+
+def overhead_section(results, settings):
+    if not results:
+        return ''
+    return f"""\
+### The integrators' own overhead
+
+Time per step beyond the force call, with a calculator whose force call
+costs a few microseconds (`CachedForces` in `benchmarks/systems.py`: zero
+forces returned for any positions, behind a cache that checks only whether
+the positions changed, as asap3's does), so that what is left is the
+integrator's own Python and numpy work. Free argon icosahedra up to 561
+atoms, then periodic fcc argon; every contestant on its own copy of the
+atoms with its own calculator, {settings['rounds']} interleaved rounds of
+blocks of about {settings['block_seconds']:g} s (VelocityVerlet), order
+rotating. Overhead = median step time − median time of the force call
+alone (the nudge floor: one coordinate moved, then `get_forces`), in the
+same rounds. ReversibleVerlet runs with `force_purity='auto'`, which takes
+the calculator as pure (`forces_are_pure = True`); its overhead includes
+the checks for changes made between steps, the restart record, and the
+energy check. VelocityVerlet's includes the two cached `get_forces` calls
+that its step and ASE's loop make besides the one that computes. The
+per-round range gives each round's ratio with that round's floor
+subtracted.
+
+![Overhead per step against the number of atoms](benchmarks/{OVERHEAD_PLOT})
+
+{integrator_overhead_table(results)}
+
+{overhead_target_lines(results)}
+
+"""
 
 
 def case_label(r):
@@ -472,6 +598,7 @@ add scheduler delays to the steps.
   (one per step) whose kick was recomputed from a freshly built neighbour
   list, during the timed blocks, as count / force evaluations.
 
+{overhead_section(results.get('overhead'), s.get('overhead'))}\
 ### Time per step
 
 {step_cost_table(steps)}
