@@ -100,15 +100,27 @@ class Drift(SubStep):
         self._y_nc = np.empty(system.x.ints.shape)
 
     def prepare(self, ch):
-        # Applied to the momenta's exact float image p = ip * qp.
-        return ch / self.system.x.quantum / self.system.m_n1
+        # Applied to the momenta's exact float image p = ip * qp.  Spread
+        # over the three columns: numpy multiplies arrays of one shape
+        # several times faster than it broadcasts a column (bitwise the
+        # same products).
+        factor_n1 = ch / self.system.x.quantum / self.system.m_n1
+        return (np.repeat(factor_n1, self._y_nc.shape[1], axis=1),
+                float(np.abs(factor_n1).max(initial=0.0)))
 
-    def apply(self, factor_n1):
+    def apply(self, prepared):
+        factor_nc, factor_max = prepared
         s = self.system
-        y_nc = np.multiply(s.p.floats, factor_n1, out=self._y_nc)
+        y_nc = np.multiply(s.p.floats, factor_nc, out=self._y_nc)
         s.project(y_nc)
         round_odd(y_nc, out=y_nc)
-        s.x.add_integers(y_nc)
+        # A bound on max |y| from the momenta's bound, instead of a pass
+        # over y: a projection onto a plane or line lengthens no vector,
+        # so no component exceeds sqrt(3) times the largest before it; the
+        # factor 2 covers that and the rounding of these products, the 1
+        # the rounding of y.
+        s.x.add_integers(y_nc, 2.0 * s.p.bound * s.p.quantum * factor_max
+                         + 1.0)
         s.show_positions()
 
     def rollback(self):
@@ -140,7 +152,7 @@ class Kick(SubStep):
 
     def forget(self):
         """Drop cached forces (a new calculator, even an equal one)."""
-        self._r_key = None
+        self._r_key = self._r_max = None
         self._f_cache = None
         self._saved = None
 
@@ -161,14 +173,15 @@ class Kick(SubStep):
         r_nc = self._r_nc
         key = (s.x.label, scale)
         if self._r_key != key:
-            self._r_key = None  # r_nc is about to be overwritten
+            self._r_key = self._r_max = None  # r_nc is about to be overwritten
             f_used_nc = s.purity.rounded_kick(
                 s.atoms, self.forces(), scale, s.project, out=r_nc,
                 scratch=self._y_nc)
             self._f_cache = (s.x.label, f_used_nc)
             self._r_key = key
         try:
-            s.p.add_integers(r_nc)
+            # The range of r_nc is checked once, the first time it is added.
+            self._r_max = s.p.add_integers(r_nc, self._r_max)
         except QuantumRangeError:
             if not np.all(np.isfinite(self._f_cache[1])):
                 raise NonFiniteForcesError(
@@ -183,7 +196,7 @@ class Kick(SubStep):
 
     def rollback(self):
         self._f_cache = self._saved
-        self._r_key = None  # r_nc may hold a kick of the failed step
+        self._r_key = self._r_max = None  # r_nc may hold a failed step's kick
 
     def adjoint(self, cotangents, ch):
         # Deferred: the next drift or the end applies it, merged with any
