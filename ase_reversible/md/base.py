@@ -21,7 +21,8 @@ from ase.md.md import MolecularDynamics
 from ..adjoint import Cotangents, Gradients, hvp_for
 from ..adjoint.cotangents import checked_gradient, checked_parameters
 from ..core.codec import encode
-from ..core.record import INFO_KEY, read_record, record_mismatch, write_record
+from ..core.record import (INFO_KEY, RecordWriter, read_record,
+                           record_mismatch)
 from ..errors import AnchorMovedWarning
 from ..purity import calculator_members, discard_results, force_provider
 from .checks import (check_calculator, check_energy_watch, check_steps,
@@ -66,8 +67,8 @@ class ReversibleDynamics(MolecularDynamics):
         self._purity_choice = purity_choice  # (mode, force_noise)
         self._time0 = time0
         # Fixed for the integrator's life; the record needs them every step.
-        self._quanta = {name: v.quantum
-                        for name, v in engine.variables.items()}
+        self._write_record = RecordWriter(
+            {name: v.quantum for name, v in engine.variables.items()})
 
     def _start(self, watch):
         """After ASE's constructor: watch the atoms, show the exact state."""
@@ -147,26 +148,41 @@ class ReversibleDynamics(MolecularDynamics):
         whose existence depends on the ASE version; this one asks only
         where a step does not end with them already.
         """
+        return self._loop(steps, alone=False)
+
+    def run(self, steps=50):
+        """Run ``steps`` steps; True once the run has reached them."""
+        converged = steps == 0
+        for converged in self._loop(steps, alone=True):
+            pass
+        return converged
+
+    def _loop(self, steps, alone):
+        """``irun``'s generator; ``alone``: the caller runs no code of its
+        own between the steps (``run``)."""
         self._sync()
         self.max_steps = self.nsteps + steps
         if self.nsteps == 0:
             self._ready()
             self.log()
             self.call_observers()
+        # Nothing but this loop runs between two steps of a run without
+        # observers or a log of a subclass's own: nothing can have changed
+        # the atoms since they were taken, so the checks before the step
+        # are left out.
+        quiet = alone and type(self).log is MolecularDynamics.log
         yield self.nsteps == self.max_steps
         while self.nsteps < self.max_steps:
+            self._unseen = quiet and not self.observers
             self.step()
             self.nsteps += 1
             self.log()
             self.call_observers()
             yield self.nsteps == self.max_steps
 
-    def run(self, steps=50):
-        """Run ``steps`` steps; True once the run has reached them."""
-        converged = steps == 0
-        for converged in self.irun(steps):
-            pass
-        return converged
+    #: True only while nothing but the run's own loop ran since the atoms
+    #: were last taken or written (see ``_loop``).
+    _unseen = False
 
     def _ready(self):
         """Before the first step: what ASE's loop would have computed."""
@@ -178,13 +194,16 @@ class ReversibleDynamics(MolecularDynamics):
         checks the energy at checkpoint steps, then applies the sub-steps.
         If anything fails, the state is that before the step, bit for bit.
         """
-        self._sync()
+        if self._unseen:
+            self._unseen = False
+        else:
+            self._sync()
         self.engine.step(self.nsteps)
         self._committed()
 
     def _committed(self):
         self.system.show_momenta()
-        write_record(self.atoms.info, self._quanta, self.get_time())
+        self._write_record(self.atoms.info, self.get_time())
 
     # -- state and settings ----------------------------------------------
 
@@ -445,6 +464,6 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _show_anchor(self):
         self.system.show()
-        write_record(self.atoms.info, self._quanta, self.get_time())
+        self._write_record(self.atoms.info, self.get_time())
 
 
