@@ -166,23 +166,41 @@ class ReversibleDynamics(MolecularDynamics):
             self._ready()
             self.log()
             self.call_observers()
-        # Nothing but this loop runs between two steps of a run without
-        # observers or a log of a subclass's own: nothing can have changed
-        # the atoms since they were taken, so the checks before the step
-        # are left out.
-        quiet = alone and type(self).log is MolecularDynamics.log
         yield self.nsteps == self.max_steps
+        if alone and not self.observers and self._plain_hooks():
+            yield from self._unwatched_steps()
+            return
         while self.nsteps < self.max_steps:
-            self._unseen = quiet and not self.observers
             self.step()
             self.nsteps += 1
             self.log()
             self.call_observers()
             yield self.nsteps == self.max_steps
 
-    #: True only while nothing but the run's own loop ran since the atoms
-    #: were last taken or written (see ``_loop``).
-    _unseen = False
+    def _plain_hooks(self):
+        cls = type(self)
+        return (cls.step is ReversibleDynamics.step
+                and cls.log is MolecularDynamics.log
+                and cls.call_observers is MolecularDynamics.call_observers)
+
+    def _unwatched_steps(self):
+        """The steps of a run that nothing outside sees until it ends: no
+        observers, no caller between the steps, no hooks of a subclass.
+        Nothing can change the atoms between these steps, so the checks
+        for changes are left out, and nothing reads the restart record, so
+        it is written once, when the run ends or fails.  The momenta are
+        shown after every step all the same: the energy check and
+        calculators may read them.
+        """
+        engine, show_momenta = self.engine, self.system.show_momenta
+        try:
+            while self.nsteps < self.max_steps:
+                engine.step(self.nsteps)
+                show_momenta()
+                self.nsteps += 1
+                yield self.nsteps == self.max_steps
+        finally:
+            self._write_record(self.atoms.info, self.get_time())
 
     def _ready(self):
         """Before the first step: what ASE's loop would have computed."""
@@ -194,10 +212,7 @@ class ReversibleDynamics(MolecularDynamics):
         checks the energy at checkpoint steps, then applies the sub-steps.
         If anything fails, the state is that before the step, bit for bit.
         """
-        if self._unseen:
-            self._unseen = False
-        else:
-            self._sync()
+        self._sync()
         self.engine.step(self.nsteps)
         self._committed()
 
