@@ -148,29 +148,36 @@ class Engine:
         """
         if self.invariant is not None and number is not None:
             self.invariant.check(number)
-        self._advance(self._prepared)
-
-    def _advance(self, prepared, cotangents=None):
         for checkpoint in self._checkpoints:
             checkpoint()
         try:
-            if cotangents is None:
-                for substep, argument in prepared:
-                    substep.apply(argument)
-            else:
-                # A retrace: each sub-step undoes the forward sub-step with
-                # the opposite coefficient, after pulling the cotangents
-                # back through it at the values it saw.
-                for substep, argument, forward_ch in prepared:
-                    substep.adjoint(cotangents, forward_ch)
-                    substep.apply(argument)
+            for substep, argument in self._prepared:
+                substep.apply(argument)
         except BaseException:
-            # Updates never overwrite the checkpoint, so going back to it
-            # undoes a partial step exactly.
-            for part in self._parts:
-                part.rollback()
+            self._rollback()
             raise
         self.step_index += self.direction
+
+    def _retrace_step(self, prepared, cotangents):
+        """One step back: each sub-step undoes the forward sub-step with
+        the opposite coefficient, after pulling the cotangents back
+        through it at the values it saw."""
+        for checkpoint in self._checkpoints:
+            checkpoint()
+        try:
+            for substep, argument, forward_ch in prepared:
+                substep.adjoint(cotangents, forward_ch)
+                substep.apply(argument)
+        except BaseException:
+            self._rollback()
+            raise
+        self.step_index += self.direction
+
+    def _rollback(self):
+        # Updates never overwrite the checkpoint, so going back to it
+        # undoes a partial step exactly.
+        for part in self._parts:
+            part.rollback()
 
     def reverse(self):
         """Flip the direction of time."""
@@ -190,7 +197,7 @@ class Engine:
             retrace = tuple((s, s.prepare(c * self._dt), -(c * self._dt))
                             for s, c in self.plan)
             for _ in range(steps):
-                self._advance(retrace, cotangents)
+                self._retrace_step(retrace, cotangents)
             cotangents.flush()
         finally:
             self.reverse()

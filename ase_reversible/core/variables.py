@@ -10,6 +10,7 @@ checkpoint and rollback by offering the same two methods.
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 
@@ -104,7 +105,9 @@ class ExactVariable:
         leaves the value unchanged if an element of ``r`` or of the sum is
         non-finite or out of range.
         """
-        if r_max is None or not r_max < LIMIT:
+        if r_max is None:
+            r_max = _bound_abs(r, self._scratch)
+        if not r_max < LIMIT:
             r_max = _max_abs(r, self._scratch)
             if not r_max < LIMIT:  # also NaN
                 check_range(r, self.name + ' increment', self.quantum,
@@ -139,6 +142,25 @@ class ExactVariable:
 
 
 _maximum = np.maximum.reduce
+_dot = np.dot
+
+#: Elements up to which :func:`_bound_abs` takes the Euclidean norm: a
+#: BLAS dot product, which OpenBLAS runs on one thread up to 10,000
+#: elements (beyond, handing work to threads costs more than it saves).
+#: Measured on the development machine: 0.8 µs against 1.8 µs for
+#: max |a| at 39 elements, 1.1 against 2.8 at 3000.
+_NORM_LIMIT = 10_000
+
+
+def _bound_abs(a, scratch) -> float:
+    """An upper bound on ``max |a|`` in one pass, NaN or inf if ``a`` holds
+    a non-finite value or overflows it."""
+    if a.size > _NORM_LIMIT:
+        return _max_abs(a, scratch)
+    flat = a.reshape(-1)
+    # The Euclidean norm bounds every element; the factor covers the
+    # rounding of the sum of squares.
+    return math.sqrt(float(_dot(flat, flat))) * (1.0 + 2.0**-30)
 
 
 def _max_abs(a, scratch) -> float:

@@ -20,6 +20,7 @@ from ase import units
 from ..core.codec import round_odd
 from ..core.plans import SubStep
 from ..core.variables import ExactVariable
+from .constraints import no_projection
 from ..errors import NonFiniteForcesError, QuantumRangeError
 
 #: Temperature (K) whose kinetic energy is the smallest default tolerance
@@ -104,23 +105,24 @@ class Drift(SubStep):
         # over the three columns: numpy multiplies arrays of one shape
         # several times faster than it broadcasts a column (bitwise the
         # same products).
-        factor_n1 = ch / self.system.x.quantum / self.system.m_n1
+        s = self.system
+        factor_n1 = ch / s.x.quantum / s.m_n1
+        # max |y| is bounded by the momenta's bound times this, instead of
+        # found by a pass over y: a projection onto a plane or line
+        # lengthens no vector, so no component exceeds sqrt(3) times the
+        # largest before it; the factor 2 covers that and the rounding of
+        # the products, the 1 added in apply the rounding of y.
         return (np.repeat(factor_n1, self._y_nc.shape[1], axis=1),
-                float(np.abs(factor_n1).max(initial=0.0)))
+                2.0 * s.p.quantum * float(np.abs(factor_n1).max(initial=0.0)))
 
     def apply(self, prepared):
-        factor_nc, factor_max = prepared
+        factor_nc, growth = prepared
         s = self.system
         y_nc = np.multiply(s.p.floats, factor_nc, out=self._y_nc)
-        s.project(y_nc)
+        if s.project is not no_projection:
+            s.project(y_nc)
         round_odd(y_nc, out=y_nc)
-        # A bound on max |y| from the momenta's bound, instead of a pass
-        # over y: a projection onto a plane or line lengthens no vector,
-        # so no component exceeds sqrt(3) times the largest before it; the
-        # factor 2 covers that and the rounding of these products, the 1
-        # the rounding of y.
-        s.x.add_integers(y_nc, 2.0 * s.p.bound * s.p.quantum * factor_max
-                         + 1.0)
+        s.x.add_integers(y_nc, growth * s.p.bound + 1.0)
         s.show_positions()
 
     def rollback(self):
