@@ -187,20 +187,19 @@ class ReversibleDynamics(MolecularDynamics):
         """The steps of a run that nothing outside sees until it ends: no
         observers, no caller between the steps, no hooks of a subclass.
         Nothing can change the atoms between these steps, so the checks
-        for changes are left out, and nothing reads the restart record, so
-        it is written once, when the run ends or fails.  The momenta are
-        shown after every step all the same: the energy check and
-        calculators may read them.
+        for changes are left out, and nothing reads the momenta or the
+        restart record (the energy check shows the momenta itself), so
+        they are written once, when the run ends or fails.  Positions are
+        shown by every drift: the force calls read them.
         """
-        engine, show_momenta = self.engine, self.system.show_momenta
+        engine = self.engine
         try:
             while self.nsteps < self.max_steps:
                 engine.step(self.nsteps)
-                show_momenta()
                 self.nsteps += 1
                 yield self.nsteps == self.max_steps
         finally:
-            self._write_record(self.atoms.info, self.get_time())
+            self._committed()
 
     def _ready(self):
         """Before the first step: what ASE's loop would have computed."""

@@ -86,6 +86,7 @@ class Hamiltonian:
         """``(total energy, proposed tolerance)`` in eV, for the check: the
         tolerance is the kinetic energy or that of the atoms at
         ``ENERGY_TOLERANCE_TEMPERATURE``, whichever is larger."""
+        self.show_momenta()  # a run nobody watches shows them only at its end
         kinetic = self.atoms.get_kinetic_energy()
         energy = self.atoms.get_potential_energy() + kinetic
         floor = 1.5 * len(self.atoms) * units.kB * \
@@ -94,11 +95,19 @@ class Hamiltonian:
 
 
 class Drift(SubStep):
-    """``x += round_odd(c h P p / m / q_x)``; shown on the atoms at once."""
+    """``x += round_odd(c h P p / m / q_x)``; shown on the atoms at once.
+
+    Drift-kick-drift ends a step and starts the next with the same drift of
+    the same momenta: its rounding is reused, like the kick's.
+    """
 
     def __init__(self, system):
         self.system = system
         self._y_nc = np.empty(system.x.ints.shape)
+        # (momenta label, c h) of the increment in _y_nc and its bound.
+        # New masses or constraints come with new labels (the state is
+        # installed again), so the key needs neither.
+        self._y_key = self._y_max = None
 
     def prepare(self, ch):
         # Applied to the momenta's exact float image p = ip * qp.  Spread
@@ -112,20 +121,27 @@ class Drift(SubStep):
         # lengthens no vector, so no component exceeds sqrt(3) times the
         # largest before it; the factor 2 covers that and the rounding of
         # the products, the 1 added in apply the rounding of y.
-        return (np.repeat(factor_n1, self._y_nc.shape[1], axis=1),
+        return (ch, np.repeat(factor_n1, self._y_nc.shape[1], axis=1),
                 2.0 * s.p.quantum * float(np.abs(factor_n1).max(initial=0.0)))
 
     def apply(self, prepared):
-        factor_nc, growth = prepared
+        ch, factor_nc, growth = prepared
         s = self.system
-        y_nc = np.multiply(s.p.floats, factor_nc, out=self._y_nc)
-        if s.project is not no_projection:
-            s.project(y_nc)
-        round_odd(y_nc, out=y_nc)
-        s.x.add_integers(y_nc, growth * s.p.bound + 1.0)
+        y_nc = self._y_nc
+        key = (s.p.label, ch)
+        if self._y_key != key:
+            self._y_key = None  # y_nc is about to be overwritten
+            np.multiply(s.p.floats, factor_nc, out=y_nc)
+            if s.project is not no_projection:
+                s.project(y_nc)
+            round_odd(y_nc, out=y_nc)
+            self._y_max = growth * s.p.bound + 1.0
+            self._y_key = key
+        s.x.add_integers(y_nc, self._y_max)
         s.show_positions()
 
     def rollback(self):
+        self._y_key = None  # y_nc may hold a failed step's drift
         self.system.show_positions()
 
     def adjoint(self, cotangents, ch):
