@@ -28,7 +28,8 @@ _STEP_ADVICE = ('The step was not taken. If the system is fine, construct the '
 class ExactVariable:
     """One fixed-point variable updated without allocations.
 
-    Holds the counts and their exact float64 image ``counts * quantum``.
+    Holds the counts and their exact float64 image ``counts * quantum``,
+    made when it is first read.
     The counts are whole numbers below ``LIMIT = 2**53`` in magnitude, kept
     in float64, where such numbers and their sums below ``LIMIT`` are exact
     as in int64: an update is then one float addition, with no conversion
@@ -74,6 +75,8 @@ class ExactVariable:
         self._counts = [counts] + [np.empty_like(counts) for _ in range(2)]
         self._floats = [decode(ints, self.quantum)]
         self._floats += [np.empty_like(counts) for _ in range(2)]
+        # Whether each buffer's image is made: only when it is read.
+        self._imaged = [True, False, False]
         self._scratch = np.empty_like(counts)
         self._bounds = [_max_abs(counts, self._scratch), 0.0, 0.0]
         self._labels = [next(_labels), None, None]
@@ -88,7 +91,18 @@ class ExactVariable:
     @property
     def floats(self) -> np.ndarray:
         """The current exact image in float64; overwritten by later updates."""
-        return self._floats[self._current]
+        current = self._current
+        if not self._imaged[current]:
+            np.multiply(self._counts[current], self.quantum,
+                        out=self._floats[current])
+            self._imaged[current] = True
+        return self._floats[current]
+
+    def write_floats(self, out: np.ndarray):
+        """Write the current exact image into ``out`` (float64, the
+        variable's shape): in one pass, where copying :attr:`floats` could
+        take two."""
+        np.multiply(self._counts[self._current], self.quantum, out=out)
 
     @property
     def bound(self) -> float:
@@ -126,7 +140,7 @@ class ExactVariable:
             if not bound < LIMIT:
                 check_range(new, self.name, self.quantum, _STEP_ADVICE)
         self._bounds[spare] = bound
-        np.multiply(new, self.quantum, out=self._floats[spare])
+        self._imaged[spare] = False
         self._labels[spare] = self.label = next(_labels)
         self._current = spare
         return r_max

@@ -67,7 +67,7 @@ class Hamiltonian:
 
     def show_positions(self):
         """Write the exact positions into the atoms' own array."""
-        self.atoms.arrays['positions'][:] = self.x.floats
+        self.x.write_floats(self.atoms.arrays['positions'])
 
     def show_momenta(self):
         """Write the exact momenta into the atoms (creating the array)."""
@@ -75,7 +75,7 @@ class Hamiltonian:
         if momenta is None:
             self.atoms.set_momenta(self.p.floats, apply_constraint=False)
         else:
-            momenta[:] = self.p.floats
+            self.p.write_floats(momenta)
 
     def show(self):
         """Write positions and momenta."""
