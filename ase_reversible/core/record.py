@@ -49,6 +49,7 @@ class RecordWriter:
         self._entries = _quanta_entries(quanta)
 
     def __call__(self, info: dict, time: float) -> None:
+        """Store the record with ``time`` (ASE time units) in ``info``."""
         # A new dict each time: whoever read an earlier record keeps it.
         info[INFO_KEY] = {**self._entries, 'time': float(time)}
 

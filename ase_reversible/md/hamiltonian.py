@@ -34,8 +34,9 @@ class Hamiltonian:
     Parameters
     ----------
     atoms : ase.Atoms
-        Shows the exact values: positions after every drift, momenta after
-        every step.
+        Shows the exact values: positions after every drift, momenta when
+        shown (after every step observers see, at the end of a run, before
+        an energy check).
     grid : Grid
         The two quanta.
     counts : dict
