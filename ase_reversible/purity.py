@@ -60,20 +60,97 @@ NOISE_REFERENCE_EXTENT = 32.0
 #: Distance (Å, per axis) the atoms are moved to force a neighbour-list
 #: rebuild: more than any skin, so the list is rebuilt on the way back.
 REBUILD_SHIFT = 8.0
+#: Force calls from one spot check of purity to the next (see
+#: :class:`SpotCheck`): one extra call in this many, and for asap3 two
+#: neighbour-list rebuilds, stays below 1% of a run's force calls.
+SPOT_CHECK_INTERVAL = 512
+
+
+class SpotCheck:
+    """Now and then, forces recomputed where the run has been, compared.
+
+    The probe at construction moves the atoms away and back a few times;
+    a calculator whose sums change from call to call (threads, GPUs,
+    reductions in a varying order) can pass it by luck.  So once every
+    ``interval`` force calls the positions and forces are kept, and half an
+    interval later, when the calculator has moved on, the forces at the
+    kept positions are computed again and handed to the provider's
+    :meth:`~TrustedForces.compare_visit`, which raises if they betray a
+    history.  Costs one force call per ``interval``.
+
+    Attributes
+    ----------
+    checks : int
+        Comparisons made so far.
+    """
+
+    def __init__(self, interval: int = SPOT_CHECK_INTERVAL):
+        self.interval = interval
+        self.checks = 0
+        self._countdown = interval
+        self._kept = None  # (positions [n_atoms, 3], forces [n_atoms, 3])
+
+    def due(self) -> bool:
+        """Counts a force call; whether it is one that keeps or checks."""
+        self._countdown -= 1
+        return self._countdown <= 0
+
+    def visit(self, provider, atoms):
+        """The forces at the present positions, keeping or checking."""
+        half = self.interval // 2
+        if self._kept is None:
+            f_nc = provider.evaluate(atoms)
+            self._kept = (atoms.positions.copy(), np.array(f_nc))
+            self._countdown = half
+            return f_nc
+        x_kept, f_kept = self._kept
+        self._kept = None
+        self._countdown = self.interval - half
+        x_now = atoms.positions.copy()
+        atoms.positions = x_kept
+        try:
+            f_again = provider.evaluate(atoms)
+        finally:
+            atoms.positions = x_now
+        self.checks += 1
+        provider.compare_visit(atoms, f_kept, np.array(f_again), half)
+        return provider.evaluate(atoms)
 
 
 class TrustedForces:
-    """Forces used as the calculator returns them."""
+    """Forces used as the calculator returns them.
+
+    ``spot_check`` (a :class:`SpotCheck`, or None) checks during runs that
+    the forces stay a function of the positions.
+    """
 
     mode = 'trust'
     force_noise = 0.0
+    spot_check = None
 
     def forces(self, atoms) -> np.ndarray:
         """Forces ``[n_atoms, 3]`` (eV/Å) at the atoms' current positions.
 
         ``md=True``: constraints are not applied (the integrator projects).
         """
+        spot = self.spot_check
+        if spot is not None and spot.due():
+            return spot.visit(self, atoms)
+        return self.evaluate(atoms)
+
+    def evaluate(self, atoms) -> np.ndarray:
+        """The forces, without the spot check (see :meth:`forces`)."""
         return atoms.get_forces(md=True)
+
+    def compare_visit(self, atoms, f_kept, f_again, calls):
+        """Raise :class:`ImpureForcesError` unless ``f_again``, computed now
+        at positions visited ``calls`` force calls ago, is ``f_kept``
+        bit for bit."""
+        if np.array_equal(f_kept, f_again):
+            return
+        noise = float(np.nanmax(np.abs(f_again - f_kept)))
+        raise ImpureForcesError(_spot_check_advice(
+            atoms.calc, self.mode, noise, calls))
 
     def rounded_kick(self, atoms, f_nc, scale, project, out, scratch):
         """The kick in quanta, ``rint(project(scale * f_nc))``, into ``out``.
@@ -124,7 +201,7 @@ class SortedNeighborListForces(TrustedForces):
     def __init__(self, listed=None):
         self._listed = None if listed is None else tuple(listed)
 
-    def forces(self, atoms):
+    def evaluate(self, atoms):
         f_nc = atoms.get_forces(md=True)
         listed = (atoms.calc,) if self._listed is None else self._listed
         # Checked after the call: the calculator may have (re)built an
@@ -174,21 +251,34 @@ class GuardedForces(TrustedForces):
         round_odd(y_nc, out=out)
         if f_nc is self._clean_nc:
             return f_nc
-        f_max = max(f_nc.max(initial=0.0), -f_nc.min(initial=0.0))
-        x_nc = atoms.positions
-        extent = max(x_nc.max(initial=0.0), -x_nc.min(initial=0.0))
-        noise = self.force_noise * _extent_factor(extent)
-        bound = abs(scale) * noise * max(1.0, f_max)
+        noise = self.noise_bound(atoms, f_nc)
         # NaN forces are not flagged and go straight back to the caller,
         # which refuses them.
-        if not guard_band_crossed(y_nc, out, bound):
+        if not guard_band_crossed(y_nc, out, abs(scale) * noise):
             return f_nc
         clean_nc = self.clean_forces(atoms)
-        self._record_noise(np.abs(clean_nc - f_nc).max(), noise)
+        self._record_noise(atoms, np.abs(clean_nc - f_nc).max(), noise)
         np.multiply(clean_nc, scale, out=out)
         project(out)
         round_odd(out, out=out)
         return clean_nc
+
+    def noise_bound(self, atoms, f_nc):
+        """The history noise (eV/Å) the guard allows at these positions
+        and forces ``[n_atoms, 3]``: ``force_noise`` scaled by the
+        coordinates' extent and by max|F| above 1 eV/Å."""
+        x_nc = atoms.positions
+        extent = max(x_nc.max(initial=0.0), -x_nc.min(initial=0.0))
+        f_max = max(f_nc.max(initial=0.0), -f_nc.min(initial=0.0))
+        return self.force_noise * _extent_factor(extent) * max(1.0, f_max)
+
+    def compare_visit(self, atoms, f_kept, f_again, calls):
+        """Raise :class:`ImpureForcesError` if the forces at positions
+        visited ``calls`` force calls ago differ now by more than the noise
+        bound the guard relies on."""
+        noise = float(np.nanmax(np.abs(f_again - f_kept)))
+        bound = self.noise_bound(atoms, f_kept)
+        self._record_noise(atoms, noise, bound, calls)
 
     def clean_forces(self, atoms):
         """Forces ``[n_atoms, 3]`` (eV/Å) from a neighbour list built at
@@ -212,16 +302,24 @@ class GuardedForces(TrustedForces):
         self._clean_nc = atoms.get_forces(md=True)
         return self._clean_nc
 
-    def _record_noise(self, noise, bound):
+    def _record_noise(self, atoms, noise, bound, calls=None):
+        """Keep the largest noise seen; raise if it broke the bound (an
+        earlier kick may then have been rounded from noisy forces), warn
+        once when it comes within a factor of 8.  ``calls``: how many
+        force calls apart the two forces were (a spot check), or None (a
+        clean recomputation)."""
         noise = float(noise)
         self.max_observed_noise = max(self.max_observed_noise, noise)
+        if not noise <= bound:
+            raise ImpureForcesError(_spot_check_advice(
+                atoms.calc, self.mode, noise, calls, bound))
         if noise > bound / 8 and not self._warned:
             self._warned = True
             warnings.warn(
                 f'Force noise of {noise:.3g} eV/Å was observed, close to the '
                 f'bound of {bound:.3g} eV/Å (force_noise='
                 f'{self.force_noise:.3g} eV/Å, scaled by the coordinates\' '
-                'extent) that exact reversal relies on. Construct the '
+                'extent and max|F|) that exact reversal relies on. Construct the '
                 'integrator with a larger force_noise.', RuntimeWarning,
                 stacklevel=4)
 
@@ -249,7 +347,7 @@ class ColdStartForces(TrustedForces):
 
     mode = 'cold-start'
 
-    def forces(self, atoms):
+    def evaluate(self, atoms):
         cold_start(atoms.calc)
         return atoms.get_forces(md=True)
 
@@ -345,6 +443,25 @@ def force_provider(atoms, mode: str = 'auto',
         Raises :class:`ImpureForcesError` if ``'auto'`` probes the
         calculator and sees history noise.
     """
+    provider = _provider(atoms, mode, force_noise)
+    # Pure by construction (sorted lists in ASE's own calculators, or a
+    # declaration) needs no watching; a probe's verdict, a noise bound or
+    # a user's word gets a spot check during runs.
+    if not _pure_by_construction(atoms.calc):
+        provider.spot_check = SpotCheck()
+    return provider
+
+
+def _pure_by_construction(calc):
+    if _declares_pure(calc):
+        return True
+    members = calculator_members(calc)
+    leaves = [c for c in members if not _mixes(c)] or [calc]
+    return all(_declares_pure(c) or _is_plain_ase_neighborlist_calculator(c)
+               for c in leaves)
+
+
+def _provider(atoms, mode, force_noise):
     calc = atoms.calc
     modes = ('auto', 'sorted', 'guarded', 'cold-start', 'trust')
     if mode not in modes:
@@ -440,6 +557,33 @@ def _impurity_advice(calc, noise, f_max, cold_start_tried=False):
             'have to be so coarse that the momenta lose their precision.')
 
 
+def _spot_check_advice(calc, mode, noise, calls, bound=None):
+    """The message for forces found depending on history during a run: by
+    a spot check ``calls`` force calls apart, or (``calls`` None) by a
+    clean recomputation; ``bound``: the guard's, if one was broken."""
+    head = (f'{type(calc).__name__} gave forces {noise:.3g} eV/Å different '
+            + (f'from those it gave at the same positions {calls} force '
+               'calls earlier in this run' if calls is not None else
+               'from those of a neighbour list built at exactly these '
+               'positions'))
+    tail = (' The run so far may not reverse exactly past the point where '
+            'this started; the step was not taken.')
+    if bound is not None:
+        return (f"{head}, more than the {bound:.3g} eV/Å that "
+                f"force_purity='{mode}' relies on.{tail} Construct the "
+                'integrator with force_noise='
+                f'{_round_up(16 * noise):.2g} (eV/Å, sixteen times what was '
+                'seen) and run again.')
+    return (f"{head}: under force_purity='{mode}' they must be equal bit "
+            'for bit, so the forces are not a function of the positions '
+            'alone, although the probe at construction saw no '
+            f'difference.{tail} The usual cause is parallel sums whose '
+            'order changes from call to call (threads, a GPU): run with one '
+            'thread (OMP_NUM_THREADS=1 before Python starts), or, if the '
+            "difference is at the level of rounding, use force_purity="
+            f"'guarded' with force_noise={_round_up(16 * noise):.2g}.")
+
+
 def _parallel_noise_advice(calc, noise, left):
     """The message for forces that a cold start makes nearly, not fully,
     pure: what is left varies from call to call at the same state."""
@@ -504,10 +648,18 @@ def _install_sorted_list(calc):
 
 
 def discard_results(calc):
-    """Forget a calculator's cached results (if it keeps ASE's dict)."""
+    """Forget a calculator's cached results (if it keeps ASE's dict), so
+    that the next call computes them again."""
     results = getattr(calc, 'results', None)
     if isinstance(results, dict):
         results.clear()
+        # Some calculators (LAMMPSlib) compute nothing when check_state()
+        # sees the atoms unchanged: forget the atoms too.  Not ASE's
+        # LennardJones and EMT, which would then rebuild the sorted list
+        # as for new atomic numbers; they compute whatever is missing.
+        if (getattr(calc, 'atoms', None) is not None
+                and not _is_ase_neighborlist_calculator(calc)):
+            calc.atoms = None
 
 
 def calculator_members(calc):

@@ -22,9 +22,9 @@ DOCS = ROOT / 'docs'
 
 #: The page's sections in order; each is benchmarks/<name>.py (measures)
 #: and benchmarks/pages/<name>.py (renders).
-SECTIONS = ('step_cost', 'savings', 'work_precision', 'reversal_error',
-            'stress', 'gradient_accuracy', 'adjoint', 'force_noise',
-            'long_reversal')
+SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
+            'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
+            'force_noise', 'long_reversal')
 
 
 def page_module(name):

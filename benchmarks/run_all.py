@@ -34,7 +34,7 @@ SECTIONS = render.SECTIONS
 #: Measured by a plain run.  force_noise and long_reversal are diagnostics
 #: kept out of it (long_reversal takes about an hour with ASE's
 #: LennardJones); --only runs them, and the page shows them once stored.
-DEFAULT_SECTIONS = ('step_cost', 'savings', 'work_precision',
+DEFAULT_SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
                     'reversal_error', 'stress', 'gradient_accuracy',
                     'adjoint')
 

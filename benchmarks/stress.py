@@ -167,7 +167,15 @@ def sweep(system):
         k0 = kinetic_energy(atoms)
         ours = forward_and_back(atoms, dt_fs, system['steps'])
         worst, first_bad = energy_summary(ours['energies'], k0)
-        row = {'dt_fs': dt_fs, 'k0': k0,
+        # The energy check's own tolerance (max of K0 and the 100 K
+        # floor): what it promises to stop within two steps of.
+        tolerance = ours['dyn'].engine.invariant.limit
+        beyond = (None if tolerance is None else
+                  energy_summary(ours['energies'], tolerance)[1])
+        row = {'dt_fs': dt_fs, 'k0': k0, 'tolerance': tolerance,
+               'first_beyond_tolerance_step': beyond,
+               'steps_beyond_tolerance': (
+                   0 if beyond is None else ours['steps_done'] - beyond + 1),
                'steps_done': ours['steps_done'], 'error': ours['error'],
                'exact': ours['exact'], 'max_energy_error': worst,
                'first_garbage_step': first_bad,

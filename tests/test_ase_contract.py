@@ -208,13 +208,14 @@ def test_position_scheme_costs_one_force_evaluation_per_step_unlogged():
                                                ('position', 1)])
 def test_energy_check_costs_an_evaluation_only_where_none_is_cached(
         scheme, per_check):
-    # Steps 6-10 start with nsteps 5-9, of which 8 is a check step (1, 2,
-    # 4, 8, then every 100); steps 11-20 hold none.
+    # Steps 6-10 start with nsteps 5-9, of which 8 is a check step (the
+    # powers of two, then every 100); steps 11-20 hold one, 16.  A cold,
+    # stable cluster never moves the kinetic-energy trigger that far.
     def make(atoms):
         return ReversibleVerlet(atoms, DT, scheme=scheme)
 
     assert calculations(10, make) - calculations(5, make) == 5 + per_check
-    assert cost_per_ten_steps(make) == 10
+    assert cost_per_ten_steps(make) == 10 + per_check
 
 
 @pytest.mark.parametrize('loginterval', [1, 5])

@@ -1,7 +1,6 @@
 """Force purity: the problem is real, and each remedy removes it."""
 
 import re
-import warnings
 
 import numpy as np
 import pytest
@@ -13,12 +12,14 @@ from ase.calculators.mixing import (LinearCombinationCalculator,
 from ase.calculators.morse import MorsePotential
 
 from ase_reversible import ImpureForcesError, ReversibleVerlet, probe_purity
-from ase_reversible.purity import (GuardedForces, SortedNeighborListForces,
-                                   TrustedForces, force_provider)
+from ase_reversible.purity import (SPOT_CHECK_INTERVAL, GuardedForces,
+                                   SortedNeighborListForces, TrustedForces,
+                                   force_provider)
 
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS, DT, argon_bulk,
                       argon_cluster, copper_bulk)
-from exactness import assert_runs_back, assert_same_state, forward_and_back
+from exactness import (assert_atoms_show_committed_state, assert_runs_back,
+                       assert_same_state, forward_and_back)
 
 
 def forces_after_history(atoms, provider, seed):
@@ -188,14 +189,78 @@ def test_auto_mode_trusts_an_unknown_pure_calculator():
 
 
 def test_without_purity_handling_asap3_reversal_fails():
-    # The control for the guarded mode: the same run with forces trusted.
+    # The control for the guarded mode: the same run with forces trusted
+    # and the spot check that would object (below) switched off.
     atoms = copper_bulk((5, 5, 5), 600)
     atoms.calc = CALCULATORS['asap-emt']()
     dyn = ReversibleVerlet(atoms, DT, force_purity='trust',
                            momentum_quantum=2.0**-40)
+    dyn.force_purity.spot_check = None
     start, _ = forward_and_back(dyn, 1000)
     assert not (np.array_equal(atoms.positions, start[0])
                 and np.array_equal(atoms.get_momenta(), start[1]))
+
+
+def test_trusting_asap3_is_stopped_by_the_spot_check():
+    atoms = copper_bulk((5, 5, 5), 600)
+    atoms.calc = CALCULATORS['asap-emt']()
+    dyn = ReversibleVerlet(atoms, DT, force_purity='trust',
+                           momentum_quantum=2.0**-40)
+    with pytest.raises(ImpureForcesError,
+                       match=r"force_purity='trust'.*bit for bit.*"
+                             r"step was not taken"):
+        dyn.run(1000)
+    # Kept at the interval's end, checked half an interval later.
+    assert 0 < dyn.nsteps <= SPOT_CHECK_INTERVAL * 3 // 2
+    assert dyn.force_purity.spot_check.checks == 1
+    assert_atoms_show_committed_state(dyn)
+
+
+class LateNoiseLJ(LennardJones):
+    """ASE's LennardJones whose sums, after its first ``quiet`` calls, are
+    off by -1, 0 or +1 in the last bit, at random per component and call,
+    as parallel sums whose order depends on the threads are: the probe at
+    construction sees none of it."""
+
+    quiet = 40
+
+    def calculate(self, atoms=None, properties=('energy',),
+                  system_changes=all_changes):
+        super().calculate(atoms, properties, system_changes)
+        self.calls = getattr(self, 'calls', 0) + 1
+        if self.calls > self.quiet:
+            forces = self.results['forces']
+            rng = np.random.default_rng(self.calls)
+            forces += rng.integers(-1, 2, forces.shape) * np.spacing(forces)
+
+
+def test_call_to_call_noise_that_passed_the_probe_is_caught_during_the_run():
+    atoms = argon_cluster(3, 50)
+    atoms.calc = LateNoiseLJ(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC)
+    dyn = ReversibleVerlet(atoms, DT)  # the probe passed: no error
+    assert dyn.force_purity.mode == 'sorted'  # its lists, all the same
+    with pytest.raises(ImpureForcesError, match='OMP_NUM_THREADS=1'):
+        dyn.run(2 * SPOT_CHECK_INTERVAL)
+    assert 0 < dyn.nsteps < 2 * SPOT_CHECK_INTERVAL
+    assert_atoms_show_committed_state(dyn)
+
+
+def test_a_pure_calculator_passes_its_spot_checks_and_runs_back():
+    atoms = argon_cluster(2, 50)
+    atoms.calc = MorsePotential(epsilon=0.0104, r0=3.8, rho0=6.0)
+    dyn = ReversibleVerlet(atoms, DT)
+    assert dyn.force_purity.mode == 'trust'
+    assert_runs_back(dyn, 2 * SPOT_CHECK_INTERVAL)
+    assert dyn.force_purity.spot_check.checks >= 3
+
+
+def test_guarded_noise_beyond_its_bound_is_caught_by_the_spot_check():
+    atoms = copper_bulk((5, 5, 5), 600)
+    atoms.calc = CALCULATORS['asap-emt']()
+    dyn = ReversibleVerlet(atoms, DT, force_noise=1e-17)
+    with pytest.raises(ImpureForcesError, match='force_noise='):
+        dyn.run(2 * SPOT_CHECK_INTERVAL)
+    assert_atoms_show_committed_state(dyn)
 
 
 def test_guarded_mode_recomputes_rarely_and_sees_noise_below_its_bound():
@@ -254,11 +319,11 @@ def test_guard_widens_with_the_coordinates_extent():
         f_nc[:] = 0.0
         f_nc[0, 0] = 7.5 * (1 - 4 * guard.force_noise)
         out, scratch = np.empty_like(f_nc), np.empty_like(f_nc)
-        with warnings.catch_warnings():
-            # The made-up forces differ from the clean ones by eV/Å.
-            warnings.simplefilter('ignore', RuntimeWarning)
+        try:
             guard.rounded_kick(atoms, f_nc, scale, lambda y: None, out,
                                scratch)
+        except ImpureForcesError:
+            pass  # the made-up forces differ from the clean ones by eV/Å
         return guard.clean_recomputations
 
     assert clean_recomputations(0.0) == 0

@@ -57,7 +57,8 @@ def test_time_step_past_stability_stops_with_a_range_error(scheme):
     # Control: at this step VelocityVerlet blows up without a word.
     assert velocity_verlet_energy_error(cluster(), dt, steps) > 1e6 * k0
 
-    dyn = ReversibleVerlet(cluster(), dt, scheme=scheme)
+    # The energy check would stop it first (below): without it, the range.
+    dyn = ReversibleVerlet(cluster(), dt, scheme=scheme, energy_check=0)
     start = snapshot(dyn.atoms)
     with np.errstate(all='ignore'):
         with pytest.raises(QuantumRangeError,
@@ -99,17 +100,72 @@ def test_copper_blow_up_under_asap3_is_stopped_reversibly(energy_check):
     run_back(dyn, done, start)
 
 
+def energy_trace(atoms, dt, steps, **kwargs):
+    """Total energies after steps 0..k of an unchecked run (up to
+    ``steps``, or until the range stops it), and the run."""
+    dyn = ReversibleVerlet(atoms, dt, energy_check=0, **kwargs)
+    energies = [atoms.get_total_energy()]
+    with np.errstate(all='ignore'):
+        try:
+            for _ in dyn.irun(steps):
+                if dyn.nsteps > len(energies) - 1:
+                    energies.append(atoms.get_total_energy())
+        except QuantumRangeError:
+            pass
+    return np.array(energies), dyn
+
+
+BLOW_UPS = {
+    # A slow drift (the energy creeps past the tolerance after ~370 steps),
+    # a blow-up after a dozen steps, one at once; and asap3 copper
+    # heating over ~70 steps, where reading the energy costs a force call.
+    'Ar55 100 fs': (lambda: with_calc(argon_cluster(3, 40), 'ase-lj'), 100),
+    'Ar55 120 fs': (lambda: with_calc(argon_cluster(3, 40), 'ase-lj'), 120),
+    'Ar13 200 fs': (lambda: with_calc(argon_cluster(2, 40), 'ase-lj'), 200),
+    'Cu108 30 fs': (lambda: with_calc(copper_bulk((3, 3, 3), 300),
+                                      'asap-emt'), 30),
+}
+
+
+@pytest.mark.parametrize('case', sorted(BLOW_UPS))
+def test_a_blow_up_stops_within_two_steps_of_the_tolerance(case):
+    make, dt_fs = BLOW_UPS[case]
+    # The checks do not change the state, so an unchecked run shows where
+    # the checked one crosses the tolerance.
+    dyn = ReversibleVerlet(make(), dt_fs * units.fs)
+    start = snapshot(dyn.atoms)
+    # Whichever detector comes first: the energy check or the range.
+    with np.errstate(all='ignore'):
+        with pytest.raises((UnstableIntegrationError, QuantumRangeError),
+                           match='step was not taken'):
+            dyn.run(600)
+    limit = dyn.engine.invariant.limit
+    energies, _ = energy_trace(make(), dt_fs * units.fs, dyn.nsteps + 2)
+    beyond = np.flatnonzero(np.abs(energies - energies[0]) > limit)
+    assert beyond.size, 'the control: the unchecked run crosses it'
+    first = int(beyond[0])
+    # Stopped before the step after the first one beyond the tolerance
+    # (or after the second): at most two such steps committed.
+    assert first <= dyn.nsteps <= first + 1
+    run_back(dyn, dyn.nsteps, start)
+
+
 def test_a_run_that_ends_unstable_between_checks_still_runs_back():
-    # 100 fs on cold Ar55: the energy check at step 300 passes, the one at
-    # 400 would not; stopping at 399 leaves the state outside the tolerance
-    # without an error, and the way back must not be stopped by the check.
-    atoms = with_calc(argon_cluster(3, 40), 'ase-lj')
-    dyn = ReversibleVerlet(atoms, 100 * units.fs)
-    start = snapshot(atoms)
-    e0 = atoms.get_total_energy()
-    dyn.run(399)
-    assert abs(atoms.get_total_energy() - e0) > dyn.engine.invariant.limit
-    run_back(dyn, 399, start)
+    # 100 fs on cold Ar55: a run that ends at the first step beyond the
+    # tolerance has not been checked there (a check comes before a step),
+    # and the way back, which starts there, must not be stopped by it.
+    def cluster():
+        return with_calc(argon_cluster(3, 40), 'ase-lj')
+
+    energies, _ = energy_trace(cluster(), 100 * units.fs, 400)
+    dyn = ReversibleVerlet(cluster(), 100 * units.fs)
+    limit = dyn.system.energy()[1]
+    first = int(np.flatnonzero(np.abs(energies - energies[0]) > limit)[0])
+    start = snapshot(dyn.atoms)
+    dyn.run(first)
+    assert dyn.engine.invariant.limit == limit
+    assert abs(dyn.atoms.get_total_energy() - energies[0]) > limit
+    run_back(dyn, first, start)
 
 
 # -- hot, evaporating cluster -------------------------------------------------

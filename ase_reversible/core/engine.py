@@ -16,8 +16,12 @@ import math
 from ..errors import UnstableIntegrationError
 from .plans import SubStep, compose
 
-#: Steps (before the interval takes over) that catch an immediate blow-up.
-EARLY_CHECKS = (1, 2, 4, 8)
+#: How far (as a fraction of the tolerance) the trigger of an
+#: :class:`InvariantCheck` may move before the quantity is measured.
+TRIGGER_FRACTION = 0.5
+#: The trigger is read before every this many steps: a blow-up is caught
+#: within two steps at half the cost of reading it before every step.
+TRIGGER_EVERY = 2
 
 
 class Engine:
@@ -212,10 +216,26 @@ class InvariantCheck:
     ``reference`` is the value at the anchor and ``limit`` the tolerance in
     force, both set by the first check after the anchor.
 
+    The conserved quantity can be dear to measure (a potential energy the
+    calculator computes in a separate pass), so it is measured on a
+    schedule; a blow-up between two scheduled checks is caught by a cheap
+    ``trigger`` read before every second step: once it has moved by more
+    than ``TRIGGER_FRACTION`` of the tolerance since the last measurement,
+    the quantity is measured at once.  An unstable step pumps energy into the
+    motion, so the trigger (the kinetic energy) moves in the very step the
+    energy goes wrong; a stable run moves it by far less between two
+    scheduled checks and pays only for the trigger.
+
+    A slow drift is caught by checking more often as it nears the
+    tolerance: a check that leaves a margin ``m < 1/2`` (a fraction of
+    the tolerance) asks for the next one ``interval * m**2`` steps later.
+
     Parameters
     ----------
     interval : int
-        Check at steps 1, 2, 4, 8 and every ``interval`` steps; 0: never.
+        Check at steps 1, 2, 4, 8, ... (the powers of two below
+        ``interval``) and every ``interval`` steps; 0: never (and no
+        trigger either).
     tolerance : float or None
         Largest allowed change since the anchor; None: what ``measure``
         proposes at the anchor.
@@ -223,18 +243,30 @@ class InvariantCheck:
         ``measure() -> (value, proposed_tolerance)``.
     explain : callable
         ``explain(number, drift, tolerance) -> str``, the error message.
+    trigger : callable, optional
+        ``trigger() -> float`` in the unit of the value, cheap.
+
+    Attributes
+    ----------
+    measurements : int
+        Times the quantity was measured; ``triggered`` of them were asked
+        for by the trigger.
     """
 
-    def __init__(self, interval, tolerance, measure, explain):
+    def __init__(self, interval, tolerance, measure, explain, trigger=None):
         self.interval = interval
         self.tolerance = tolerance
         self.measure = measure
         self.explain = explain
+        self.trigger = trigger
+        self.measurements = self.triggered = 0
         self.reset()
 
     def reset(self):
         """Take the next value checked as the reference."""
         self.reference = self.limit = None
+        self._pulled = None  # the trigger's value at the last measurement
+        self._next = math.inf  # the next step the drift asks to check
         self.alarm = False
 
     def arm_for_retrace(self):
@@ -244,18 +276,31 @@ class InvariantCheck:
 
     def due(self, number) -> bool:
         """Whether step ``number`` is one that is checked."""
-        # The early checks catch a time step that blows up at once; after
-        # that one value per interval keeps the cost low.
-        return bool(self.interval) and (number % self.interval == 0
-                                        or number in EARLY_CHECKS)
+        # Checks at the powers of two catch a time step that blows up at
+        # once or soon; then one value per interval keeps the cost low, and
+        # values come closer together once a drift nears the tolerance.
+        interval = self.interval
+        return bool(interval) and (
+            number % interval == 0 or number >= self._next
+            or (number < interval and number & (number - 1) == 0))
 
     def check(self, number):
         """Raise :class:`~ase_reversible.UnstableIntegrationError` once if
         the value at step ``number`` drifted beyond the tolerance."""
-        # due() written out: this runs before every step.
-        interval = self.interval
-        if not interval or (number % interval and number not in EARLY_CHECKS):
+        if not self.interval:
             return
+        trigger = self.trigger
+        if self.reference is not None and not self.due(number):
+            if trigger is None or number % TRIGGER_EVERY:
+                return
+            pulled = trigger()
+            if abs(pulled - self._pulled) <= TRIGGER_FRACTION * self.limit:
+                return
+            self.triggered += 1
+        else:
+            pulled = None if trigger is None else trigger()
+        self.measurements += 1
+        self._pulled = pulled
         value, proposed = self.measure()
         if self.reference is None:
             self.reference = value
@@ -265,6 +310,12 @@ class InvariantCheck:
         drift = value - self.reference
         if abs(drift) <= self.limit:
             self.alarm = False
+            # A slow drift crosses the tolerance between two checks: past
+            # half the tolerance the gap shrinks with the square of the
+            # margin left, down to one step for the last tenth.
+            margin = 1.0 - abs(drift) / self.limit if self.limit else 0.0
+            self._next = (number + max(1, int(self.interval * margin**2))
+                          if margin < 0.5 else math.inf)
             return
         # Raised once: the way back passes through the same bad values and
         # must not be stopped.  Armed again once back within the tolerance.

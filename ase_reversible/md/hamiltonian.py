@@ -63,6 +63,9 @@ class Hamiltonian:
     def set_dynamics(self, masses_n, project, purity):
         """New masses, constraints or force provider (re-prepare the plan)."""
         self.m_n1 = masses_n[:, None]
+        # Flat, for the kinetic energy: a 1-D dot is the cheapest call.
+        self._root_inverse_mass_k = np.repeat(1.0 / np.sqrt(masses_n), 3)
+        self._v_k = np.empty(3 * len(masses_n))
         self.project = project
         self.purity = purity
 
@@ -82,6 +85,13 @@ class Hamiltonian:
         """Write positions and momenta."""
         self.show_positions()
         self.show_momenta()
+
+    def kinetic_energy(self):
+        """``sum p^2 / 2m`` (eV) of the exact momenta: the energy check's
+        trigger, two numpy calls and no force call."""
+        v_k = np.multiply(self.p.floats.reshape(-1),
+                          self._root_inverse_mass_k, out=self._v_k)
+        return 0.5 * float(v_k.dot(v_k))
 
     def energy(self):
         """``(total energy, proposed tolerance)`` in eV, for the check: the

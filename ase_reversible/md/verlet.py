@@ -90,16 +90,22 @@ class ReversibleVerlet(ReversibleDynamics):
     force_noise : float, optional
         Bound on history noise in the forces for ``'guarded'``, eV/Å.
     energy_check : int
-        At steps 1, 2, 4, 8 and then every this many steps (default 100;
-        0 turns the check off) the total energy is compared with its value
-        where reversal is anchored; a difference above ``energy_tolerance`` stops the run
-        with :class:`~ase_reversible.UnstableIntegrationError` before the
-        next step, at a valid, reversible state (the check then stays
-        quiet until the energy is back within the tolerance, so the run
-        can be reversed).  This is what catches a time step past the
-        stability limit.  A check reads the energy the
-        calculator has from the last force call ('velocity'; for asap3 a
-        fraction of a force call) or computes it ('position').
+        At steps 1, 2, 4, ... (powers of two) and then every this many
+        steps (default 100; 0 turns the check off) the total energy is
+        compared with its value where reversal is anchored; a difference
+        above ``energy_tolerance`` stops the run with
+        :class:`~ase_reversible.UnstableIntegrationError` before the next
+        step, at a valid, reversible state (the check then stays quiet
+        until the energy is back within the tolerance, so the run can be
+        reversed).  This is what catches a time step past the stability
+        limit, within two steps of the energy crossing the tolerance:
+        every second step the kinetic energy (no force call) is compared
+        with its value at the last check, and a change by more than half
+        the tolerance brings a check at once; a drift past half the
+        tolerance brings the checks closer, down to every step.  A check
+        reads the energy the calculator has from the last force call
+        ('velocity'; for asap3 a fraction of a force call) or computes it
+        ('position').
     energy_tolerance : float, optional
         eV.  Default: the kinetic energy at the anchor or that of the atoms
         at 100 K, whichever is larger.
@@ -169,7 +175,8 @@ class ReversibleVerlet(ReversibleDynamics):
         system = Hamiltonian(atoms, grid, counts, masses_n, project, purity)
         substep = {KICK: system.kick, DRIFT: system.drift}
         invariant = InvariantCheck(energy_check, energy_tolerance,
-                                   system.energy, self._explain_drift)
+                                   system.energy, self._explain_drift,
+                                   trigger=system.kinetic_energy)
         engine = Engine(system.variables,
                         tuple((substep[k], c) for k, c in SCHEMES[scheme]),
                         composition, timestep, invariant=invariant)

