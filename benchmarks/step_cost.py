@@ -21,18 +21,34 @@ of the same system frame by frame and asks for the forces, so it pays for
 the neighbour-list updates and rebuilds that real MD causes, and nothing
 else: time beyond it is the integrator's own.
 
-The control for the per-step checks.  Before every step ReversibleVerlet
-asks its ``SystemWatch`` (ase_reversible/watch.py) what changed since the
-last step (calculator, its parameters, constraints, cell, pbc, numbers,
-masses).  The contestant 'rv_unwatched' is 'rv_velocity' with the
-instance's ``_watch`` replaced by a stub whose ``changes()`` returns no
-change: the same steps without the checks, for this benchmark only (it
-would miss a real change).  Both run in the same rounds; their difference
-is the checks' cost in the step loop.  Since that is near the noise of a
-step, ``changes()`` is also timed directly on the 'rv_velocity' contestant
-after the rounds: each call inside the steps of one more block (the cost a
-step pays: the force call leaves the caches cold), and in a tight loop
-(warm caches: the lower bound).
+The control for the per-step checks.  Before every step that code outside
+it may have preceded -- with observers attached, or driven by a caller of
+``irun`` -- ReversibleVerlet asks its ``SystemWatch``
+(ase_reversible/md/watch.py) what changed since the last step (calculator,
+its parameters, constraints, cell, pbc, numbers, masses); a plain ``run()``
+asks once, at its start.  The contestant 'rv_observed' is 'rv_velocity'
+with an observer that does nothing, so the checks run before every step;
+'rv_unwatched' is 'rv_observed' with the instance's ``_watch`` replaced by
+a stub whose ``changes()`` returns no change: the same steps without the
+checks, for this benchmark only (it would miss a real change).  Both run in
+the same rounds; their difference is the checks' cost in the step loop.
+Since that is near the noise of a step, ``changes()`` is also timed
+directly on the 'rv_observed' contestant after the rounds: each call inside
+the steps of one more block (the cost a step pays: the force call leaves
+the caches cold), and in a tight loop (warm caches: the lower bound).
+
+The integrators' own overhead.  Below a thousand atoms a force call is
+cheap and the integrator's Python-level work per step shows.  To measure
+that work alone, the overhead cases run every contestant with
+``systems.CachedForces``, a calculator whose force call costs a few
+microseconds (zero forces returned for any positions, behind a cache as
+cheap to check as asap3's), on free argon icosahedra (13 to 561 atoms) and
+periodic fcc argon (1000, 4000).  The floor is the nudge floor with that
+calculator; a contestant's overhead is its median step time minus the
+floor's, in the same interleaved rounds.  VelocityVerlet's overhead
+includes the two extra, cached ``get_forces`` calls of its step and of
+ASE's loop; ReversibleVerlet's includes its per-step checks, the restart
+record and the energy check.
 """
 
 from __future__ import annotations
@@ -88,6 +104,19 @@ FULL = Settings(rounds=7, block_seconds=0.6, min_steps=2, max_steps=5000,
                 warmup_steps=3)
 QUICK = Settings(rounds=3, block_seconds=0.12, min_steps=2, max_steps=1000,
                  warmup_steps=2)
+#: The overhead cases: steps of tens of microseconds, so more and shorter
+#: blocks; the median over many rounds resolves differences of a few µs.
+OVERHEAD_FULL = Settings(rounds=21, block_seconds=0.25, min_steps=100,
+                         max_steps=20000, warmup_steps=10)
+OVERHEAD_QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=20,
+                          max_steps=2000, warmup_steps=5)
+
+#: (atoms, system) of the overhead cases: argon icosahedra of 2, 3, 4 and
+#: 6 shells, then fcc crystals of (5, 5, 10) and (10, 10, 10) cubic cells.
+OVERHEAD_SYSTEMS = ((13, 'Ar icosahedron'), (55, 'Ar icosahedron'),
+                    (147, 'Ar icosahedron'), (561, 'Ar icosahedron'),
+                    (1000, 'Ar fcc crystal'), (4000, 'Ar fcc crystal'))
+QUICK_OVERHEAD_SIZES = (13, 147, 1000)
 
 
 # -- systems and calculators -----------------------------------------------
@@ -98,6 +127,18 @@ def argon_crystal(repeat):
 
 def copper_crystal(repeat):
     return app_systems.copper_bulk(repeat, CU_TEMPERATURE_K, rattle=0)
+
+
+def overhead_system(n_atoms):
+    """Thermalised argon of ``n_atoms`` for the overhead cases."""
+    shells = {13: 2, 55: 3, 147: 4, 561: 6}
+    if n_atoms in shells:
+        atoms = app_systems.argon_cluster(shells[n_atoms], AR_TEMPERATURE_K)
+    else:
+        repeat = {1000: (5, 5, 10), 4000: (10, 10, 10)}[n_atoms]
+        atoms = argon_crystal(repeat)
+    assert len(atoms) == n_atoms
+    return atoms
 
 
 @dataclass(frozen=True)
@@ -237,9 +278,20 @@ class TimedWatch:
         return getattr(self.watch, name)
 
 
-def unwatched(atoms):
-    """'rv_velocity' without the per-step checks: the control, see top."""
+def nothing():
+    """An observer that does nothing."""
+
+
+def observed(atoms):
+    """'rv_velocity' with an observer: the per-step checks run, see top."""
     dyn = ReversibleVerlet(atoms, TIMESTEP, scheme='velocity')
+    dyn.attach(nothing)
+    return dyn
+
+
+def unwatched(atoms):
+    """'rv_observed' without the per-step checks: the control, see top."""
+    dyn = observed(atoms)
     dyn._watch = NoWatch()
     return dyn
 
@@ -250,6 +302,7 @@ INTEGRATORS = {
     'vv': lambda atoms: VelocityVerlet(atoms, TIMESTEP),
     'rv_velocity': lambda atoms: ReversibleVerlet(atoms, TIMESTEP,
                                                   scheme='velocity'),
+    'rv_observed': observed,
     'rv_unwatched': unwatched,
     'rv_position': lambda atoms: ReversibleVerlet(atoms, TIMESTEP,
                                                   scheme='position'),
@@ -258,8 +311,10 @@ INTEGRATORS = {
                                                force_purity='trust'),
 }
 STEP_CONTESTANTS = ('force', 'replay', 'vv', 'rv_velocity', 'rv_position',
-                    'rv_trust', 'rv_unwatched')
+                    'rv_trust', 'rv_observed', 'rv_unwatched')
 LOGGING_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
+#: With CachedForces 'auto' is 'trust': rv_trust would be rv_velocity again.
+OVERHEAD_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
 
 
 @dataclass
@@ -406,7 +461,7 @@ def benchmark(case, names, settings, with_logger=False):
     # Few calls suffice: a cache hit and a recomputation differ 100-fold.
     forces_again, energy_after = time_cached_queries(
         by_name['force'].runner.atoms, min(steps, 20))
-    in_step, in_loop = (time_watch(by_name['rv_velocity'].runner, steps)
+    in_step, in_loop = (time_watch(by_name['rv_observed'].runner, steps)
                         if 'rv_unwatched' in by_name else (None, None))
     result = {
         'calculator': case.calculator.label,
@@ -437,8 +492,52 @@ def benchmark(case, names, settings, with_logger=False):
     return result
 
 
+def overhead(n_atoms, system, settings):
+    """The integrators' time per step beyond the force call of
+    ``CachedForces`` (see top); JSON-ready."""
+    template = overhead_system(n_atoms)
+    contestants = []
+    for name in OVERHEAD_CONTESTANTS:
+        atoms = template.copy()
+        atoms.calc = systems.CachedForces(n_atoms)
+        contestants.append(Contestant(name, INTEGRATORS[name](atoms)))
+    for c in contestants:
+        c.runner.run(settings.warmup_steps)
+    by_name = {c.name: c for c in contestants}
+    steps = choose_steps(by_name['vv'], settings)
+    wall, cpu = time_interleaved(contestants, steps, settings.rounds)
+    med, med_cpu = _medians(wall), _medians(cpu)
+    result = {
+        'system': system, 'n_atoms': n_atoms,
+        'steps_per_block': steps, 'rounds': settings.rounds,
+        'per_step_seconds': wall,
+        'per_step_cpu_seconds': cpu,
+        'median_seconds': med,
+        'median_cpu_seconds': med_cpu,
+        'overhead_seconds': {k: v - med['force'] for k, v in med.items()
+                             if k != 'force'},
+        'overhead_cpu_seconds': {k: v - med_cpu['force']
+                                 for k, v in med_cpu.items()
+                                 if k != 'force'},
+        'spread': {k: (max(v) - min(v)) / statistics.median(v)
+                   for k, v in wall.items()},
+        'force_purity': {c.name: c.purity.todict() for c in contestants
+                         if c.purity is not None},
+    }
+    print(f'  {system:15s} N={n_atoms:6d} S={steps:5d}  '
+          + '  '.join(f'{k}={v * 1e6:.1f}µs'
+                      for k, v in result['overhead_seconds'].items())
+          + f"  (force call {med['force'] * 1e6:.1f}µs)", flush=True)
+    return result
+
+
 def run(quick):
     settings = QUICK if quick else FULL
+    print('  integrator overhead (CachedForces):', flush=True)
+    overhead_settings = OVERHEAD_QUICK if quick else OVERHEAD_FULL
+    overheads = [overhead(n, system, overhead_settings)
+                 for n, system in OVERHEAD_SYSTEMS
+                 if not quick or n in QUICK_OVERHEAD_SIZES]
     print('  cost per step:', flush=True)
     steps = [benchmark(case, STEP_CONTESTANTS, settings)
              for case in step_cost_cases(quick)]
@@ -452,9 +551,11 @@ def run(quick):
                      'ar_temperature_K': AR_TEMPERATURE_K,
                      'cu_temperature_K': CU_TEMPERATURE_K,
                      'watch_calls': WATCH_CALLS,
-                     'watch_blocks': WATCH_BLOCKS},
+                     'watch_blocks': WATCH_BLOCKS,
+                     'overhead': asdict(overhead_settings)},
         'step_cost': steps,
         'logging': logging,
+        'overhead': overheads,
     }
 
 

@@ -15,7 +15,7 @@ from ase.io import read
 from ase.io.trajectory import Trajectory
 from ase.md.verlet import VelocityVerlet
 
-from ase_reversible import ReversibleVerlet
+from ase_reversible import AnchorMovedWarning, ReversibleVerlet
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, DT, argon_cluster, asap_lj,
                       ase_lj)
 from exactness import (assert_frame_is_state, assert_frame_on_grid,
@@ -114,6 +114,36 @@ def test_observer_interval_counts_from_the_first_run():
     dyn.run(4)
     dyn.run(5)
     assert seen == [0, 3, 6, 9]
+
+
+def test_a_run_nobody_watches_ends_as_one_that_is_watched():
+    # run() without observers leaves the per-step checks out and shows the
+    # momenta and the record only at its end: the same steps all the same.
+    quiet, watched = ReversibleVerlet(argon(), DT), ReversibleVerlet(argon(), DT)
+    seen = []
+    watched.attach(lambda: seen.append(watched.atoms.get_momenta()))
+    for steps in (7, 0, 5):
+        quiet.run(steps)
+        watched.run(steps)
+        assert np.array_equal(quiet.state.ix_nc, watched.state.ix_nc)
+        assert np.array_equal(quiet.state.ip_nc, watched.state.ip_nc)
+        for dyn in (quiet, watched):
+            assert np.array_equal(dyn.atoms.positions,
+                                  dyn.state.ix_nc * dyn.grid.position_quantum)
+            assert np.array_equal(dyn.atoms.get_momenta(),
+                                  dyn.state.ip_nc * dyn.grid.momentum_quantum)
+        assert quiet.atoms.info == watched.atoms.info
+    assert len(seen) == 13 and np.array_equal(seen[-1],
+                                              quiet.atoms.get_momenta())
+
+
+def test_an_edit_between_runs_is_taken_by_a_run_nobody_watches():
+    dyn = ReversibleVerlet(argon(), DT)
+    dyn.run(3)
+    dyn.atoms.positions[0, 0] += 0.01
+    with pytest.warns(AnchorMovedWarning):
+        dyn.run(2)
+    assert dyn.engine.steps_since_anchor == 2
 
 
 # -- force evaluations --------------------------------------------------------

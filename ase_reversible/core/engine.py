@@ -14,7 +14,7 @@ import math
 
 
 from ..errors import UnstableIntegrationError
-from .plans import compose
+from .plans import SubStep, compose
 
 #: How far (as a fraction of the tolerance) the trigger of an
 #: :class:`InvariantCheck` may move before the quantity is measured.
@@ -61,6 +61,11 @@ class Engine:
         self.plan = compose(scheme, composition)
         self.substeps = tuple(dict.fromkeys(s for s, _ in self.plan))
         self._parts = (*self.variables.values(), *side, *self.substeps)
+        # Sub-steps without caches inherit SubStep's checkpoint, which does
+        # nothing: not called before every step.
+        self._checkpoints = tuple(
+            part.checkpoint for part in self._parts
+            if getattr(type(part), 'checkpoint', None) is not SubStep.checkpoint)
         self.invariant = invariant
         self.step_index = self.anchor_index = 0
         #: Signed steps taken with each earlier |dt|, so that the clock
@@ -147,30 +152,36 @@ class Engine:
         """
         if self.invariant is not None and number is not None:
             self.invariant.check(number)
-        self._advance(self._prepared)
-
-    def _advance(self, prepared, cotangents=None):
-        parts = self._parts
-        for part in parts:
-            part.checkpoint()
+        for checkpoint in self._checkpoints:
+            checkpoint()
         try:
-            if cotangents is None:
-                for substep, argument in prepared:
-                    substep.apply(argument)
-            else:
-                # A retrace: each sub-step undoes the forward sub-step with
-                # the opposite coefficient, after pulling the cotangents
-                # back through it at the values it saw.
-                for substep, argument, forward_ch in prepared:
-                    substep.adjoint(cotangents, forward_ch)
-                    substep.apply(argument)
+            for substep, argument in self._prepared:
+                substep.apply(argument)
         except BaseException:
-            # Updates never overwrite the checkpoint, so going back to it
-            # undoes a partial step exactly.
-            for part in parts:
-                part.rollback()
+            self._rollback()
             raise
         self.step_index += self.direction
+
+    def _retrace_step(self, prepared, cotangents):
+        """One step back: each sub-step undoes the forward sub-step with
+        the opposite coefficient, after pulling the cotangents back
+        through it at the values it saw."""
+        for checkpoint in self._checkpoints:
+            checkpoint()
+        try:
+            for substep, argument, forward_ch in prepared:
+                substep.adjoint(cotangents, forward_ch)
+                substep.apply(argument)
+        except BaseException:
+            self._rollback()
+            raise
+        self.step_index += self.direction
+
+    def _rollback(self):
+        # Updates never overwrite the checkpoint, so going back to it
+        # undoes a partial step exactly.
+        for part in self._parts:
+            part.rollback()
 
     def reverse(self):
         """Flip the direction of time."""
@@ -190,7 +201,7 @@ class Engine:
             retrace = tuple((s, s.prepare(c * self._dt), -(c * self._dt))
                             for s, c in self.plan)
             for _ in range(steps):
-                self._advance(retrace, cotangents)
+                self._retrace_step(retrace, cotangents)
             cotangents.flush()
         finally:
             self.reverse()

@@ -31,11 +31,31 @@ def write_record(info: dict, quanta: dict, time: float,
     ``time`` in ASE time units; ``hidden``: ``{name: int64 array}`` of the
     variables the atoms do not show.
     """
-    record = {f'{name}_quantum': float(q) for name, q in quanta.items()}
+    record = _quanta_entries(quanta)
     record['time'] = float(time)
     for name, counts in (hidden or {}).items():
         record[name] = np.asarray(counts).tolist()
     info[INFO_KEY] = record
+
+
+class RecordWriter:
+    """:func:`write_record` for variables the atoms show, with the quanta
+    fixed: their entries are made once, not with every step's record.
+
+    ``writer(info, time)`` stores the record of ``quanta`` and ``time``.
+    """
+
+    def __init__(self, quanta: dict):
+        self._entries = _quanta_entries(quanta)
+
+    def __call__(self, info: dict, time: float) -> None:
+        """Store the record with ``time`` (ASE time units) in ``info``."""
+        # A new dict each time: whoever read an earlier record keeps it.
+        info[INFO_KEY] = {**self._entries, 'time': float(time)}
+
+
+def _quanta_entries(quanta: dict) -> dict:
+    return {f'{name}_quantum': float(q) for name, q in quanta.items()}
 
 
 def read_record(info: dict, names=('position', 'momentum'),

@@ -21,7 +21,8 @@ from ase.md.md import MolecularDynamics
 from ..adjoint import Cotangents, Gradients, hvp_for
 from ..adjoint.cotangents import checked_gradient, checked_parameters
 from ..core.codec import encode
-from ..core.record import INFO_KEY, read_record, record_mismatch, write_record
+from ..core.record import (INFO_KEY, RecordWriter, read_record,
+                           record_mismatch)
 from ..errors import AnchorMovedWarning
 from ..purity import calculator_members, discard_results, force_provider
 from .checks import (check_calculator, check_energy_watch, check_steps,
@@ -66,8 +67,8 @@ class ReversibleDynamics(MolecularDynamics):
         self._purity_choice = purity_choice  # (mode, force_noise)
         self._time0 = time0
         # Fixed for the integrator's life; the record needs them every step.
-        self._quanta = {name: v.quantum
-                        for name, v in engine.variables.items()}
+        self._write_record = RecordWriter(
+            {name: v.quantum for name, v in engine.variables.items()})
 
     def _start(self, watch):
         """After ASE's constructor: watch the atoms, show the exact state."""
@@ -147,6 +148,18 @@ class ReversibleDynamics(MolecularDynamics):
         whose existence depends on the ASE version; this one asks only
         where a step does not end with them already.
         """
+        return self._loop(steps, alone=False)
+
+    def run(self, steps=50):
+        """Run ``steps`` steps; True once the run has reached them."""
+        converged = steps == 0
+        for converged in self._loop(steps, alone=True):
+            pass
+        return converged
+
+    def _loop(self, steps, alone):
+        """``irun``'s generator; ``alone``: the caller runs no code of its
+        own between the steps (``run``)."""
         self._sync()
         self.max_steps = self.nsteps + steps
         if self.nsteps == 0:
@@ -154,6 +167,9 @@ class ReversibleDynamics(MolecularDynamics):
             self.log()
             self.call_observers()
         yield self.nsteps == self.max_steps
+        if alone and not self.observers and self._plain_hooks():
+            yield from self._unwatched_steps()
+            return
         while self.nsteps < self.max_steps:
             self.step()
             self.nsteps += 1
@@ -161,12 +177,29 @@ class ReversibleDynamics(MolecularDynamics):
             self.call_observers()
             yield self.nsteps == self.max_steps
 
-    def run(self, steps=50):
-        """Run ``steps`` steps; True once the run has reached them."""
-        converged = steps == 0
-        for converged in self.irun(steps):
-            pass
-        return converged
+    def _plain_hooks(self):
+        cls = type(self)
+        return (cls.step is ReversibleDynamics.step
+                and cls.log is MolecularDynamics.log
+                and cls.call_observers is MolecularDynamics.call_observers)
+
+    def _unwatched_steps(self):
+        """The steps of a run that nothing outside sees until it ends: no
+        observers, no caller between the steps, no hooks of a subclass.
+        Nothing can change the atoms between these steps, so the checks
+        for changes are left out, and nothing reads the momenta or the
+        restart record (the energy check shows the momenta itself), so
+        they are written once, when the run ends or fails.  Positions are
+        shown by every drift: the force calls read them.
+        """
+        engine = self.engine
+        try:
+            while self.nsteps < self.max_steps:
+                engine.step(self.nsteps)
+                self.nsteps += 1
+                yield self.nsteps == self.max_steps
+        finally:
+            self._committed()
 
     def _ready(self):
         """Before the first step: what ASE's loop would have computed."""
@@ -184,7 +217,7 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _committed(self):
         self.system.show_momenta()
-        write_record(self.atoms.info, self._quanta, self.get_time())
+        self._write_record(self.atoms.info, self.get_time())
 
     # -- state and settings ----------------------------------------------
 
@@ -445,6 +478,6 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _show_anchor(self):
         self.system.show()
-        write_record(self.atoms.info, self._quanta, self.get_time())
+        self._write_record(self.atoms.info, self.get_time())
 
 

@@ -23,7 +23,8 @@ from ..errors import UnsupportedConstraintError
 SUPPORTED = (FixAtoms, FixCartesian, FixedPlane, FixedLine)
 
 
-def _no_projection(y_nc):
+def no_projection(y_nc):
+    """The projection without constraints: leaves ``y_nc`` as it is."""
     return None
 
 
@@ -45,7 +46,7 @@ def constraint_projection(atoms):
                 f'{names}. Remove it (del atoms.constraints) or use '
                 'VelocityVerlet for this system.')
     if not constraints:
-        return _no_projection
+        return no_projection
 
     def project(y_nc):
         for c in constraints:

@@ -20,6 +20,7 @@ from ase import units
 from ..core.codec import round_odd
 from ..core.plans import SubStep
 from ..core.variables import ExactVariable
+from .constraints import no_projection
 from ..errors import NonFiniteForcesError, QuantumRangeError
 
 #: Temperature (K) whose kinetic energy is the smallest default tolerance
@@ -33,8 +34,9 @@ class Hamiltonian:
     Parameters
     ----------
     atoms : ase.Atoms
-        Shows the exact values: positions after every drift, momenta after
-        every step.
+        Shows the exact values: positions after every drift, momenta when
+        shown (after every step observers see, at the end of a run, before
+        an energy check).
     grid : Grid
         The two quanta.
     counts : dict
@@ -69,7 +71,7 @@ class Hamiltonian:
 
     def show_positions(self):
         """Write the exact positions into the atoms' own array."""
-        self.atoms.arrays['positions'][:] = self.x.floats
+        self.x.write_floats(self.atoms.arrays['positions'])
 
     def show_momenta(self):
         """Write the exact momenta into the atoms (creating the array)."""
@@ -77,7 +79,7 @@ class Hamiltonian:
         if momenta is None:
             self.atoms.set_momenta(self.p.floats, apply_constraint=False)
         else:
-            momenta[:] = self.p.floats
+            self.p.write_floats(momenta)
 
     def show(self):
         """Write positions and momenta."""
@@ -95,6 +97,7 @@ class Hamiltonian:
         """``(total energy, proposed tolerance)`` in eV, for the check: the
         tolerance is the kinetic energy or that of the atoms at
         ``ENERGY_TOLERANCE_TEMPERATURE``, whichever is larger."""
+        self.show_momenta()  # a run nobody watches shows them only at its end
         kinetic = self.atoms.get_kinetic_energy()
         energy = self.atoms.get_potential_energy() + kinetic
         floor = 1.5 * len(self.atoms) * units.kB * \
@@ -103,25 +106,53 @@ class Hamiltonian:
 
 
 class Drift(SubStep):
-    """``x += round_odd(c h P p / m / q_x)``; shown on the atoms at once."""
+    """``x += round_odd(c h P p / m / q_x)``; shown on the atoms at once.
+
+    Drift-kick-drift ends a step and starts the next with the same drift of
+    the same momenta: its rounding is reused, like the kick's.
+    """
 
     def __init__(self, system):
         self.system = system
         self._y_nc = np.empty(system.x.ints.shape)
+        # (momenta label, c h) of the increment in _y_nc and its bound.
+        # New masses or constraints come with new labels (the state is
+        # installed again), so the key needs neither.
+        self._y_key = self._y_max = None
 
     def prepare(self, ch):
-        # Applied to the momenta's exact float image p = ip * qp.
-        return ch / self.system.x.quantum / self.system.m_n1
-
-    def apply(self, factor_n1):
+        # Applied to the momenta's exact float image p = ip * qp.  Spread
+        # over the three columns: numpy multiplies arrays of one shape
+        # several times faster than it broadcasts a column (bitwise the
+        # same products).
         s = self.system
-        y_nc = np.multiply(s.p.floats, factor_n1, out=self._y_nc)
-        s.project(y_nc)
-        round_odd(y_nc, out=y_nc)
-        s.x.add_integers(y_nc)
+        factor_n1 = ch / s.x.quantum / s.m_n1
+        # max |y| is bounded by the momenta's bound times this, instead of
+        # found by a pass over y: a projection onto a plane or line
+        # lengthens no vector, so no component exceeds sqrt(3) times the
+        # largest before it; the factor 2 covers that and the rounding of
+        # the products, the 1 added in apply the rounding of y.
+        return (ch, np.repeat(factor_n1, self._y_nc.shape[1], axis=1),
+                2.0 * s.p.quantum * float(np.abs(factor_n1).max(initial=0.0)))
+
+    def apply(self, prepared):
+        ch, factor_nc, growth = prepared
+        s = self.system
+        y_nc = self._y_nc
+        key = (s.p.label, ch)
+        if self._y_key != key:
+            self._y_key = None  # y_nc is about to be overwritten
+            np.multiply(s.p.floats, factor_nc, out=y_nc)
+            if s.project is not no_projection:
+                s.project(y_nc)
+            round_odd(y_nc, out=y_nc)
+            self._y_max = growth * s.p.bound + 1.0
+            self._y_key = key
+        s.x.add_integers(y_nc, self._y_max)
         s.show_positions()
 
     def rollback(self):
+        self._y_key = None  # y_nc may hold a failed step's drift
         self.system.show_positions()
 
     def adjoint(self, cotangents, ch):
@@ -150,7 +181,7 @@ class Kick(SubStep):
 
     def forget(self):
         """Drop cached forces (a new calculator, even an equal one)."""
-        self._r_key = None
+        self._r_key = self._r_max = None
         self._f_cache = None
         self._saved = None
 
@@ -171,14 +202,15 @@ class Kick(SubStep):
         r_nc = self._r_nc
         key = (s.x.label, scale)
         if self._r_key != key:
-            self._r_key = None  # r_nc is about to be overwritten
+            self._r_key = self._r_max = None  # r_nc is about to be overwritten
             f_used_nc = s.purity.rounded_kick(
                 s.atoms, self.forces(), scale, s.project, out=r_nc,
                 scratch=self._y_nc)
             self._f_cache = (s.x.label, f_used_nc)
             self._r_key = key
         try:
-            s.p.add_integers(r_nc)
+            # The range of r_nc is checked once, the first time it is added.
+            self._r_max = s.p.add_integers(r_nc, self._r_max)
         except QuantumRangeError:
             if not np.all(np.isfinite(self._f_cache[1])):
                 raise NonFiniteForcesError(
@@ -193,7 +225,7 @@ class Kick(SubStep):
 
     def rollback(self):
         self._f_cache = self._saved
-        self._r_key = None  # r_nc may hold a kick of the failed step
+        self._r_key = self._r_max = None  # r_nc may hold a failed step's kick
 
     def adjoint(self, cotangents, ch):
         # Deferred: the next drift or the end applies it, merged with any

@@ -4,8 +4,10 @@ Exact reversal retraces a step only under the dynamics the step was taken
 with: the same forces (calculator, its parameters, atomic numbers, cell,
 pbc), masses and constraints.  Users change these between runs as a matter
 of course, so the integrator compares them with a snapshot before every
-step and either takes a change (the anchor of reversal moves to that point)
-or refuses it.  Nothing is ignored.
+step that code outside it may have preceded (every run's first step; with
+observers or a caller of ``irun``, every step) and either takes a change
+(the anchor of reversal moves to that point) or refuses it.  Nothing is
+ignored.
 
 The comparison is on the per-step path, so it is one chain of cheap tests:
 identities first (the calculator, the constraints), then the raw bytes of

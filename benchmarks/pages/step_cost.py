@@ -10,6 +10,7 @@ from . import markdown_table, pyplot
 
 TITLE = 'Cost per step'
 PLOT = 'step_cost.png'
+OVERHEAD_PLOT = 'step_cost_overhead.png'
 
 #: The targets set for the integrator, judged on every run's numbers.
 TARGET_RATIO_TO_VV = 1.0
@@ -18,6 +19,9 @@ TARGET_OVERHEAD_CALCULATOR = 'asap3 EMT'
 TARGET_OVERHEAD_MIN_ATOMS = 4000
 #: Reversible velocity counts as "slower than VelocityVerlet" above this ratio.
 SLOWER_THRESHOLD = 1.05
+#: Target of the overhead cases: ReversibleVerlet's time beyond the force
+#: call at most VelocityVerlet's, at every size.
+TARGET_OVERHEAD_RATIO = 1.0
 
 # -- derived numbers -------------------------------------------------------
 
@@ -67,9 +71,23 @@ def by_calculator(results):
             for k, v in groups.items()}
 
 
+def overhead_ratio(r, name, key='overhead_seconds'):
+    """A contestant's overhead over VelocityVerlet's."""
+    return r[key][name] / r[key]['vv']
+
+
+def paired_overhead_ratios(r, name):
+    """Per-round overhead ratios, each round's floor subtracted."""
+    wall = r['per_step_seconds']
+    return [(a - f) / (b - f) for a, b, f in
+            zip(wall[name], wall['vv'], wall['force'])]
+
+
 # -- plot ------------------------------------------------------------------
 
 def plot(results, figures):
+    if results.get('overhead'):
+        plot_overhead(results['overhead'], figures)
     steps = results['step_cost']
     plt = pyplot()
     from matplotlib.lines import Line2D
@@ -122,6 +140,33 @@ def plot(results, figures):
     plt.close(fig)
 
 
+def plot_overhead(overheads, figures):
+    plt = pyplot()
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+    fig, ax = plt.subplots(figsize=(6.5, 4.3))
+    n = [r['n_atoms'] for r in overheads]
+    for name, label, style in (('vv', 'VelocityVerlet', 'x--'),
+                               ('rv_velocity', 'Reversible velocity', 'o-'),
+                               ('rv_position', 'Reversible position', 's:')):
+        ax.plot(n, [1e6 * r['overhead_seconds'][name] for r in overheads],
+                style, label=label)
+    ax.plot(n, [1e6 * r['median_seconds']['force'] for r in overheads],
+            'k.-', lw=0.8, alpha=0.6, label='the force call (floor)')
+    ax.set_xscale('log')
+    ax.set_yscale('log')
+    ax.set_xticks(n)
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel('number of atoms')
+    ax.set_ylabel('µs per step beyond the force call')
+    ax.set_title('Integrator overhead (CachedForces calculator)')
+    ax.grid(True, which='major', alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(figures / OVERHEAD_PLOT, dpi=110)
+    plt.close(fig)
+
+
 # -- Markdown --------------------------------------------------------------
 
 def ms(seconds):
@@ -149,6 +194,87 @@ def clean_fraction(r, name):
         return '—'
     k, n = entry['recomputations'], entry['force_calls']
     return f'{100 * k / n:.2g}% ({k}/{n})'
+
+
+def us(seconds):
+    """Microseconds, one decimal."""
+    return f'{seconds * 1e6:.1f}'
+
+
+def integrator_overhead_table(results):
+    header = ('system', 'N', 'steps × rounds', 'force call (µs)',
+              'VelocityVerlet overhead (µs)',
+              'Reversible velocity overhead (µs, ×VV)',
+              'Reversible position overhead (µs, ×VV)',
+              'velocity ×VV, per-round range', 'on CPU time: velocity ×VV',
+              'round spread', 'wall / CPU')
+    rows = []
+    for r in results:
+        o = r['overhead_seconds']
+        paired = paired_overhead_ratios(r, 'rv_velocity')
+        rows.append((
+            r['system'], r['n_atoms'],
+            f"{r['steps_per_block']} × {r['rounds']}",
+            us(r['median_seconds']['force']), us(o['vv']),
+            f"{us(o['rv_velocity'])} "
+            f"(×{overhead_ratio(r, 'rv_velocity'):.2f})",
+            f"{us(o['rv_position'])} "
+            f"(×{overhead_ratio(r, 'rv_position'):.2f})",
+            f'×{min(paired):.2f} to ×{max(paired):.2f}',
+            f"×{overhead_ratio(r, 'rv_velocity', 'overhead_cpu_seconds'):.2f}",
+            f"{100 * max(r['spread'].values()):.0f}%",
+            f'{wall_over_cpu(r):.2f}'))
+    return markdown_table(header, rows)
+
+
+def overhead_target_lines(results):
+    out = []
+    for name, scheme in (('rv_velocity', 'velocity'),
+                         ('rv_position', 'position')):
+        missed = [r for r in results
+                  if overhead_ratio(r, name) > TARGET_OVERHEAD_RATIO]
+        line = (f"- Reversible '{scheme}' overhead ≤ VelocityVerlet's: met "
+                f'at {len(results) - len(missed)} of {len(results)} sizes')
+        if missed:
+            line += '; missed at ' + '; '.join(
+                f"N={r['n_atoms']}: ×{overhead_ratio(r, name):.2f} "
+                f"(+{us(r['overhead_seconds'][name] - r['overhead_seconds']['vv'])}"
+                ' µs/step)' for r in missed)
+        out.append(line + '.')
+    return '\n'.join(out)
+
+
+def overhead_section(results, settings):
+    if not results:
+        return ''
+    return f"""\
+### The integrators' own overhead
+
+Time per step beyond the force call, with a calculator whose force call
+costs a few microseconds (`CachedForces` in `benchmarks/systems.py`: zero
+forces returned for any positions, behind a cache that checks only whether
+the positions changed, as asap3's does), so that what is left is the
+integrator's own Python and numpy work. Free argon icosahedra up to 561
+atoms, then periodic fcc argon; every contestant on its own copy of the
+atoms with its own calculator, {settings['rounds']} interleaved rounds of
+blocks of about {settings['block_seconds']:g} s (VelocityVerlet), order
+rotating. Overhead = median step time − median time of the force call
+alone (the nudge floor: one coordinate moved, then `get_forces`), in the
+same rounds. ReversibleVerlet runs with `force_purity='auto'`, which takes
+the calculator as pure (`forces_are_pure = True`); its overhead includes
+the checks for changes made between steps, the restart record, and the
+energy check. VelocityVerlet's includes the two cached `get_forces` calls
+that its step and ASE's loop make besides the one that computes. The
+per-round range gives each round's ratio with that round's floor
+subtracted.
+
+![Overhead per step against the number of atoms](benchmarks/{OVERHEAD_PLOT})
+
+{integrator_overhead_table(results)}
+
+{overhead_target_lines(results)}
+
+"""
 
 
 def case_label(r):
@@ -214,8 +340,16 @@ def logging_table(results):
     return markdown_table(header, rows)
 
 
+def checked(r):
+    """The contestant whose steps run the checks: 'rv_observed' (an
+    observer attached); 'rv_velocity' in results from before a plain run()
+    left the checks out between its steps."""
+    return 'rv_observed' if 'rv_observed' in r['median_seconds'] \
+        else 'rv_velocity'
+
+
 def checks_table(results):
-    header = ('calculator', 'N', 'Reversible velocity (ms/step)',
+    header = ('calculator', 'N', 'Reversible velocity, observed (ms/step)',
               'checks bypassed (ms/step)',
               'with / without checks (per-round range)',
               'difference of medians (µs/step)',
@@ -224,17 +358,17 @@ def checks_table(results):
     rows = []
     for r in results:
         med = r['median_seconds']
-        paired = paired_ratios(r, 'rv_velocity', 'rv_unwatched')
-        diff = 1e6 * (med['rv_velocity'] - med['rv_unwatched'])
+        paired = paired_ratios(r, checked(r), 'rv_unwatched')
+        diff = 1e6 * (med[checked(r)] - med['rv_unwatched'])
         watch = r['watch_changes_seconds']
-        spread = max(r['spread'][k] for k in ('rv_velocity', 'rv_unwatched'))
-        rows.append((r['calculator'], r['n_atoms'], ms(med['rv_velocity']),
+        spread = max(r['spread'][k] for k in (checked(r), 'rv_unwatched'))
+        rows.append((r['calculator'], r['n_atoms'], ms(med[checked(r)]),
                      ms(med['rv_unwatched']),
-                     f"×{ratio(r, 'rv_velocity', 'rv_unwatched'):.3f} "
+                     f"×{ratio(r, checked(r), 'rv_unwatched'):.3f} "
                      f'(×{min(paired):.2f} to ×{max(paired):.2f})',
                      f'{diff:+.1f}' if abs(diff) < 100 else f'{diff:+.0f}',
                      f'{1e6 * watch:.2f} '
-                     f"({100 * watch / med['rv_velocity']:.2g}%)",
+                     f"({100 * watch / med[checked(r)]:.2g}%)",
                      f"{1e6 * r['watch_changes_loop_seconds']:.2f}",
                      f'{100 * spread:.0f}%'))
     return markdown_table(header, rows)
@@ -243,26 +377,26 @@ def checks_table(results):
 def checks_lines(results):
     """The per-step checks, alone and in the step loop."""
     def share(r):
-        return r['watch_changes_seconds'] / r['median_seconds']['rv_velocity']
+        return r['watch_changes_seconds'] / r['median_seconds'][checked(r)]
 
     def with_without(r):
-        return ratio(r, 'rv_velocity', 'rv_unwatched')
+        return ratio(r, checked(r), 'rv_unwatched')
 
     alone = sorted(results, key=lambda r: r['watch_changes_seconds'])
     tight = [1e6 * r['watch_changes_loop_seconds'] for r in results]
     top = max(results, key=share)
     loop = sorted(results, key=with_without)
     unresolved = sum(min(p) <= 1 <= max(p) for p in (
-        paired_ratios(r, 'rv_velocity', 'rv_unwatched') for r in results))
+        paired_ratios(r, checked(r), 'rv_unwatched') for r in results))
     return (f'- The per-step checks (`SystemWatch.changes`, timed in the '
             f"steps) cost {1e6 * alone[0]['watch_changes_seconds']:.2f} µs "
             f'({case_label(alone[0])}) to '
             f"{1e6 * alone[-1]['watch_changes_seconds']:.2f} µs "
             f'({case_label(alone[-1])}) per call, at most '
-            f'{100 * share(top):.2g}% of a Reversible velocity step '
+            f'{100 * share(top):.2g}% of an observed Reversible velocity step '
             f'({case_label(top)}); in a tight loop {min(tight):.2f} to '
             f'{max(tight):.2f} µs.\n'
-            f'- In the step loop, Reversible velocity with / without the '
+            f'- In the step loop, observed Reversible velocity with / without the '
             f'checks ranges from ×{with_without(loop[0]):.3f} '
             f'({case_label(loop[0])}) to ×{with_without(loop[-1]):.3f} '
             f'({case_label(loop[-1])}); the per-round ratios lie on both '
@@ -464,14 +598,17 @@ add scheduler delays to the steps.
 - **Reversible trust**: `ReversibleVerlet(scheme='velocity',
   force_purity='trust')`: the cost without any purity handling. *Not exact*
   for these calculators; a baseline only.
-- **checks bypassed** (`rv_unwatched` in the JSON): Reversible velocity
-  with the integrator's `SystemWatch` replaced by a stub that never reports
-  a change (benchmark only): the control for the checks made before every
-  step. See "Cost of the per-step checks".
+- **observed / checks bypassed** (`rv_observed`, `rv_unwatched` in the
+  JSON): Reversible velocity with an observer that does nothing attached,
+  so that the checks for changes run before every step, and the same with
+  the integrator's `SystemWatch` replaced by a stub that never reports a
+  change (benchmark only): the control for those checks. See "Cost of the
+  per-step checks".
 - **clean recomputations**: for 'guarded', the share of force evaluations
   (one per step) whose kick was recomputed from a freshly built neighbour
   list, during the timed blocks, as count / force evaluations.
 
+{overhead_section(results.get('overhead'), s.get('overhead'))}\
 ### Time per step
 
 {step_cost_table(steps)}
@@ -484,15 +621,18 @@ Median step time minus a floor, in ms and in % of that floor.
 
 ### Cost of the per-step checks
 
-Before every step `ReversibleVerlet` compares the calculator, its
-parameters, the constraints, cell, pbc, atomic numbers and masses with a
-snapshot (`SystemWatch.changes`, `ase_reversible/watch.py`), then the
-positions and momenta. "Checks bypassed" is Reversible velocity with that
-comparison replaced by a stub reporting no change, timed in the same
-rounds: the difference of the medians is the checks' cost in the step loop,
+Before every step that code outside it may have preceded (observers, a
+caller of `irun`; a plain `run()` checks once, at its start)
+`ReversibleVerlet` compares the calculator, its parameters, the
+constraints, cell, pbc, atomic numbers and masses with a snapshot
+(`SystemWatch.changes`, `ase_reversible/md/watch.py`), then the positions
+and momenta. "Observed" is Reversible velocity with an observer that does
+nothing, so the checks run before every step; "checks bypassed" is the
+same with that comparison replaced by a stub reporting no change, timed in
+the same rounds: the difference of the medians is the checks' cost in the step loop,
 noise where it is within the round spread (of these two contestants) or
 the per-round ratios lie on both sides of 1. The comparison is also timed
-directly on the Reversible velocity contestant after the rounds, with
+directly on the observed contestant after the rounds, with
 nothing changed (the path of every step): "in the steps" is the median of
 its calls (`time.perf_counter` around each) during one more block of the
 same number of steps, in µs and in % of that contestant's median step;
