@@ -509,8 +509,13 @@ def _provider(atoms, mode, force_noise):
             mode = 'trust'
         elif force_noise is not None:
             mode = 'guarded'
-        elif any(_is_asap3(c) for c in leaves):
+        elif _is_asap3(calc):
             return GuardedForces(measured_force_noise(atoms))
+        elif any(_is_asap3(c) for c in leaves):
+            # Mixed with others (by a user's wrapper: ASE's mixers do not
+            # take asap3) the probe would move atoms under calculators it
+            # knows nothing of: the fixed bound.
+            mode = 'guarded'
         elif all(_declares_pure(c) or _is_plain_ase_neighborlist_calculator(c)
                  for c in leaves):
             mode = 'sorted' if listed else 'trust'
@@ -690,8 +695,11 @@ def discard_results(calc):
         # sees the atoms unchanged: forget the atoms too.  Not ASE's
         # LennardJones and EMT, which would then rebuild the sorted list
         # as for new atomic numbers; they compute whatever is missing.
+        # Nor asap3's, whose C++ side keeps a pointer to the atoms it was
+        # given and fails an assertion when they vanish.
         if (getattr(calc, 'atoms', None) is not None
-                and not _is_ase_neighborlist_calculator(calc)):
+                and not _is_ase_neighborlist_calculator(calc)
+                and not _is_asap3(calc)):
             calc.atoms = None
 
 

@@ -242,13 +242,22 @@ def test_close_contact_with_the_check_off_runs_back_exactly(contact):
     dyn = ReversibleVerlet(atoms, DT, energy_check=0)
     start = snapshot(atoms)
 
-    dyn.run(200)
+    try:
+        dyn.run(200)
+    except Exception as error:
+        # asap3 refuses atoms that come closer than its tables reach (how
+        # close depends on the last bits of the trajectory): a loud stop,
+        # after which the last committed step must still run back.
+        if type(error).__name__ != 'AsapError':
+            raise
+        assert 'Collision' in str(error)
+        assert_atoms_show_committed_state(dyn)
     # Control: the contact blew the atoms apart and the 5 fs step could
     # not follow it: the energy is not conserved (what the check catches).
     speed = np.abs(atoms.get_velocities()).max() * units.fs  # Å/fs
     assert speed > 0.1
     assert abs(atoms.get_total_energy() - e0) > 1.0
-    run_back(dyn, 200, start)
+    run_back(dyn, dyn.nsteps, start)
 
 
 def test_a_blow_up_inside_the_ranges_is_stopped_by_the_energy_check():
