@@ -296,6 +296,17 @@ def unwatched(atoms):
     return dyn
 
 
+def trusting(atoms):
+    """'rv_velocity' with no purity handling at all: forces taken as they
+    come and the spot check, which would stop asap3 within a few hundred
+    steps, switched off.  Not exact with asap3; the baseline of what the
+    handling costs."""
+    dyn = ReversibleVerlet(atoms, TIMESTEP, scheme='velocity',
+                           force_purity='trust')
+    dyn.force_purity.spot_check = None
+    return dyn
+
+
 INTEGRATORS = {
     'force': NudgeFloor,
     'replay': ReplayFloor,
@@ -306,9 +317,7 @@ INTEGRATORS = {
     'rv_unwatched': unwatched,
     'rv_position': lambda atoms: ReversibleVerlet(atoms, TIMESTEP,
                                                   scheme='position'),
-    'rv_trust': lambda atoms: ReversibleVerlet(atoms, TIMESTEP,
-                                               scheme='velocity',
-                                               force_purity='trust'),
+    'rv_trust': lambda atoms: trusting(atoms),
 }
 STEP_CONTESTANTS = ('force', 'replay', 'vv', 'rv_velocity', 'rv_position',
                     'rv_trust', 'rv_observed', 'rv_unwatched')
@@ -430,6 +439,42 @@ def time_watch(dyn, steps, calls=WATCH_CALLS, blocks=WATCH_BLOCKS):
     return statistics.median(timed.seconds), statistics.median(per_call)
 
 
+class TimedCheck:
+    """Wraps an engine's InvariantCheck and times each ``check()`` call
+    (the energy check: its trigger and, when due, the energy measurement)."""
+
+    def __init__(self, check):
+        self.check_object, self.seconds = check, []
+
+    def check(self, number):
+        t0 = time.perf_counter()
+        try:
+            self.check_object.check(number)
+        finally:
+            self.seconds.append(time.perf_counter() - t0)
+
+    def __getattr__(self, name):
+        return getattr(self.check_object, name)
+
+
+def time_energy_check(dyn, steps):
+    """The energy check's cost in the steps of a run of ``steps`` steps
+    (after the rounds, so its reference is long set): seconds per step
+    (all calls, measurements included) and the median call (the trigger
+    path almost every step takes); ``(per_step, median_call,
+    measurements)``."""
+    engine = dyn.engine
+    invariant = engine.invariant
+    measured = invariant.measurements
+    engine.invariant = timed = TimedCheck(invariant)
+    try:
+        dyn.run(steps)
+    finally:
+        engine.invariant = invariant
+    return (sum(timed.seconds) / steps, statistics.median(timed.seconds),
+            invariant.measurements - measured)
+
+
 def _medians(samples):
     return {k: statistics.median(v) for k, v in samples.items()}
 
@@ -463,6 +508,7 @@ def benchmark(case, names, settings, with_logger=False):
         by_name['force'].runner.atoms, min(steps, 20))
     in_step, in_loop = (time_watch(by_name['rv_observed'].runner, steps)
                         if 'rv_unwatched' in by_name else (None, None))
+    check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
         'calculator': case.calculator.label,
         'system': case.calculator.system,
@@ -479,6 +525,10 @@ def benchmark(case, names, settings, with_logger=False):
         'energy_after_forces_seconds': energy_after,
         'watch_changes_seconds': in_step,
         'watch_changes_loop_seconds': in_loop,
+        'energy_check_seconds_per_step': check[0],
+        'energy_check_median_call_seconds': check[1],
+        'energy_check_measurements': check[2],
+        'energy_check_steps': steps,
         'force_purity': {c.name: c.purity.todict() for c in contestants
                          if c.purity is not None},
         'grids': {c.name: c.runner.grid.todict() for c in contestants
@@ -507,8 +557,13 @@ def overhead(n_atoms, system, settings):
     steps = choose_steps(by_name['vv'], settings)
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
     med, med_cpu = _medians(wall), _medians(cpu)
+    check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
         'system': system, 'n_atoms': n_atoms,
+        'energy_check_seconds_per_step': check[0],
+        'energy_check_median_call_seconds': check[1],
+        'energy_check_measurements': check[2],
+        'energy_check_steps': steps,
         'steps_per_block': steps, 'rounds': settings.rounds,
         'per_step_seconds': wall,
         'per_step_cpu_seconds': cpu,

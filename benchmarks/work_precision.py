@@ -25,6 +25,13 @@ does for asap3):
 
 The guarded mode coarsens the momentum quantum, which puts a floor under
 ReversibleVerlet's energy error; ``quantum_check`` measures it.
+
+``convergence`` then asks whether orders 4 and 6 keep their nominal order
+down to a relative error of 1e-11 under ``force_purity='auto'`` with the
+bare asap3 potential: the step halved from the sampling interval, on the
+free argon cluster and on a cold periodic argon crystal whose
+Lennard-Jones cutoff lies between two neighbour shells, and the finest
+step run again with finer quanta to tell which grid sets a floor.
 """
 
 from __future__ import annotations
@@ -43,7 +50,9 @@ import asap3
 import numpy as np
 import systems as bench_systems
 from ase import units
+from ase.build import bulk
 from ase.md.verlet import VelocityVerlet
+from ase.neighborlist import neighbor_list
 from scipy.spatial.distance import pdist
 
 from ase_reversible import ReversibleVerlet, purity
@@ -555,6 +564,146 @@ def emt_check(copper, template, dts_fs=(0.5, 0.125)):
     return rows
 
 
+# -- convergence down to 1e-11 under 'auto' ---------------------------------
+
+#: The relative energy error the convergence sweeps must reach.
+CONVERGENCE_TARGET = 1e-11
+CONVERGENCE_ORDERS = (4, 6)
+#: Argon fcc at the Lennard-Jones minimum (nearest neighbours at
+#: 2**(1/6) sigma = 3.82 Å) and a cutoff halfway between its 2nd (5.40 Å)
+#: and 3rd (6.61 Å) neighbour shells, the widest gap after the first:
+#: cold enough that no pair comes near it (the closest approach is
+#: recorded), so the energy is smooth and only the integrator and the
+#: quantum limit the error.
+AR_CRYSTAL_LATTICE = 2 ** (1 / 6) * app_systems.AR_SIGMA * 2 ** 0.5
+AR_CRYSTAL_CUTOFF = 6.0
+AR_CRYSTAL_TEMPERATURE_K = 10.0
+
+
+def argon_crystal(repeat):
+    atoms = bulk('Ar', 'fcc', a=AR_CRYSTAL_LATTICE, cubic=True) * repeat
+    return app_systems.thermalize(atoms, AR_CRYSTAL_TEMPERATURE_K)
+
+
+@dataclass(frozen=True)
+class ConvergenceSystem:
+    key: str
+    label: str
+    build: Callable[[], object]
+    calc: Callable[[], object]
+    cutoff: float
+    temperature_K: float
+    interval_fs: float
+    simulated_fs: float
+    start_dt_fs: float
+
+
+def convergence_systems(quick):
+    shells, repeat, simulated = ((3, (3, 3, 3), 256.0) if quick
+                                 else (4, (4, 4, 4), 1024.0))
+    return [
+        ConvergenceSystem(
+            'argon_cluster', 'free Ar cluster', argon_cluster(shells),
+            raw_argon_lj, AR_CUTOFF, AR_TEMPERATURE_K, interval_fs=32.0,
+            simulated_fs=simulated, start_dt_fs=32.0),
+        ConvergenceSystem(
+            'argon_crystal', 'periodic Ar crystal',
+            functools.partial(argon_crystal, repeat),
+            bench_systems.asap3_argon_lj(AR_CRYSTAL_CUTOFF),
+            AR_CRYSTAL_CUTOFF, AR_CRYSTAL_TEMPERATURE_K, interval_fs=16.0,
+            simulated_fs=simulated, start_dt_fs=16.0),
+    ]
+
+
+def converge_once(system, template, order, scheme, dt_fs, **kwargs):
+    """One run under force_purity='auto' (the bare asap3 potential):
+    max relative energy error over the samples, and the closest any pair
+    came to the cutoff in them (Å, periodic images included)."""
+    atoms = template.copy()
+    atoms.calc = system.calc()
+    dyn = ReversibleVerlet(atoms, dt_fs * units.fs, order=order,
+                           scheme=scheme, energy_check=0, **kwargs)
+    e0 = atoms.get_total_energy()
+    errors, closest, spent = [], [math.inf], [0.0]
+
+    def sample():
+        t = time.perf_counter()
+        errors.append(abs(atoms.get_total_energy() - e0) / abs(e0))
+        d = neighbor_list('d', atoms, system.cutoff + 1.0)
+        closest[0] = min(closest[0],
+                         float(np.abs(d - system.cutoff).min(initial=1.0)))
+        spent[0] += time.perf_counter() - t
+
+    dyn.attach(sample, interval=round(system.interval_fs / dt_fs))
+    t0 = time.perf_counter()
+    dyn.run(round(system.simulated_fs / dt_fs))
+    return {'dt_fs': dt_fs, 'max_error': max(errors),
+            'momentum_quantum': dyn.grid.momentum_quantum,
+            'position_quantum': dyn.grid.position_quantum,
+            'mode': dyn.force_purity.mode,
+            'force_noise': dyn.force_purity.force_noise,
+            'clean_recomputations': getattr(dyn.force_purity,
+                                            'clean_recomputations', 0),
+            'closest_to_cutoff': closest[0],
+            'wall_s': time.perf_counter() - t0 - spent[0]}
+
+
+def converge(system, template, order, scheme, max_run_seconds):
+    """Halve the step from ``start_dt_fs`` until the error is below half
+    the target, stops falling (less than 2x over a halving, twice), or the
+    next run would take too long; then rerun the finest point with the
+    momentum quantum 2**-10 times finer, and with the position quantum
+    2**-8 times finer too, to tell which grid, if any, sets a floor."""
+    points, stop, dt = [], 'budget', system.start_dt_fs
+    while True:
+        point = converge_once(system, template, order, scheme, dt)
+        points.append(point)
+        if point['max_error'] <= CONVERGENCE_TARGET / 2:
+            stop = 'below target'
+            break
+        recent = [p['max_error'] for p in points[-3:]]
+        if len(recent) == 3 and max(recent[0] / recent[1],
+                                    recent[1] / recent[2]) < 2:
+            stop = 'floor'
+            break
+        if 2 * point['wall_s'] > max_run_seconds:
+            break
+        dt /= 2
+    last = points[-1]
+    fine = converge_once(system, template, order, scheme, last['dt_fs'],
+                         momentum_quantum=last['momentum_quantum'] * 2**-10)
+    both = converge_once(system, template, order, scheme, last['dt_fs'],
+                         momentum_quantum=last['momentum_quantum'] * 2**-10,
+                         position_quantum=last['position_quantum'] * 2**-8)
+    orders = [math.log2(a['max_error'] / b['max_error'])
+              for a, b in zip(points, points[1:])]
+    return {'order': order, 'scheme': scheme, 'stop': stop,
+            'points': points, 'observed_orders': orders, 'fine': fine,
+            'fine_both': both}
+
+
+def convergence(quick, settings):
+    out = {'target': CONVERGENCE_TARGET, 'systems': []}
+    for system in convergence_systems(quick):
+        template = system.build()
+        runs = []
+        for order in CONVERGENCE_ORDERS:
+            for scheme in ('velocity', 'position'):
+                print(f'  convergence {system.key}: {scheme} {order}',
+                      flush=True)
+                runs.append(converge(system, template, order, scheme,
+                                     settings.max_run_seconds))
+        out['systems'].append({
+            'key': system.key, 'label': system.label,
+            'atoms': len(template),
+            'formula': template.get_chemical_formula(),
+            'pbc': bool(template.pbc.any()), 'cutoff': system.cutoff,
+            'temperature_K': system.temperature_K,
+            'interval_fs': system.interval_fs,
+            'simulated_fs': system.simulated_fs, 'runs': runs})
+    return out
+
+
 # -- section API -------------------------------------------------------------
 
 def run(quick):
@@ -601,6 +750,7 @@ def run(quick):
             result['emt_check'] = emt_check(system, template)
             result['emt_cutoff'] = emt_cutoff(template)
         out['systems'].append(result)
+    out['convergence'] = convergence(quick, settings)
     return out
 
 

@@ -5,6 +5,8 @@ Measured by benchmarks/work_precision.py, whose docstring gives the method.
 
 from __future__ import annotations
 
+import math
+
 from . import markdown_table, pyplot
 
 TITLE = 'Work against precision'
@@ -130,7 +132,73 @@ def markdown(results):
     ]
     for r in results['systems']:
         lines += _render_system(r, target)
+    if results.get('convergence'):
+        lines += _render_convergence(results['convergence'])
     return '\n'.join(lines)
+
+
+def _converged_to(run, target, slack=0.5):
+    """The smallest error reached while every halving so far showed at
+    least the nominal order minus ``slack``; None if the first halving
+    already fell short."""
+    points, reached = run['points'], None
+    for a, b, observed in zip(points, points[1:], run['observed_orders']):
+        if observed < run['order'] - slack:
+            break
+        reached = b['max_error']
+    return reached
+
+
+def _render_convergence(c):
+    target = c['target']
+    lines = [
+        '### Convergence to 1e-11 under `auto`', '',
+        'Orders 4 and 6, both schemes, with the bare asap3 potential and '
+        "`force_purity='auto'` (guarded rounding with the noise bound it "
+        'measures for the system), the energy check off.  The time step '
+        'is halved from the sampling interval until the max relative '
+        f'error is below {target / 2:g}, stops falling (less than 2× over '
+        'two halvings), or the next run would exceed the time budget.  '
+        '"Observed order" is log2 of the error ratio over each halving.  '
+        'The finest point is run again with a momentum quantum 2^-10 '
+        'times as large ("fine p", exact all the same, with many more '
+        'clean recomputations), and with the position quantum 2^-8 times '
+        'as large as well ("fine p and x"): where an error drops, that '
+        'grid set the floor.  '
+        '"Nominal down to" is the smallest error reached while every '
+        'halving so far showed at least the nominal order − 0.5.', '']
+    for r in c['systems']:
+        closest = min(p['closest_to_cutoff'] for run in r['runs']
+                      for p in run['points'])
+        lines += [
+            f"**{r['label'][0].upper() + r['label'][1:]}**: {r['formula']} "
+            f"({r['atoms']} atoms{', periodic' if r['pbc'] else ''}), "
+            f"asap3 LennardJones with cutoff {r['cutoff']:g} Å, "
+            f"{r['temperature_K']:g} K, {r['simulated_fs']:g} fs sampled "
+            f"every {r['interval_fs']:g} fs; no sampled pair came closer "
+            f'than {closest:.2f} Å to the cutoff.', '']
+        table = []
+        for run in r['runs']:
+            first, last = run['points'][0], run['points'][-1]
+            reached = _converged_to(run, target)
+            both = run.get('fine_both')
+            table.append([
+                f"{run['scheme']} {run['order']}",
+                f"2^{math.log2(first['momentum_quantum']):.0f}"
+                + (f" / 2^{math.log2(first['position_quantum']):.0f}"
+                   if 'position_quantum' in first else ''),
+                ', '.join(f"{p['dt_fs']:g}" for p in run['points']),
+                ', '.join(_e(p['max_error']) for p in run['points']),
+                ', '.join(f'{o:.1f}' for o in run['observed_orders']),
+                _e(reached), _e(run['fine']['max_error']),
+                _e(both['max_error'] if both else None), run['stop'],
+                'yes' if reached is not None and reached <= target else 'no'])
+        lines += [markdown_table(
+            ['method', 'quanta at the first step: momentum / position',
+             'dt (fs)', 'max error', 'observed order', 'nominal down to',
+             'finest step, fine p', 'finest step, fine p and x', 'stop',
+             f'nominal order to ≤ {target:g}'], table), '']
+    return lines
 
 
 def _render_system(r, target):
