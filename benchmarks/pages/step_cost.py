@@ -229,20 +229,29 @@ def integrator_overhead_table(results):
     return markdown_table(header, rows)
 
 
+def verdict(target, results, missed, describe, where='in', noun='cases'):
+    """One line: ``target`` met in how many of ``results``, and each
+    missed one as ``describe(r)`` gives it."""
+    line = (f'- {target}: met {where} {len(results) - len(missed)} of '
+            f'{len(results)} {noun}')
+    if missed:
+        line += f'; missed {where} ' + '; '.join(map(describe, missed))
+    return line + '.'
+
+
 def overhead_target_lines(results):
     out = []
     for name, scheme in (('rv_velocity', 'velocity'),
                          ('rv_position', 'position')):
+        def describe(r, name=name):
+            o = r['overhead_seconds']
+            return (f"N={r['n_atoms']}: ×{overhead_ratio(r, name):.2f} "
+                    f"(+{us(o[name] - o['vv'])} µs/step)")
         missed = [r for r in results
                   if overhead_ratio(r, name) > TARGET_OVERHEAD_RATIO]
-        line = (f"- Reversible '{scheme}' overhead ≤ VelocityVerlet's: met "
-                f'at {len(results) - len(missed)} of {len(results)} sizes')
-        if missed:
-            line += '; missed at ' + '; '.join(
-                f"N={r['n_atoms']}: ×{overhead_ratio(r, name):.2f} "
-                f"(+{us(r['overhead_seconds'][name] - r['overhead_seconds']['vv'])}"
-                ' µs/step)' for r in missed)
-        out.append(line + '.')
+        out.append(verdict(f"Reversible '{scheme}' overhead ≤ "
+                           "VelocityVerlet's", results, missed, describe,
+                           where='at', noun='sizes'))
     return '\n'.join(out)
 
 
@@ -400,15 +409,14 @@ def energy_check_lines(results):
     if not timed:
         return '- The energy check was not timed in this run.'
     missed = [r for r in timed if check_share(r) > TARGET_CHECK_PERCENT]
-    line = (f'- Energy check ≤ {TARGET_CHECK_PERCENT:g}% of a step: met in '
-            f'{len(timed) - len(missed)} of {len(timed)} cases')
-    if missed:
-        line += '; missed in ' + '; '.join(
-            f"{r.get('calculator', r.get('system'))}, N={r['n_atoms']}: "
-            f'{check_share(r):.2g}% '
-            f"({us(r['energy_check_seconds_per_step'])} µs of "
-            f"{us(r['median_seconds']['rv_velocity'])} µs)" for r in missed)
-    return line + '.'
+
+    def describe(r):
+        return (f"{r.get('calculator', r.get('system'))}, N={r['n_atoms']}: "
+                f'{check_share(r):.2g}% '
+                f"({us(r['energy_check_seconds_per_step'])} µs of "
+                f"{us(r['median_seconds']['rv_velocity'])} µs)")
+    return verdict(f'Energy check ≤ {TARGET_CHECK_PERCENT:g}% of a step',
+                   timed, missed, describe)
 
 
 def checks_lines(results):
