@@ -278,20 +278,25 @@ class NoWatch:
         return []
 
 
-class TimedWatch:
-    """Wraps a SystemWatch and times each ``changes()`` call where it runs."""
+class Timed:
+    """Stands in for ``wrapped`` and times each call of its method
+    ``method`` where it runs (``seconds``); every other attribute is the
+    wrapped object's."""
 
-    def __init__(self, watch):
-        self.watch, self.seconds = watch, []
+    def __init__(self, wrapped, method):
+        self.wrapped, self.seconds = wrapped, []
+        call = getattr(wrapped, method)
 
-    def changes(self, atoms):
-        t0 = time.perf_counter()
-        changed = self.watch.changes(atoms)
-        self.seconds.append(time.perf_counter() - t0)
-        return changed
+        def timed(*args):
+            t0 = time.perf_counter()
+            try:
+                return call(*args)
+            finally:
+                self.seconds.append(time.perf_counter() - t0)
+        setattr(self, method, timed)
 
-    def __getattr__(self, name):  # take(), calc, ...: the wrapped watch's
-        return getattr(self.watch, name)
+    def __getattr__(self, name):
+        return getattr(self.wrapped, name)
 
 
 def nothing():
@@ -312,6 +317,10 @@ def unwatched(atoms):
     return dyn
 
 
+def velocity_verlet(atoms):
+    return VelocityVerlet(atoms, TIMESTEP)
+
+
 def trusting(atoms):
     """'rv_velocity' with no purity handling at all: forces taken as they
     come and the spot check, which would stop asap3 within a few hundred
@@ -326,15 +335,15 @@ def trusting(atoms):
 INTEGRATORS = {
     'force': NudgeFloor,
     'replay': ReplayFloor,
-    'vv': lambda atoms: VelocityVerlet(atoms, TIMESTEP),
-    'vv_twin': lambda atoms: VelocityVerlet(atoms, TIMESTEP),
+    'vv': velocity_verlet,
+    'vv_twin': velocity_verlet,
     'rv_velocity': lambda atoms: ReversibleVerlet(atoms, TIMESTEP,
                                                   scheme='velocity'),
     'rv_observed': observed,
     'rv_unwatched': unwatched,
     'rv_position': lambda atoms: ReversibleVerlet(atoms, TIMESTEP,
                                                   scheme='position'),
-    'rv_trust': lambda atoms: trusting(atoms),
+    'rv_trust': trusting,
 }
 STEP_CONTESTANTS = ('force', 'replay', 'vv', 'vv_twin', 'rv_velocity',
                     'rv_position', 'rv_trust', 'rv_observed', 'rv_unwatched')
@@ -447,7 +456,7 @@ def time_watch(dyn, steps, calls=WATCH_CALLS, blocks=WATCH_BLOCKS):
     of a run of ``steps`` steps, and in a tight loop."""
     watch, atoms = dyn._watch, dyn.atoms
     assert watch.changes(atoms) == []
-    dyn._watch = timed = TimedWatch(watch)
+    dyn._watch = timed = Timed(watch, 'changes')
     try:
         dyn.run(steps)
     finally:
@@ -461,40 +470,26 @@ def time_watch(dyn, steps, calls=WATCH_CALLS, blocks=WATCH_BLOCKS):
     return statistics.median(timed.seconds), statistics.median(per_call)
 
 
-class TimedCheck:
-    """Wraps an engine's InvariantCheck and times each ``check()`` call
-    (the energy check: its trigger and, when due, the energy measurement)."""
-
-    def __init__(self, check):
-        self.check_object, self.seconds = check, []
-
-    def check(self, number):
-        t0 = time.perf_counter()
-        try:
-            self.check_object.check(number)
-        finally:
-            self.seconds.append(time.perf_counter() - t0)
-
-    def __getattr__(self, name):
-        return getattr(self.check_object, name)
-
-
 def time_energy_check(dyn, steps):
-    """The energy check's cost in the steps of a run of ``steps`` steps
-    (after the rounds, so its reference is long set): seconds per step
-    (all calls, measurements included) and the median call (the trigger
-    path almost every step takes); ``(per_step, median_call,
-    measurements)``."""
+    """The energy check's cost (``InvariantCheck.check``: its trigger and,
+    when due, the energy measurement) in the steps of a run of ``steps``
+    steps, after the rounds, so its reference is long set.  Returns the
+    result's entries: seconds per step (all calls, measurements included),
+    the median call (the trigger path almost every step takes), the
+    measurements made and the steps."""
     engine = dyn.engine
     invariant = engine.invariant
     measured = invariant.measurements
-    engine.invariant = timed = TimedCheck(invariant)
+    engine.invariant = timed = Timed(invariant, 'check')
     try:
         dyn.run(steps)
     finally:
         engine.invariant = invariant
-    return (sum(timed.seconds) / steps, statistics.median(timed.seconds),
-            invariant.measurements - measured)
+    return {'energy_check_seconds_per_step': sum(timed.seconds) / steps,
+            'energy_check_median_call_seconds':
+                statistics.median(timed.seconds),
+            'energy_check_measurements': invariant.measurements - measured,
+            'energy_check_steps': steps}
 
 
 def _medians(samples):
@@ -532,6 +527,7 @@ def benchmark(case, names, settings, with_logger=False):
                         if 'rv_unwatched' in by_name else (None, None))
     check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
+        **check,
         'calculator': case.calculator.label,
         'system': case.calculator.system,
         'n_atoms': len(template), 'with_logger': with_logger,
@@ -547,10 +543,6 @@ def benchmark(case, names, settings, with_logger=False):
         'energy_after_forces_seconds': energy_after,
         'watch_changes_seconds': in_step,
         'watch_changes_loop_seconds': in_loop,
-        'energy_check_seconds_per_step': check[0],
-        'energy_check_median_call_seconds': check[1],
-        'energy_check_measurements': check[2],
-        'energy_check_steps': steps,
         'force_purity': {c.name: c.purity.todict() for c in contestants
                          if c.purity is not None},
         'grids': {c.name: c.runner.grid.todict() for c in contestants
@@ -581,11 +573,8 @@ def overhead(n_atoms, system, settings):
     med, med_cpu = _medians(wall), _medians(cpu)
     check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
+        **check,
         'system': system, 'n_atoms': n_atoms,
-        'energy_check_seconds_per_step': check[0],
-        'energy_check_median_call_seconds': check[1],
-        'energy_check_measurements': check[2],
-        'energy_check_steps': steps,
         'steps_per_block': steps, 'rounds': settings.rounds,
         'per_step_seconds': wall,
         'per_step_cpu_seconds': cpu,
