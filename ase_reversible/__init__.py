@@ -15,22 +15,23 @@ integrators), :mod:`.purity` (forces as a pure function of positions),
 
 from .errors import (AnchorMovedWarning, CoarseQuantumError,
                      ImpureForcesError, NonFiniteForcesError,
-                     QuantumRangeError, ReversibilityError,
+                     QuantumRangeError, RetraceLimitError,
+                     ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
 from .adjoint import AnalyticHVP, FiniteDifferenceHVP, Gradients
 from .app.flipbook import Flipbook
 from .calculators import LennardJones, PendulumChain, SoftenedGravity
 from .core.quanta import Grid
 from .core.record import INFO_KEY  # noqa: F401  (the restart record's key)
-from .md import FixedPointState, ReversibleVerlet
+from .md import FixedPointState, ReversibleLangevin, ReversibleVerlet
 from .purity import CalculatorCheck, check_calculator, probe_purity
 
 __version__ = '0.1.0'
 
-__all__ = ['ReversibleVerlet', 'Grid', 'FixedPointState', 'probe_purity',
+__all__ = ['ReversibleVerlet', 'ReversibleLangevin', 'Grid', 'FixedPointState', 'probe_purity',
            'check_calculator', 'CalculatorCheck',
            'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',
            'Flipbook', 'AnalyticHVP', 'FiniteDifferenceHVP',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
-           'NonFiniteForcesError', 'ImpureForcesError', 'CoarseQuantumError',
+           'NonFiniteForcesError', 'RetraceLimitError', 'ImpureForcesError', 'CoarseQuantumError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

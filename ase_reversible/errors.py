@@ -66,6 +66,15 @@ class CoarseQuantumError(ReversibilityError, ValueError):
     """
 
 
+class RetraceLimitError(ReversibilityError, RuntimeError):
+    """A step back past the point a thermostat's run can be retraced to.
+
+    Raised by :class:`~ase_reversible.ReversibleLangevin` when a backward
+    step would undo friction that was never applied (before the anchor of
+    reversal); the step is not taken.
+    """
+
+
 class AnchorMovedWarning(UserWarning):
     """A change made around the run was taken: reversal starts anew there.
 

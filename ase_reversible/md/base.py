@@ -21,14 +21,16 @@ from ase.md.md import MolecularDynamics
 from ..adjoint import Cotangents, Gradients, hvp_for
 from ..adjoint.cotangents import checked_gradient, checked_parameters
 from ..core.codec import encode
+from ..core.quanta import choose_grid
 from ..core.record import (INFO_KEY, RecordWriter, read_record,
                            record_mismatch)
 from ..errors import AnchorMovedWarning
 from ..purity import calculator_members, discard_results, force_provider
 from .checks import (check_calculator, check_energy_watch, check_steps,
-                     check_timestep,
-                     checked_masses)
+                     check_timestep, checked_masses,
+                     refuse_coarse_momentum_quantum)
 from .constraints import constraint_projection
+from .hamiltonian import Hamiltonian
 from .state import FixedPointState
 from .watch import EQUAL_CALCULATOR, same_values
 
@@ -470,6 +472,33 @@ class ReversibleDynamics(MolecularDynamics):
         purity = force_provider(atoms, force_purity, force_noise)
         return masses_n, project, purity, \
             ReversibleDynamics._resumable_record(atoms)
+
+    def _hamiltonian(self, atoms, max_kick, position_quantum,
+                     momentum_quantum, force_purity, force_noise):
+        """The atoms as a :class:`~.hamiltonian.Hamiltonian` on its grid,
+        and the restart record it resumes (or None).
+
+        Checks the atoms, chooses the force provider and the quanta (the
+        momentum quantum no finer than the provider needs for kicks of up
+        to ``max_kick`` ASE time units) and refuses a quantum that would
+        visibly change the momenta, all before anything is changed.
+        """
+        masses_n, project, purity, record = self._admit(
+            atoms, force_purity, force_noise)
+        momenta = atoms.arrays.get('momenta', np.zeros((len(atoms), 3)))
+        grid, origin = choose_grid(
+            atoms.positions, atoms.cell, atoms.pbc, masses_n, momenta,
+            position_quantum=position_quantum,
+            momentum_quantum=momentum_quantum, record=record,
+            momentum_floor=purity.min_momentum_quantum(
+                len(atoms), max_kick,
+                extent=float(np.abs(atoms.positions).max(initial=0.0))))
+        refuse_coarse_momentum_quantum(
+            masses_n, projected_momenta(atoms, project), grid, origin, purity)
+        counts = encoded(atoms, grid.position_quantum, grid.momentum_quantum,
+                         project)
+        return Hamiltonian(atoms, grid, counts, masses_n, project,
+                           purity), record
 
     def _install(self, counts):
         """Make ``counts`` the anchor of reversal and show it on the atoms."""

@@ -51,6 +51,7 @@ class Hamiltonian:
 
     def __init__(self, atoms, grid, counts, masses_n, project, purity):
         self.atoms = atoms
+        self.grid = grid
         self.x = ExactVariable('position', counts['position'],
                                grid.position_quantum)
         self.p = ExactVariable('momentum', counts['momentum'],

@@ -9,16 +9,12 @@ drifts and kicks, and a composition; the engine
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
 from ..core.plans import compose
-from ..core.quanta import choose_grid
-from .base import ReversibleDynamics, encoded, projected_momenta
-from .checks import (check_energy_watch, check_timestep, fixed,
-                     refuse_coarse_momentum_quantum)
-from .hamiltonian import Hamiltonian, explain_energy_drift
+from .base import ReversibleDynamics
+from .checks import check_energy_watch, check_timestep, fixed
+from .hamiltonian import explain_energy_drift
 from .watch import SystemWatch
 
 DRIFT, KICK = 'drift', 'kick'
@@ -154,25 +150,13 @@ class ReversibleVerlet(ReversibleDynamics):
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
         composition = composition_for(order, composition)
-        masses_n, project, purity, record = self._admit(
-            atoms, force_purity, force_noise)
-        momenta = atoms.arrays.get('momenta', np.zeros((len(atoms), 3)))
         max_kick = abs(timestep) * max(
             abs(c) for kind, c in compose(SCHEMES[scheme], composition)
             if kind == KICK)
-        grid, origin = choose_grid(
-            atoms.positions, atoms.cell, atoms.pbc, masses_n, momenta,
-            position_quantum=position_quantum,
-            momentum_quantum=momentum_quantum, record=record,
-            momentum_floor=purity.min_momentum_quantum(
-                len(atoms), max_kick,
-                extent=float(np.abs(atoms.positions).max(initial=0.0))))
         # Refusals end here, before the base class opens any file.
-        refuse_coarse_momentum_quantum(
-            masses_n, projected_momenta(atoms, project), grid, origin, purity)
-        counts = encoded(atoms, grid.position_quantum, grid.momentum_quantum,
-                         project)
-        system = Hamiltonian(atoms, grid, counts, masses_n, project, purity)
+        system, record = self._hamiltonian(
+            atoms, max_kick, position_quantum, momentum_quantum,
+            force_purity, force_noise)
         substep = {KICK: system.kick, DRIFT: system.drift}
         invariant = InvariantCheck(energy_check, energy_tolerance,
                                    system.energy, self._explain_drift,
@@ -180,7 +164,7 @@ class ReversibleVerlet(ReversibleDynamics):
         engine = Engine(system.variables,
                         tuple((substep[k], c) for k, c in SCHEMES[scheme]),
                         composition, timestep, invariant=invariant)
-        self._scheme, self._grid = scheme, grid
+        self._scheme = scheme
         # Before the base class: older ASE writes todict() into a
         # trajectory's header as soon as it is attached.
         self._attach(system, engine, (force_purity, force_noise),
@@ -224,7 +208,7 @@ class ReversibleVerlet(ReversibleDynamics):
     def grid(self):
         """The two quanta (Å; amu Å / ASE time unit) and their ranges, a
         :class:`~ase_reversible.core.quanta.Grid` (fixed at construction)."""
-        return self._grid
+        return self.system.grid
 
     @grid.setter
     def grid(self, value):

@@ -1,0 +1,435 @@
+"""ReversibleLangevin: constant-temperature dynamics that runs back exactly.
+
+Langevin dynamics split as BAOAB (B. Leimkuhler and C. Matthews, "Rational
+construction of stochastic numerical methods for molecular sampling",
+AMRX 2013): kick ``h/2``, drift ``h/2``, the Ornstein-Uhlenbeck step
+``p <- c p + sqrt((1 - c**2) m kT) xi`` with ``c = exp(-gamma h)``, drift
+``h/2``, kick ``h/2``.  Kicks and drifts are the exact shears of
+:mod:`.hamiltonian`.  The O step is made exact in two parts:
+
+* friction, multiplication of the momentum counts by ``c``, drops
+  information; it is done exactly by an information buffer
+  (:mod:`ase_reversible.core.infobuffer`) that keeps the dropped digits,
+  ``-log2(c)`` bits per coordinate per step, and gives them back on the
+  way back;
+* the noise ``rint(sqrt((1 - c**2) m kT) xi / q_p)`` is an integer drawn
+  from a counter-based generator keyed by the seed, the time step and the
+  step's index (:mod:`ase_reversible.core.noise`), so the way back
+  subtracts the same integers without storing any.
+
+``c`` is used as the ratio ``n / 2**16`` nearest to it, and the noise
+amplitude is computed from that ratio, so the O step samples the
+Maxwell-Boltzmann distribution exactly for the friction
+``-ln(n / 2**16) / h`` (:attr:`ReversibleLangevin.effective_friction`,
+within 2**-17 / h of the one asked for).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+from ase import units
+from ase.constraints import FixAtoms, FixCartesian
+
+from ..core.compositions import composition_for
+from ..core.engine import Engine, InvariantCheck
+from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
+                               InformationBuffer, friction_ratio)
+from ..core.noise import StepNoise, step_key
+from ..core.plans import SubStep
+from ..errors import (AnchorMovedWarning, RetraceLimitError,
+                      UnsupportedConstraintError)
+from .base import ReversibleDynamics
+from .checks import check_energy_watch, check_timestep
+from .watch import SystemWatch
+
+DRIFT, KICK, FRICTION = 'drift', 'kick', 'friction'
+
+#: BAOAB: a palindrome, so the same sequence run with -h undoes a step.
+SCHEME = ((KICK, 0.5), (DRIFT, 0.5), (FRICTION, 1.0), (DRIFT, 0.5),
+          (KICK, 0.5))
+
+#: Default steps between checks of the energy balance.
+ENERGY_CHECK_INTERVAL = 100
+
+
+class Friction(SubStep):
+    """The O step on the momentum counts, exact (see the module docstring).
+
+    Parameters
+    ----------
+    system : Hamiltonian
+        Its ``'momentum'`` variable is updated.
+    settings : callable
+        ``settings() -> (friction, temperature_K, fixcm, seed)``, read when
+        the step is prepared (1 / ASE time unit, K, bool, int).
+    step_of : callable
+        ``step_of() -> int``: the index of the step being taken (the one
+        before it when going forward, after it when going back), so that
+        both ways draw the same noise.
+
+    Attributes
+    ----------
+    heat : float
+        Kinetic energy the O steps added since the anchor (eV): the total
+        energy minus this is what the integrator conserves.
+    buffers : dict of int to InformationBuffer
+        One per friction ratio used since the anchor.
+    """
+
+    def __init__(self, system, settings, step_of):
+        self.system = system
+        self.settings = settings
+        self.step_of = step_of
+        size = system.p.ints.size
+        self.noise = StepNoise(size)
+        self.buffers = {}
+        self.heat = self._saved_heat = 0.0
+
+    def forget(self):
+        """Empty the buffers and zero the heat: the anchor moved here."""
+        for buffer in self.buffers.values():
+            buffer.clear()
+        self.heat = self._saved_heat = 0.0
+
+    def prepare(self, ch):
+        friction, temperature_K, fixcm, seed = self.settings()
+        s = self.system
+        n = friction_ratio(math.exp(-friction * abs(ch)))
+        ratio = n / 2**DIGIT_BITS
+        buffer = self.buffers.get(n)
+        if buffer is None:
+            buffer = self.buffers[n] = InformationBuffer(s.p.ints.size, n)
+        free_nc = np.ones(s.p.ints.shape)
+        s.project(free_nc)
+        free_k = free_nc.reshape(-1) != 0
+        mass_k = np.repeat(s.m_n1[:, 0], 3)
+        sigma_k = np.sqrt((1.0 - ratio**2) * mass_k * units.kB
+                          * temperature_K) / s.p.quantum * free_k
+        zero_sum = _zero_sum_weights(s.m_n1, free_nc) if fixcm else None
+        return (ch > 0, buffer, None if free_k.all() else free_k, sigma_k,
+                step_key(seed, ch), zero_sum, 1.0 / mass_k)
+
+    def apply(self, prepared):
+        forward, buffer, mask_k, sigma_k, key, zero_sum, inverse_mass_k = \
+            prepared
+        p = self.system.p
+        x_k = p.ints.reshape(-1)
+        noise_k = np.rint(sigma_k * self.noise.normals(key, self.step_of()))
+        noise_k = noise_k.astype(np.int64)
+        if zero_sum is not None:
+            noise_k = _without_net_momentum(noise_k, *zero_sum)
+        if forward:
+            new_k = buffer.scale_down(x_k, mask_k) + noise_k
+        else:
+            try:
+                new_k = buffer.scale_up(x_k - noise_k, mask_k)
+            except BufferUnderflowError:
+                raise RetraceLimitError(
+                    'ReversibleLangevin can only retrace steps it has taken: '
+                    'this one goes back past the anchor of reversal, where '
+                    'friction would have to be undone that was never '
+                    'applied. The step was not taken; run forward (positive '
+                    'dt) from here.') from None
+        r_k = (new_k - x_k).astype(np.float64)
+        # The kinetic energy the step adds, sum (x'^2 - x^2) q^2 / 2m.
+        both_k = (new_k + x_k).astype(np.float64)
+        both_k *= inverse_mass_k
+        self.heat += 0.5 * p.quantum**2 * float(both_k.dot(r_k))
+        p.add_integers(r_k.reshape(p.ints.shape))
+
+    def checkpoint(self):
+        self._saved_heat = self.heat
+        for buffer in self.buffers.values():
+            buffer.checkpoint()
+
+    def rollback(self):
+        self.heat = self._saved_heat
+        for buffer in self.buffers.values():
+            buffer.rollback()
+
+    def adjoint(self, cotangents, ch):
+        """The O step is affine in the momenta with slope ``c``: ``a_p *=
+        c`` on the coordinates it moves (the noise does not depend on the
+        state), after the pending kicks."""
+        cotangents.flush()
+        friction = self.settings()[0]
+        ratio = friction_ratio(math.exp(-friction * abs(ch))) / 2**DIGIT_BITS
+        free_nc = np.ones(self.system.p.ints.shape)
+        self.system.project(free_nc)
+        cotangents['momentum'] *= np.where(free_nc != 0, ratio, 1.0)
+
+
+def _zero_sum_weights(m_n1, free_nc):
+    """``(weights_nc, heaviest_c)`` that spread a net momentum over the free
+    coordinates in proportion to mass, or None if a component has no free
+    coordinate."""
+    mass_nc = m_n1 * (free_nc != 0)
+    total_c = mass_nc.sum(axis=0)
+    if not np.all(total_c > 0):
+        return None
+    return mass_nc / total_c, np.argmax(mass_nc, axis=0)
+
+
+def _without_net_momentum(noise_k, weights_nc, heaviest_c):
+    """The integer noise with its sum over atoms made exactly zero in each
+    Cartesian component, removed in proportion to mass (rounded; the
+    heaviest free atom takes what rounding leaves)."""
+    noise_nc = noise_k.reshape(weights_nc.shape)
+    net_c = noise_nc.sum(axis=0)
+    share_nc = np.rint(weights_nc * net_c).astype(np.int64)
+    share_nc[heaviest_c, np.arange(3)] += net_c - share_nc.sum(axis=0)
+    return (noise_nc - share_nc).reshape(-1)
+
+
+class ReversibleLangevin(ReversibleDynamics):
+    """Langevin dynamics (NVT) in fixed point that can be run back exactly.
+
+    A drop-in for :class:`ase.md.langevin.Langevin`: the same thermostat
+    (friction and noise on every momentum), split as BAOAB.  After
+    ``run(n)``, :meth:`reverse` and ``run(n)`` positions, momenta and the
+    information buffer are bitwise those right after the constructor --
+    the noise is subtracted again and the friction undone from the digits
+    it dropped (module docstring).  The way back cannot go further than
+    that: there is no friction to undo before the anchor
+    (:class:`~ase_reversible.RetraceLimitError`).
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        With a calculator attached.
+    timestep : float
+        ASE time units (``5 * ase.units.fs``).
+    temperature_K : float
+        Target temperature, K.
+    friction : float
+        Friction coefficient, 1 / ASE time unit (``0.01 / ase.units.fs``);
+        ``friction * |timestep|`` may be at most 11 (``c >= 2**-16``).
+    fixcm : bool
+        If True (default), the random kicks have exactly zero net
+        momentum, so a system at rest stays at rest (the friction's
+        rounding, below a hundred momentum quanta per atom and step, is
+        all that moves the centre of mass).
+    seed : int, optional
+        Key of the noise, stored as :attr:`seed`; default: drawn from the
+        operating system.  The same seed and start give the same run.
+    trajectory, logfile, loginterval
+        As for :class:`ase.md.langevin.Langevin`.
+    position_quantum, momentum_quantum, force_purity, force_noise
+        As for :class:`~ase_reversible.ReversibleVerlet`.
+    energy_check : int
+        As for :class:`~ase_reversible.ReversibleVerlet`, for the total
+        energy minus the heat the thermostat added since the anchor
+        (:attr:`heat`), which BAOAB conserves but for its time-step error.
+    energy_tolerance : float, optional
+        eV; default as for :class:`~ase_reversible.ReversibleVerlet`.
+    **kwargs
+        Passed to :class:`ase.md.md.MolecularDynamics`.
+
+    Raises
+    ------
+    TypeError
+        An ``rng`` argument (pass ``seed``), or bad argument types.
+    ValueError
+        A non-positive temperature or friction, or ``friction * |timestep|``
+        beyond 11.
+    UnsupportedConstraintError
+        A constraint other than FixAtoms and FixCartesian.
+    """
+
+    def __init__(self, atoms, timestep, temperature_K, friction, fixcm=True,
+                 *, seed=None, trajectory=None, logfile=None, loginterval=1,
+                 position_quantum=None, momentum_quantum=None,
+                 force_purity='auto', force_noise=None,
+                 energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
+                 **kwargs):
+        if 'rng' in kwargs:
+            raise TypeError(
+                'ReversibleLangevin draws its noise from a counter-based '
+                'generator, so the way back can draw it again: pass seed='
+                '<int> instead of rng.')
+        timestep = check_timestep(timestep)
+        self._temperature_K = _checked_positive(temperature_K,
+                                                'temperature_K', 'K')
+        self._friction = _checked_friction(friction, timestep)
+        self._fixcm = bool(fixcm)
+        self._seed = _checked_seed(seed)
+        energy_check, energy_tolerance = check_energy_watch(
+            energy_check, energy_tolerance)
+        _refuse_projections(atoms)
+        system, record = self._hamiltonian(
+            atoms, 0.5 * abs(timestep), position_quantum, momentum_quantum,
+            force_purity, force_noise)
+        friction_step = Friction(system, self._settings, self._step_of)
+        substep = {KICK: system.kick, DRIFT: system.drift,
+                   FRICTION: friction_step}
+        invariant = InvariantCheck(
+            energy_check, energy_tolerance, self._balance,
+            self._explain_drift, trigger=self._balance_trigger)
+        engine = Engine(system.variables,
+                        tuple((substep[k], c) for k, c in SCHEME),
+                        composition_for(2, None), timestep,
+                        invariant=invariant)
+        self.friction_step = friction_step
+        self._attach(system, engine, (force_purity, force_noise),
+                     record['time'] if record else 0.0)
+        super().__init__(atoms, timestep, trajectory=trajectory,
+                         logfile=logfile, loginterval=loginterval, **kwargs)
+        self._start(SystemWatch(atoms))
+
+    # -- what the friction step reads ------------------------------------
+
+    def _settings(self):
+        return self._friction, self._temperature_K, self._fixcm, self._seed
+
+    def _step_of(self):
+        engine = self.engine
+        return engine.step_index if engine.direction > 0 \
+            else engine.step_index - 1
+
+    def _balance(self):
+        energy, proposed = self.system.energy()
+        return energy - self.friction_step.heat, proposed
+
+    def _balance_trigger(self):
+        return self.system.kinetic_energy() - self.friction_step.heat
+
+    def _explain_drift(self, number, drift, tolerance):
+        return (
+            f'The total energy minus the heat the thermostat added has '
+            f'changed by {drift:.4g} eV since the anchor of reversal '
+            f'(tolerance {tolerance:.4g} eV) after step {number}: the '
+            'integration is unstable. Use a smaller time step (now '
+            f'{abs(self.dt) / units.fs:g} fs). The step was not taken; the '
+            'state is valid and reverse() leads back exactly. If the change '
+            'is expected, raise energy_tolerance or pass energy_check=0.')
+
+    def _ready(self):
+        self.system.kick.forces()
+
+    def _install(self, counts):
+        # Steps before the new anchor cannot be retraced: their digits go.
+        self.friction_step.forget()
+        super()._install(counts)
+
+    # -- the thermostat's settings -----------------------------------------
+
+    @property
+    def temperature_K(self) -> float:
+        """Target temperature, K (change it with :meth:`set_temperature`)."""
+        return self._temperature_K
+
+    @property
+    def friction(self) -> float:
+        """Friction coefficient asked for, 1 / ASE time unit (change it
+        with :meth:`set_friction`)."""
+        return self._friction
+
+    @property
+    def effective_friction(self) -> float:
+        """The friction the O step applies, 1 / ASE time unit:
+        ``-ln(n / 2**16) / |dt|`` for the exact ratio ``n / 2**16``
+        nearest to ``exp(-friction |dt|)``."""
+        n = friction_ratio(math.exp(-self._friction * abs(self.dt)))
+        return -math.log(n / 2**DIGIT_BITS) / abs(self.dt)
+
+    @property
+    def fixcm(self) -> bool:
+        """Whether the noise has zero net momentum (fixed at construction)."""
+        return self._fixcm
+
+    @property
+    def seed(self) -> int:
+        """The key of the noise (fixed at construction)."""
+        return self._seed
+
+    @property
+    def heat(self) -> float:
+        """Kinetic energy the thermostat added since the anchor, eV."""
+        return self.friction_step.heat
+
+    @property
+    def buffer_bits(self) -> float:
+        """Information the buffers hold, bits (all coordinates)."""
+        return sum(b.bits for b in self.friction_step.buffers.values())
+
+    def set_temperature(self, temperature_K):
+        """Use ``temperature_K`` (K) from the next step on.  Steps before
+        cannot be retraced with it: the anchor moves here
+        (:class:`~ase_reversible.AnchorMovedWarning` if steps were taken)."""
+        value = _checked_positive(temperature_K, 'temperature_K', 'K')
+        self._change('temperature', lambda: setattr(
+            self, '_temperature_K', value))
+
+    def set_friction(self, friction):
+        """Use ``friction`` (1 / ASE time unit) from the next step on; the
+        anchor moves here, as for :meth:`set_temperature`."""
+        value = _checked_friction(friction, self.dt)
+        self._change('friction', lambda: setattr(self, '_friction', value))
+
+    def _change(self, what, assign):
+        self._sync()
+        taken = self.engine.steps_since_anchor
+        assign()
+        self.engine.set_dt(self.engine.dt)  # prepare with the new setting
+        self._install(self.engine.snapshot())
+        if taken:
+            warnings.warn(
+                f'The {what} of ReversibleLangevin changed after {taken} '
+                'steps; reversal now leads back to this point (time '
+                f'{self.get_time() / units.fs:.6g} fs), not beyond.',
+                AnchorMovedWarning, stacklevel=3)
+
+    def todict(self):
+        """ASE's description plus the thermostat's settings and the
+        quanta."""
+        return {**super().todict(), 'temperature_K': self._temperature_K,
+                'friction': self._friction, 'fixcm': self._fixcm,
+                'seed': self._seed, **self.system.grid.todict(),
+                'force_purity': self.force_purity.mode}
+
+
+def _checked_positive(value, name, unit):
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f'{name} must be a number ({unit}), got '
+                        f'{value!r}') from None
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f'{name} must be positive and finite ({unit}), got '
+                         f'{value!r}')
+    return value
+
+
+def _checked_friction(friction, timestep):
+    friction = _checked_positive(friction, 'friction', '1 / ASE time unit, '
+                                 'e.g. 0.01 / ase.units.fs')
+    if friction * abs(timestep) > DIGIT_BITS * math.log(2):
+        raise ValueError(
+            f'friction * |timestep| is {friction * abs(timestep):.3g}; at '
+            f'most {DIGIT_BITS * math.log(2):.3g} is supported (the momenta '
+            'keep a 2**-16 of themselves per step). Momenta that are '
+            'reset every step are not dynamics: use a smaller friction or '
+            'time step.')
+    return friction
+
+
+def _checked_seed(seed):
+    if seed is None:
+        return int(np.random.SeedSequence().entropy % 2**64)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise TypeError(f'seed must be an int, got {seed!r}')
+    return int(seed) % 2**64
+
+
+def _refuse_projections(atoms):
+    for c in atoms.constraints:
+        if not isinstance(c, (FixAtoms, FixCartesian)):
+            raise UnsupportedConstraintError(
+                f'ReversibleLangevin supports FixAtoms and FixCartesian; '
+                f'{type(c).__name__} would need the friction and noise '
+                'projected onto it, which is not done yet. Use '
+                'ReversibleVerlet for this system, or FixCartesian where '
+                'the constraint is along an axis.')

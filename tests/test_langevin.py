@@ -1,0 +1,269 @@
+"""ReversibleLangevin: exact reversal of thermostatted runs, and its contract.
+
+Every reversal case compares positions and momenta with np.array_equal
+against the state right after the constructor, checks the run went
+somewhere, and that the information buffer is empty again.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+from ase import units
+from ase.constraints import FixAtoms, FixCartesian, FixedPlane
+from ase.io import Trajectory, read
+
+from ase_reversible import (AnchorMovedWarning, ReversibleLangevin,
+                            RetraceLimitError, UnsupportedConstraintError)
+
+from conftest import (CALCULATORS, argon_bulk, argon_cluster, copper_bulk,
+                      copper_cluster)
+from exactness import assert_same_state, forward_and_back, snapshot
+
+FRICTION = 0.02 / units.fs
+
+# (system builder, calculator, time step in fs, steps each way)
+CASES = {
+    'Ar13 ase-lj': (lambda: argon_cluster(2, 60), 'ase-lj', 5, 400),
+    'Ar bulk ase-lj': (lambda: argon_bulk((2, 2, 2), 80), 'ase-lj', 10, 60),
+    'Cu55 ase-emt': (lambda: copper_cluster(3, 600), 'ase-emt', 5, 40),
+    'Ar bulk asap-lj': (lambda: argon_bulk((4, 4, 4), 80), 'asap-lj', 10,
+                        1000),
+    'Cu108 asap-emt': (lambda: copper_bulk((3, 3, 3), 600), 'asap-emt', 5,
+                       1000),
+}
+
+
+def langevin(atoms, dt_fs=5, temperature_K=300, **kwargs):
+    kwargs.setdefault('seed', 1)
+    return ReversibleLangevin(atoms, dt_fs * units.fs,
+                              temperature_K=temperature_K, friction=FRICTION,
+                              **kwargs)
+
+
+def assert_buffers_empty(dyn):
+    buffers = dyn.friction_step.buffers.values()
+    assert buffers and all(b.is_empty() for b in buffers)
+
+
+@pytest.mark.parametrize('fixcm', [True, False])
+@pytest.mark.parametrize('case', list(CASES))
+def test_round_trip_is_exact(case, fixcm):
+    build, calc, dt_fs, steps = CASES[case]
+    atoms = build()
+    atoms.calc = CALCULATORS[calc]()
+    dyn = langevin(atoms, dt_fs, fixcm=fixcm)
+    start, moved = forward_and_back(dyn, steps)
+    assert moved
+    assert_same_state(atoms, start)
+    assert_buffers_empty(dyn)
+    assert dyn.get_time() == 0.0
+
+
+@pytest.mark.parametrize('constraint', ['FixAtoms', 'FixCartesian'])
+def test_constrained_coordinates_stay_put_and_reversal_is_exact(constraint):
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    if constraint == 'FixAtoms':
+        atoms.set_constraint(FixAtoms(indices=[0, 5]))
+        frozen = np.zeros((len(atoms), 3), bool)
+        frozen[[0, 5]] = True
+    else:
+        atoms.set_constraint(FixCartesian(3, mask=(True, False, True)))
+        frozen = np.zeros((len(atoms), 3), bool)
+        frozen[3, [0, 2]] = True
+    dyn = langevin(atoms)
+    x0 = atoms.get_positions()  # on the grid
+    dyn.run(200)
+    assert np.array_equal(atoms.positions[frozen], x0[frozen])
+    assert not np.any(atoms.get_momenta()[frozen])
+    assert not np.array_equal(atoms.positions[~frozen], x0[~frozen])
+    start = (x0, np.zeros_like(x0))
+    dyn.reverse()
+    dyn.run(200)
+    assert np.array_equal(atoms.positions, start[0])
+    assert_buffers_empty(dyn)
+
+
+def test_a_plane_constraint_is_refused_and_nothing_changes():
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    atoms.set_constraint(FixedPlane(0, (0, 0, 1)))
+    before = snapshot(atoms)
+    with pytest.raises(UnsupportedConstraintError,
+                       match='FixAtoms and FixCartesian'):
+        langevin(atoms)
+    assert_same_state(atoms, before)
+
+
+def test_going_back_past_the_anchor_is_refused_at_a_valid_state():
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    dyn = langevin(atoms)
+    start = snapshot(atoms)
+    dyn.run(30)
+    dyn.reverse()
+    dyn.run(30)
+    with pytest.raises(RetraceLimitError, match='run forward'):
+        dyn.run(1)
+    assert_same_state(atoms, start)
+    assert_buffers_empty(dyn)
+    dyn.reverse()
+    dyn.run(30)  # still a valid state to go on from
+    assert not np.array_equal(atoms.positions, start[0])
+
+
+def test_back_and_forth_is_one_trajectory():
+    """The noise is keyed by the step's index: retracing part of a run and
+    running it again gives the same states, bit for bit."""
+    def build():
+        atoms = argon_cluster(2, 60)
+        atoms.calc = CALCULATORS['ase-lj']()
+        return atoms
+    straight = build()
+    langevin(straight).run(120)
+    wandering = build()
+    dyn = langevin(wandering)
+    dyn.run(80)
+    dyn.reverse().run(50)
+    dyn.reverse().run(90)
+    assert_same_state(wandering, snapshot(straight))
+
+
+def test_the_seed_decides_the_run():
+    runs = {}
+    for seed in (3, 3, 4):
+        atoms = argon_cluster(2, 60)
+        atoms.calc = CALCULATORS['ase-lj']()
+        dyn = langevin(atoms, seed=seed)
+        assert dyn.seed == seed
+        dyn.run(50)
+        runs.setdefault(seed, []).append(snapshot(atoms))
+    assert_same_state_pair = [np.array_equal(a, b) for a, b in
+                              zip(runs[3][0], runs[3][1])]
+    assert all(assert_same_state_pair)
+    assert not np.array_equal(runs[3][0][1], runs[4][0][1])
+
+
+def test_a_default_seed_is_drawn_and_kept():
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    a, b = ReversibleLangevin(atoms, units.fs, 300, FRICTION), \
+        ReversibleLangevin(atoms, units.fs, 300, FRICTION)
+    assert isinstance(a.seed, int) and a.seed != b.seed
+    assert a.todict()['seed'] == a.seed
+
+
+@pytest.mark.parametrize('kwargs, error, match', [
+    ({'rng': np.random.default_rng(0)}, TypeError, 'seed='),
+    ({'temperature_K': 0}, ValueError, 'temperature_K must be positive'),
+    ({'friction': -1.0}, ValueError, 'friction must be positive'),
+    ({'friction': 100.0}, ValueError, 'at most'),
+    ({'seed': 1.5}, TypeError, 'seed must be an int'),
+])
+def test_bad_arguments_are_refused_before_anything_changes(kwargs, error,
+                                                          match):
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    before = snapshot(atoms)
+    arguments = {'timestep': 5 * units.fs, 'temperature_K': 300,
+                 'friction': FRICTION, 'seed': 1, **kwargs}
+    with pytest.raises(error, match=match):
+        ReversibleLangevin(atoms, **arguments)
+    assert_same_state(atoms, before)
+
+
+def test_a_new_temperature_moves_the_anchor_and_reversal_leads_there():
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    dyn = langevin(atoms)
+    dyn.run(40)
+    with pytest.warns(AnchorMovedWarning, match='temperature'):
+        dyn.set_temperature(500)
+    here = snapshot(atoms)
+    dyn.run(40)
+    dyn.reverse()
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', AnchorMovedWarning)
+        dyn.run(40)
+    assert_same_state(atoms, here)
+    with pytest.raises(RetraceLimitError):
+        dyn.run(1)
+
+
+def test_a_new_friction_is_taken_like_a_new_temperature():
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    dyn = langevin(atoms)
+    dyn.run(20)
+    with pytest.warns(AnchorMovedWarning, match='friction'):
+        dyn.set_friction(0.05 / units.fs)
+    here = snapshot(atoms)
+    forward_and_back(dyn, 30)
+    assert_same_state(atoms, here)
+    assert dyn.effective_friction == pytest.approx(0.05 / units.fs,
+                                                   rel=1e-3)
+
+
+def test_a_changed_time_step_can_be_retraced_after_setting_it_back():
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    dyn = langevin(atoms)
+    start = snapshot(atoms)
+    dyn.run(30)
+    with pytest.warns(AnchorMovedWarning):
+        dyn.dt = 3 * units.fs
+    dyn.run(20)
+    dyn.reverse().run(20)
+    dyn.dt = -5 * units.fs  # back where the step changed: nothing to warn
+    dyn.run(30)
+    assert_same_state(atoms, start)
+
+
+def test_the_thermostat_holds_the_temperature():
+    """Argon at 80 K started at 10 K: after 1 ps the mean kinetic
+    temperature over 4 ps is within 2% of 80 K times (3N - 3) / 3N (the
+    noise carries no net momentum).  Its statistical error here is about
+    0.3%."""
+    atoms = argon_bulk((2, 2, 2), 10)
+    atoms.calc = CALCULATORS['ase-lj']()
+    dyn = langevin(atoms, 10, temperature_K=80)
+    temperatures = []
+    dyn.attach(lambda: temperatures.append(atoms.get_temperature()))
+    dyn.run(500)
+    n = len(atoms)
+    assert np.mean(temperatures[100:]) == pytest.approx(
+        80 * (3 * n - 3) / (3 * n), rel=0.02)
+
+
+def test_energy_minus_heat_is_conserved_and_noise_has_no_net_momentum():
+    atoms = argon_cluster(3, 40)
+    atoms.calc = CALCULATORS['ase-lj']()
+    atoms.set_momenta(atoms.get_momenta()
+                      - atoms.get_momenta().mean(axis=0))
+    e0 = atoms.get_total_energy()
+    dyn = langevin(atoms, 5, temperature_K=120)
+    dyn.run(200)
+    heat = dyn.heat
+    drift = atoms.get_total_energy() - heat - e0
+    assert abs(heat) > 0.1  # the thermostat heated the cluster
+    assert abs(drift) < 1e-3 * abs(heat)
+    p_thermal = np.sqrt(len(atoms) * atoms.get_masses()[0] * units.kB * 120)
+    assert np.abs(atoms.get_momenta().sum(axis=0)).max() < 1e-8 * p_thermal
+
+
+def test_trajectory_frames_and_the_log_work_as_for_ase(tmp_path):
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    log = tmp_path / 'md.log'
+    traj = tmp_path / 'md.traj'
+    dyn = langevin(atoms, trajectory=str(traj), logfile=str(log),
+                   loginterval=10)
+    dyn.run(50)
+    dyn.close()
+    frames = read(str(traj), ':')
+    assert len(frames) == 6
+    assert np.array_equal(frames[-1].positions, atoms.positions)
+    assert len(log.read_text().splitlines()) == 7
+    with Trajectory(str(traj)) as t:
+        assert t.description['temperature_K'] == 300
