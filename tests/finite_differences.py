@@ -39,3 +39,15 @@ def hessian_times(atoms, v_nc, h):
     hv_nc = -central_difference(forces, x0_nc, v_nc, h)
     atoms.positions = x0_nc
     return hv_nc
+
+
+def complex_forces(x_nc, epsilon, sigma):
+    """Plain Lennard-Jones forces over all pairs, holomorphic in x."""
+    d_nnc = x_nc[None, :, :] - x_nc[:, None, :]      # x_j - x_i
+    r2_nn = np.einsum('ijc,ijc->ij', d_nnc, d_nnc)
+    np.fill_diagonal(r2_nn, 1.0)
+    s6_nn = (sigma**2 / r2_nn)**3
+    # du/dr / r for u = 4 eps (s^12 - s^6)
+    g_nn = 4 * epsilon * (-12 * s6_nn**2 + 6 * s6_nn) / r2_nn
+    np.fill_diagonal(g_nn, 0.0)
+    return np.einsum('ij,ijc->ic', g_nn, d_nnc)

@@ -27,6 +27,7 @@ from ase_reversible.core.compositions import COMPOSITIONS, DEFAULT_FOR_ORDER
 
 from conftest import AR_EPSILON, AR_SIGMA, DT, asap_emt, thermalize
 from exactness import assert_same_state, snapshot
+from finite_differences import complex_forces
 
 #: Fine quanta: finite differences of whole runs see rounding as noise.
 FINE = {'position_quantum': 2.0**-44, 'momentum_quantum': 2.0**-46}
@@ -95,18 +96,6 @@ def relative_error(estimate, reference):
 
 
 # -- 1. independent reference: complex step through a float Verlet run ------
-
-def complex_forces(x_nc, epsilon, sigma):
-    """Plain Lennard-Jones forces over all pairs, holomorphic in x."""
-    d_nnc = x_nc[None, :, :] - x_nc[:, None, :]      # x_j - x_i
-    r2_nn = np.einsum('ijc,ijc->ij', d_nnc, d_nnc)
-    np.fill_diagonal(r2_nn, 1.0)
-    s6_nn = (sigma**2 / r2_nn)**3
-    # du/dr / r for u = 4 eps (s^12 - s^6)
-    g_nn = 4 * epsilon * (-12 * s6_nn**2 + 6 * s6_nn) / r2_nn
-    np.fill_diagonal(g_nn, 0.0)
-    return np.einsum('ij,ijc->ic', g_nn, d_nnc)
-
 
 def complex_step_run(x_nc, p_nc, m_n1, fractions, scheme, steps, mask_n1):
     """A float Verlet run (composition ``fractions``) on complex state."""

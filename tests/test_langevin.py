@@ -16,8 +16,8 @@ from ase.io import Trajectory, read
 from ase_reversible import (AnchorMovedWarning, ReversibleLangevin,
                             RetraceLimitError, UnsupportedConstraintError)
 
-from conftest import (CALCULATORS, argon_bulk, argon_cluster, copper_bulk,
-                      copper_cluster)
+from conftest import (AR_EPSILON, AR_SIGMA, CALCULATORS, argon_bulk,
+                      argon_cluster, copper_bulk, copper_cluster)
 from exactness import assert_same_state, forward_and_back, snapshot
 
 FRICTION = 0.02 / units.fs
@@ -145,13 +145,17 @@ def test_the_seed_decides_the_run():
     assert not np.array_equal(runs[3][0][1], runs[4][0][1])
 
 
-def test_a_default_seed_is_drawn_and_kept():
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
-    a, b = ReversibleLangevin(atoms, units.fs, 300, FRICTION), \
-        ReversibleLangevin(atoms, units.fs, 300, FRICTION)
-    assert isinstance(a.seed, int) and a.seed != b.seed
-    assert a.todict()['seed'] == a.seed
+def test_a_default_seed_is_drawn_kept_and_resumed_from_the_record():
+    seeds = []
+    for _ in range(2):
+        atoms = argon_cluster(2, 60)
+        atoms.calc = CALCULATORS['ase-lj']()
+        dyn = ReversibleLangevin(atoms, units.fs, 300, FRICTION)
+        seeds.append(dyn.seed)
+        assert dyn.todict()['seed'] == dyn.seed
+    assert isinstance(seeds[0], int) and seeds[0] != seeds[1]
+    # The atoms now carry the record: a new integrator goes on with it.
+    assert ReversibleLangevin(atoms, units.fs, 300, FRICTION).seed == seeds[1]
 
 
 @pytest.mark.parametrize('kwargs, error, match', [
@@ -267,3 +271,132 @@ def test_trajectory_frames_and_the_log_work_as_for_ase(tmp_path):
     assert len(log.read_text().splitlines()) == 7
     with Trajectory(str(traj)) as t:
         assert t.description['temperature_K'] == 300
+
+
+# -- restarts -----------------------------------------------------------------
+
+def test_a_frame_and_its_buffer_continue_bit_for_bit_and_run_back_through(
+        tmp_path):
+    traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
+
+    def build():
+        atoms = argon_cluster(2, 60)
+        atoms.calc = CALCULATORS['ase-lj']()
+        return atoms
+    atoms = build()
+    dyn = langevin(atoms, seed=9, trajectory=str(traj))
+    start = dyn.state
+    dyn.run(60)
+    dyn.write_buffer(saved)
+    dyn.run(40)
+    straight = dyn.state
+    dyn.close()
+
+    frame = read(str(traj), 60)
+    frame.calc = CALCULATORS['ase-lj']()
+    resumed = ReversibleLangevin(frame, 5 * units.fs, 300, FRICTION,
+                                 buffer=saved)
+    assert resumed.seed == 9 and resumed.step_index == 60
+    assert resumed.get_time() == pytest.approx(60 * 5 * units.fs)
+    resumed.run(40)
+    assert np.array_equal(resumed.state.ix_nc, straight.ix_nc)
+    assert np.array_equal(resumed.state.ip_nc, straight.ip_nc)
+    resumed.reverse().run(100)
+    assert np.array_equal(resumed.state.ix_nc, start.ix_nc)
+    assert np.array_equal(resumed.state.ip_nc, start.ip_nc)
+    assert_buffers_empty(resumed)
+    with pytest.raises(RetraceLimitError):
+        resumed.run(1)
+
+
+def test_a_frame_alone_resumes_the_noise_but_not_the_way_back(tmp_path):
+    traj = tmp_path / 'md.traj'
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    dyn = langevin(atoms, seed=4, trajectory=str(traj))
+    dyn.run(30)
+    dyn.close()
+    frame = read(str(traj), -1)
+    frame.calc = CALCULATORS['ase-lj']()
+    here = snapshot(frame)
+    resumed = ReversibleLangevin(frame, 5 * units.fs, 300, FRICTION)
+    assert resumed.seed == 4 and resumed.step_index == 30
+    forward_and_back(resumed, 20)
+    assert_same_state(frame, here)
+    with pytest.raises(RetraceLimitError):
+        resumed.run(1)
+
+
+def test_a_buffer_file_from_another_state_is_refused(tmp_path):
+    traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    dyn = langevin(atoms, trajectory=str(traj))
+    dyn.run(20)
+    dyn.write_buffer(saved)
+    dyn.close()
+    for index, friction, match in ((10, FRICTION, 'step 20 of another'),
+                                   (20, 2 * FRICTION, 'another friction')):
+        frame = read(str(traj), index)
+        frame.calc = CALCULATORS['ase-lj']()
+        with pytest.raises(ValueError, match=match):
+            ReversibleLangevin(frame, 5 * units.fs, 300, friction,
+                               buffer=saved)
+
+
+# -- gradients ------------------------------------------------------------------
+
+def test_gradients_match_complex_step_through_a_float_baoab_run():
+    """backpropagate against complex-step differentiation of a plain float
+    BAOAB run written here, with the same friction ratio and the same noise
+    integers.  The fixed-point friction rounds to within n = c 2**16 momentum
+    quanta per step, so the two paths part by more than NVE's: measured
+    relative errors 8e-10 to 7.2e-9 here; without the friction's adjoint
+    (a_p *= c, c = 0.905) they would be of order one."""
+    from ase_reversible.core.infobuffer import friction_ratio
+    from ase_reversible.core.noise import StepNoise, step_key
+    from finite_differences import complex_forces
+    from test_adjoint import FINE, argon, random_loss
+
+    steps, dt, temperature = 150, 5 * units.fs, 60.0
+    atoms = argon(2, 40, rc=30.0, ro=29.0)
+    a_nc, b_nc = random_loss(atoms)
+    dyn = ReversibleLangevin(atoms, dt, temperature, FRICTION, fixcm=False,
+                             seed=2, energy_check=0, **FINE)
+    x0_nc, p0_nc = atoms.positions.copy(), atoms.get_momenta()
+    dyn.run(steps)
+    g = dyn.backpropagate(steps, a_nc, b_nc)
+    assert np.array_equal(atoms.positions, x0_nc)
+
+    m_n1 = atoms.get_masses()[:, None]
+    qp = dyn.grid.momentum_quantum
+    ratio = friction_ratio(np.exp(-FRICTION * dt)) / 2**16
+    sigma_nc = np.sqrt((1 - ratio**2) * m_n1 * units.kB * temperature) / qp \
+        * np.ones((1, 3))
+    draw, key = StepNoise(x0_nc.size), step_key(2, dt)
+    noise = [np.rint(sigma_nc * draw.normals(key, k).reshape(-1, 3)) * qp
+             for k in range(steps)]
+
+    def run(x_nc, p_nc):
+        for k in range(steps):
+            p_nc = p_nc + 0.5 * dt * complex_forces(x_nc, AR_EPSILON,
+                                                    AR_SIGMA)
+            x_nc = x_nc + 0.5 * dt * p_nc / m_n1
+            p_nc = ratio * p_nc + noise[k]
+            x_nc = x_nc + 0.5 * dt * p_nc / m_n1
+            p_nc = p_nc + 0.5 * dt * complex_forces(x_nc, AR_EPSILON,
+                                                    AR_SIGMA)
+        return x_nc, p_nc
+
+    h = 1e-20
+    rng = np.random.default_rng(7)
+    errors = []
+    for _ in range(2):
+        u_nc = rng.normal(size=x0_nc.shape)
+        for dx, dp, ours in ((u_nc, 0, g.positions), (0, u_nc, g.momenta)):
+            x_nc, p_nc = run(x0_nc + 1j * h * dx, p0_nc + 1j * h * dp)
+            reference = (np.vdot(a_nc, x_nc.imag)
+                         + np.vdot(b_nc, p_nc.imag)) / h
+            error = abs(np.vdot(ours, u_nc) - reference) / abs(reference)
+            errors.append(error)
+    assert max(errors) < 1e-7, errors

@@ -138,6 +138,12 @@ class Engine:
             self.invariant.reset()
 
     @property
+    def other_step_sizes(self) -> bool:
+        """Whether steps of another ``|dt|`` are still on the clock (taken
+        and not undone)."""
+        return bool(self._steps_by_size)
+
+    @property
     def steps_since_anchor(self) -> int:
         """Steps that can be retraced in the present direction."""
         return (self.step_index - self.anchor_index) * self.direction

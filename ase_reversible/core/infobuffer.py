@@ -93,6 +93,21 @@ class InformationBuffer:
         self.words_jk = self.words_jk[:16].copy()
         self.checkpoint()
 
+    def load(self, state_k, top_k, words_jk):
+        """Take the contents another buffer of the same ``n`` and size had
+        (its :attr:`state_k`, :attr:`top_k` and the used rows of
+        :attr:`words_jk`)."""
+        if state_k.shape != self.state_k.shape or not np.all(
+                (state_k >= self.low) & (state_k < self._high)):
+            raise ValueError('The saved buffer does not fit: other size or '
+                             'friction ratio.')
+        self.state_k = np.array(state_k, dtype=np.int64)
+        self.top_k = np.array(top_k, dtype=np.int64)
+        depth = max(16, len(words_jk))
+        self.words_jk = np.zeros((depth, len(self.state_k)), dtype=np.uint16)
+        self.words_jk[:len(words_jk)] = words_jk
+        self.checkpoint()
+
     # -- size ------------------------------------------------------------
 
     @property

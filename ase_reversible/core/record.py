@@ -48,10 +48,13 @@ class RecordWriter:
     def __init__(self, quanta: dict):
         self._entries = _quanta_entries(quanta)
 
-    def __call__(self, info: dict, time: float) -> None:
-        """Store the record with ``time`` (ASE time units) in ``info``."""
+    def __call__(self, info: dict, time: float, sections=None) -> None:
+        """Store the record with ``time`` (ASE time units) in ``info``, and
+        ``sections`` (a dict of JSON-ready dicts by name: a thermostat's
+        settings, say) if given."""
         # A new dict each time: whoever read an earlier record keeps it.
-        info[INFO_KEY] = {**self._entries, 'time': float(time)}
+        info[INFO_KEY] = {**self._entries, 'time': float(time),
+                          **(sections or {})}
 
 
 def _quanta_entries(quanta: dict) -> dict:
@@ -59,12 +62,13 @@ def _quanta_entries(quanta: dict) -> dict:
 
 
 def read_record(info: dict, names=('position', 'momentum'),
-                hidden=()) -> dict | None:
+                hidden=(), sections=()) -> dict | None:
     """The record in ``info``, or None if absent or malformed.
 
     A dict of floats with the keys ``'<name>_quantum'`` for each of
-    ``names`` and ``'time'`` (units as in :func:`write_record`), and an
-    int64 array of counts for each name in ``hidden``.
+    ``names`` and ``'time'`` (units as in :func:`write_record`), an
+    int64 array of counts for each name in ``hidden``, and for each name
+    in ``sections`` the dict stored under it (None if there is none).
     """
     record = info.get(INFO_KEY)
     if not isinstance(record, dict):
@@ -82,6 +86,9 @@ def read_record(info: dict, names=('position', 'momentum'),
         except (KeyError, TypeError, ValueError, OverflowError):
             return None
         out[name] = counts
+    for name in sections:
+        section = record.get(name)
+        out[name] = dict(section) if isinstance(section, dict) else None
     return out
 
 

@@ -27,7 +27,7 @@ from ..core.record import (INFO_KEY, RecordWriter, read_record,
 from ..errors import AnchorMovedWarning
 from ..purity import calculator_members, discard_results, force_provider
 from .checks import (check_calculator, check_energy_watch, check_steps,
-                     check_timestep, checked_masses,
+                     check_timestep, checked_masses, fixed,
                      refuse_coarse_momentum_quantum)
 from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian
@@ -62,6 +62,9 @@ class ReversibleDynamics(MolecularDynamics):
     """
 
     engine = None
+    #: Sections of the restart record a subclass writes and reads besides
+    #: the quanta and the time (see :meth:`_record_sections`).
+    record_sections = ()
 
     def _attach(self, system, engine, purity_choice, time0):
         """Take the declared system and engine (before ASE's constructor)."""
@@ -219,7 +222,13 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _committed(self):
         self.system.show_momenta()
-        self._write_record(self.atoms.info, self.get_time())
+        self._write_record(self.atoms.info, self.get_time(),
+                           self._record_sections())
+
+    def _record_sections(self):
+        """``{name: dict}`` for the sections in :attr:`record_sections`, or
+        None: what a resumed run needs besides the quanta and the time."""
+        return None
 
     # -- state and settings ----------------------------------------------
 
@@ -266,6 +275,16 @@ class ReversibleDynamics(MolecularDynamics):
                                self.system.p.ints.copy())
 
     @property
+    def grid(self):
+        """The two quanta (Å; amu Å / ASE time unit) and their ranges, a
+        :class:`~ase_reversible.core.quanta.Grid` (fixed at construction)."""
+        return self.system.grid
+
+    @grid.setter
+    def grid(self, value):
+        fixed('grid (the quanta)')
+
+    @property
     def force_purity(self):
         """The force provider in use (:mod:`ase_reversible.purity`).
 
@@ -275,10 +294,9 @@ class ReversibleDynamics(MolecularDynamics):
         """
         return self.system.purity
 
-    @staticmethod
-    def _resumable_record(atoms):
+    def _resumable_record(self, atoms):
         """The restart record in ``atoms.info`` if it fits the atoms."""
-        record = read_record(atoms.info)
+        record = read_record(atoms.info, sections=self.record_sections)
         if record is None:
             return None
         mismatch = record_mismatch(record, {
@@ -451,8 +469,7 @@ class ReversibleDynamics(MolecularDynamics):
         return encoded(atoms, self.system.x.quantum, self.system.p.quantum,
                        project)
 
-    @staticmethod
-    def _admit(atoms, force_purity, force_noise):
+    def _admit(self, atoms, force_purity, force_noise):
         """Check the atoms a dynamics is constructed on, and read what it
         needs from them: ``(masses_n, project, purity, record)``, the
         record None unless a restart record fits the atoms."""
@@ -470,8 +487,7 @@ class ReversibleDynamics(MolecularDynamics):
                 raise ValueError(f'The atoms have non-finite {name}.')
         project = constraint_projection(atoms)
         purity = force_provider(atoms, force_purity, force_noise)
-        return masses_n, project, purity, \
-            ReversibleDynamics._resumable_record(atoms)
+        return masses_n, project, purity, self._resumable_record(atoms)
 
     def _hamiltonian(self, atoms, max_kick, position_quantum,
                      momentum_quantum, force_purity, force_noise):
@@ -507,6 +523,7 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _show_anchor(self):
         self.system.show()
-        self._write_record(self.atoms.info, self.get_time())
+        self._write_record(self.atoms.info, self.get_time(),
+                           self._record_sections())
 
 

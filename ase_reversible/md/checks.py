@@ -80,7 +80,8 @@ def checked_masses(atoms):
 def fixed(name):
     """Refuse an assignment to something fixed at construction."""
     raise AttributeError(
-        f'The {name} of a ReversibleVerlet is fixed when it is constructed; '
+        f'The {name} of a reversible integrator is fixed when it is '
+        'constructed; '
         'construct a new one (from the present atoms, which hold the exact '
         'state and its restart record) to change it.')
 

@@ -26,6 +26,7 @@ within 2**-17 / h of the one asked for).
 
 from __future__ import annotations
 
+import hashlib
 import math
 import warnings
 
@@ -93,6 +94,27 @@ class Friction(SubStep):
         for buffer in self.buffers.values():
             buffer.clear()
         self.heat = self._saved_heat = 0.0
+
+    def active_buffers(self):
+        """The buffers that hold digits, by friction ratio ``n``."""
+        return {n: b for n, b in self.buffers.items() if not b.is_empty()}
+
+    def load(self, saved):
+        """Take the buffers of a file :meth:`ReversibleLangevin.write_buffer`
+        wrote (``saved``: its arrays by name)."""
+        for key in saved:
+            if key.startswith('buffer_') and key.endswith('_state'):
+                n = int(key.split('_')[1])
+                buffer = self.buffers.get(n)
+                if buffer is None:
+                    raise ValueError(
+                        'The buffer file was written with another friction '
+                        f'(exact ratio {n}/2**16, here '
+                        f'{", ".join(map(str, self.buffers))}/2**16): '
+                        'construct with the friction and time step of the '
+                        'run that wrote it.')
+                buffer.load(saved[key], saved[f'buffer_{n}_top'],
+                            saved[f'buffer_{n}_words'])
 
     def prepare(self, ch):
         friction, temperature_K, fixcm, seed = self.settings()
@@ -213,8 +235,16 @@ class ReversibleLangevin(ReversibleDynamics):
         rounding, below a hundred momentum quanta per atom and step, is
         all that moves the centre of mass).
     seed : int, optional
-        Key of the noise, stored as :attr:`seed`; default: drawn from the
+        Key of the noise, stored as :attr:`seed`.  Default: the seed in the
+        atoms' restart record if it was written at this time step (a frame
+        of an earlier run goes on with its noise), else drawn from the
         operating system.  The same seed and start give the same run.
+    buffer : str or path, optional
+        A file :meth:`write_buffer` wrote together with the frame these
+        atoms come from: the run then goes on bit for bit as the one that
+        wrote it, and runs back past this point.  Without it, a frame goes
+        on with the same noise but not the same bits (see
+        :meth:`write_buffer`).
     trajectory, logfile, loginterval
         As for :class:`ase.md.langevin.Langevin`.
     position_quantum, momentum_quantum, force_purity, force_noise
@@ -239,9 +269,11 @@ class ReversibleLangevin(ReversibleDynamics):
         A constraint other than FixAtoms and FixCartesian.
     """
 
+    record_sections = ('langevin',)
+
     def __init__(self, atoms, timestep, temperature_K, friction, fixcm=True,
-                 *, seed=None, trajectory=None, logfile=None, loginterval=1,
-                 position_quantum=None, momentum_quantum=None,
+                 *, seed=None, buffer=None, trajectory=None, logfile=None,
+                 loginterval=1, position_quantum=None, momentum_quantum=None,
                  force_purity='auto', force_noise=None,
                  energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
                  **kwargs):
@@ -255,13 +287,19 @@ class ReversibleLangevin(ReversibleDynamics):
                                                 'temperature_K', 'K')
         self._friction = _checked_friction(friction, timestep)
         self._fixcm = bool(fixcm)
-        self._seed = _checked_seed(seed)
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
         _refuse_projections(atoms)
         system, record = self._hamiltonian(
             atoms, 0.5 * abs(timestep), position_quantum, momentum_quantum,
             force_purity, force_noise)
+        resumed = _resumed_noise(record, timestep)
+        if seed is None and resumed is not None:
+            seed = resumed['seed']
+        self._seed = _checked_seed(seed)
+        step = resumed['step'] if resumed is not None else 0
+        saved = None if buffer is None else _read_buffer(
+            buffer, system, self._seed, timestep, step)
         friction_step = Friction(system, self._settings, self._step_of)
         substep = {KICK: system.kick, DRIFT: system.drift,
                    FRICTION: friction_step}
@@ -273,8 +311,16 @@ class ReversibleLangevin(ReversibleDynamics):
                         composition_for(2, None), timestep,
                         invariant=invariant)
         self.friction_step = friction_step
-        self._attach(system, engine, (force_purity, force_noise),
-                     record['time'] if record else 0.0)
+        # The noise goes on from the step the record was written at, so a
+        # run resumed from a frame draws what the original run drew.
+        engine.step_index = engine.anchor_index = step
+        if saved is not None:
+            engine.anchor_index = saved['anchor_step']
+            engine.anchor = {name: saved[f'anchor_{name}']
+                             for name in engine.variables}
+            friction_step.load(saved)
+        time0 = record['time'] - engine.elapsed() if record else 0.0
+        self._attach(system, engine, (force_purity, force_noise), time0)
         super().__init__(atoms, timestep, trajectory=trajectory,
                          logfile=logfile, loginterval=loginterval, **kwargs)
         self._start(SystemWatch(atoms))
@@ -313,6 +359,44 @@ class ReversibleLangevin(ReversibleDynamics):
         # Steps before the new anchor cannot be retraced: their digits go.
         self.friction_step.forget()
         super()._install(counts)
+
+    def _record_sections(self):
+        return {'langevin': {'seed': self._seed,
+                             'step': self.engine.step_index,
+                             'timestep': abs(self.engine.dt)}}
+
+    def write_buffer(self, path):
+        """Write what reversal through this point needs to ``path`` (NumPy
+        ``.npz``): the information buffer, the anchor of reversal and the
+        step, tied to the present state by a digest.
+
+        A frame written now (the atoms hold it) and this file make a
+        restart that continues bit for bit and runs back past the restart
+        point to the anchor: ``ReversibleLangevin(frame, dt, T, friction,
+        buffer=path)``.  The frame alone continues with the same noise but
+        a fresh buffer, whose digits enter the friction's rounding: the
+        same statistics, not the same bits, and no way back past it.
+        """
+        self._sync()
+        engine, step = self.engine, self.engine.step_index
+        if engine.other_step_sizes:
+            raise ValueError(
+                'Steps with another time step are on the way back to the '
+                'anchor; write the buffer after retracing them, or from a '
+                'run at one time step.')
+        buffers = self.friction_step.active_buffers()
+        arrays = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
+                  'step': step, 'anchor_step': engine.anchor_index,
+                  'digest': _digest(engine.snapshot())}
+        for name, counts in engine.anchor.items():
+            arrays[f'anchor_{name}'] = counts
+        for n, b in buffers.items():
+            depth = int(b.top_k.max(initial=0))
+            arrays[f'buffer_{n}_state'] = b.state_k
+            arrays[f'buffer_{n}_top'] = b.top_k
+            arrays[f'buffer_{n}_words'] = b.words_jk[:depth]
+        with open(path, 'wb') as f:
+            np.savez(f, **arrays)
 
     # -- the thermostat's settings -----------------------------------------
 
@@ -433,3 +517,49 @@ def _refuse_projections(atoms):
                 'projected onto it, which is not done yet. Use '
                 'ReversibleVerlet for this system, or FixCartesian where '
                 'the constraint is along an axis.')
+
+
+def _resumed_noise(record, timestep):
+    """The record's ``{'seed', 'step'}`` if it was written at this size of
+    time step (the noise of a step is keyed by both), else None."""
+    section = record.get('langevin') if record else None
+    try:
+        if section is not None and float(section['timestep']) == abs(
+                timestep):
+            return {'seed': int(section['seed']), 'step': int(section['step'])}
+    except (KeyError, TypeError, ValueError):
+        pass
+    return None
+
+
+def _digest(counts):
+    """A digest of the exact state (int64 counts by name)."""
+    h = hashlib.sha256()
+    for name in sorted(counts):
+        h.update(np.ascontiguousarray(counts[name], dtype=np.int64).tobytes())
+    return h.hexdigest()
+
+
+def _read_buffer(path, system, seed, timestep, step):
+    """The arrays of a buffer file, refused unless written at this very
+    state, seed, time step and step."""
+    with np.load(path) as f:
+        saved = {key: f[key] for key in f.files}
+    state = {'position': system.x.ints, 'momentum': system.p.ints}
+    problems = []
+    if int(saved['seed']) != seed:
+        problems.append(f'it was written with seed {int(saved["seed"])}, '
+                        f'not {seed}')
+    if float(saved['timestep']) != abs(timestep):
+        problems.append(f'its time step is {float(saved["timestep"]) / units.fs:g} fs')
+    if int(saved['step']) != step or str(saved['digest']) != _digest(state):
+        problems.append(f'it was written at step {int(saved["step"])} of '
+                        'another state (these atoms are at step '
+                        f'{step} by their restart record)')
+    if problems:
+        raise ValueError(
+            f'The buffer file {path} does not belong to these atoms: '
+            + '; '.join(problems) + '. Pass the frame that was written '
+            'together with it (the last one before write_buffer), or no '
+            'buffer to go on without the way back.')
+    return saved

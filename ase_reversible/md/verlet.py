@@ -204,16 +204,6 @@ class ReversibleVerlet(ReversibleDynamics):
     def composition(self, value):
         fixed('composition (and order)')
 
-    @property
-    def grid(self):
-        """The two quanta (Å; amu Å / ASE time unit) and their ranges, a
-        :class:`~ase_reversible.core.quanta.Grid` (fixed at construction)."""
-        return self.system.grid
-
-    @grid.setter
-    def grid(self, value):
-        fixed('grid (the quanta)')
-
     def todict(self):
         """ASE's description of the dynamics (written into trajectory
         headers), plus ``scheme``, ``order``, ``composition``, the two
