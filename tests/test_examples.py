@@ -24,7 +24,7 @@ pytestmark = pytest.mark.filterwarnings(
 
 OPTIMISATIONS = ['steer_argon', 'keyframe_chain']
 SCENES = ['ring_collapse', 'chaotic_chain']
-USER_SCRIPTS = ['argon_cluster', 'copper_surface']
+USER_SCRIPTS = ['argon_cluster', 'copper_surface', 'argon_nvt']
 
 
 def load(name):

@@ -95,8 +95,8 @@ class InformationBuffer:
 
     def load(self, state_k, top_k, words_jk):
         """Take the contents another buffer of the same ``n`` and size had
-        (its :attr:`state_k`, :attr:`top_k` and the used rows of
-        :attr:`words_jk`)."""
+        (its ``state_k``, ``top_k`` and the used rows of
+        ``words_jk``)."""
         if state_k.shape != self.state_k.shape or not np.all(
                 (state_k >= self.low) & (state_k < self._high)):
             raise ValueError('The saved buffer does not fit: other size or '

@@ -63,7 +63,7 @@ class ReversibleDynamics(MolecularDynamics):
 
     engine = None
     #: Sections of the restart record a subclass writes and reads besides
-    #: the quanta and the time (see :meth:`_record_sections`).
+    #: the quanta and the time (written by ``_record_sections``).
     record_sections = ()
 
     def _attach(self, system, engine, purity_choice, time0):

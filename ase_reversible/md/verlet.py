@@ -112,7 +112,7 @@ class ReversibleVerlet(ReversibleDynamics):
     The time step, the anchor, the quanta and the settings are
     properties: ``dt``, ``anchor``, ``state``, ``energy_check``,
     ``energy_tolerance`` and ``force_purity`` (documented on
-    :class:`~ase_reversible.md.base.ReversibleDynamics`), :attr:`grid`,
+    :class:`~ase_reversible.md.base.ReversibleDynamics`), :attr:`~ase_reversible.md.base.ReversibleDynamics.grid`,
     :attr:`scheme` and :attr:`composition`.
 
     Raises
