@@ -2,8 +2,8 @@
 
 A section of ``run_all.py``::
 
-    python benchmarks/run_all.py --only thermostat           # ~10 minutes
-    python benchmarks/run_all.py --quick --only thermostat   # < 30 s
+    python benchmarks/run_all.py --only thermostat           # ~9 minutes
+    python benchmarks/run_all.py --quick --only thermostat   # ~15 s
 
 Systems: periodic fcc argon (asap3 LennardJones, 80 K, 10 fs) and copper
 (asap3 EMT, 600 K, 5 fs), 256 atoms each, friction 0.01 / fs, momenta
@@ -65,7 +65,8 @@ from ase.md.langevin import Langevin
 from ase.md.velocitydistribution import Stationary
 from ase.md.verlet import VelocityVerlet
 from scipy import stats
-from step_cost import Contestant, Settings, choose_steps, time_interleaved
+from step_cost import (Contestant, Settings, choose_steps, time_cached_queries,
+                       time_interleaved)
 from systems import CALCULATORS
 
 from ase_reversible import ReversibleLangevin, ReversibleVerlet
@@ -82,6 +83,8 @@ BLOCKS = 20
 HISTOGRAM_BINS = 40
 #: Sokal's window: sum the autocorrelation up to the first m >= C g(m).
 WINDOW_C = 5.0
+#: Steps between readings of sum F**2 / m (for the mean squared frequency).
+FORCE_EVERY = 10
 #: The goals judged on the page.
 TEMPERATURE_GOAL_PERCENT = 1.0
 BITS_GOAL_RATIO = 1.1
@@ -175,6 +178,7 @@ class Sampler:
         self.kinetic = np.full(steps + 1, np.nan)
         self.potential = np.full(steps + 1, np.nan)
         self.com_kinetic = np.full(steps + 1, np.nan)
+        self.force_square = np.full(steps + 1, np.nan)
         self.total_mass = float(self.atoms.get_masses().sum())
 
     def __call__(self):
@@ -185,6 +189,10 @@ class Sampler:
         self.com_kinetic[i] = 0.5 * float(p_c @ p_c) / self.total_mass
         self.kinetic[i] = k - self.com_kinetic[i]
         self.potential[i] = self.atoms.get_potential_energy()
+        if i % FORCE_EVERY == 0:
+            f_nc = self.atoms.get_forces()
+            self.force_square[i] = float(
+                (f_nc**2 / self.atoms.get_masses()[:, None]).sum())
 
 
 def integrated_time(x):
@@ -216,7 +224,7 @@ def lag1(x):
     return float((x[1:] @ x[:-1]) / (x @ x))
 
 
-def statistics_of(sampler, first, dof, kT, edges):
+def statistics_of(sampler, first, dof, kT, edges, timestep):
     """The sampling results of the steps from ``first`` on."""
     kinetic = sampler.kinetic[first:]
     potential = sampler.potential[first:]
@@ -225,9 +233,21 @@ def statistics_of(sampler, first, dof, kT, edges):
     stride = math.ceil(2 * g)
     thinned = kinetic[::stride]
     ks = stats.kstest(thinned, 'gamma', args=(dof / 2, 0.0, kT))
+    # The shape alone: the scale from the measured mean kinetic energy.
+    ks_shape = stats.kstest(thinned, 'gamma',
+                            args=(dof / 2, 0.0, 2 * kinetic.mean() / dof))
     temperature = block_mean(2 * kinetic / (dof * units.kB))
     counts, _ = np.histogram(kinetic, edges)
+    # <omega**2> over the internal modes: <F_i**2> = kT <d2U/dx_i**2>, so
+    # sum_i <F_i**2 / m_i> / (kT dof) is the trace of the mass-weighted
+    # Hessian over the modes.  For a harmonic system BAOAB's momenta at
+    # the full step have <p**2> = m kT (1 - h**2 omega**2 / 4).
+    force_square = sampler.force_square[first:]
+    omega2 = float(np.nanmean(force_square) / (kT * dof))
     return {
+        'mean_omega_squared_per_fs2': omega2 * units.fs**2,
+        'baoab_harmonic_kinetic_bias_percent':
+            -100 * timestep**2 * omega2 / 4,
         'samples': len(kinetic),
         'temperature_K': temperature,
         'potential_energy': {**block_mean(potential),
@@ -237,7 +257,9 @@ def statistics_of(sampler, first, dof, kT, edges):
         'ks': {'stride': stride, 'samples': len(thinned),
                'lag1_of_thinned': lag1(thinned),
                'statistic': float(ks.statistic),
-               'p_value': float(ks.pvalue)},
+               'p_value': float(ks.pvalue),
+               'shape_statistic': float(ks_shape.statistic),
+               'shape_p_value': float(ks_shape.pvalue)},
         'max_com_kinetic_over_kT': float(np.max(sampler.com_kinetic[first:])
                                          / kT),
         'histogram_counts': counts.tolist(),
@@ -348,9 +370,11 @@ def sampling_system(system, lengths):
     ours, round_trip, buffer = run_reversible(system, lengths)
     theirs, ase_seconds = run_ase(system, lengths.round_trip)
     first = lengths.equilibration + 1
+    h = system.timestep_fs * units.fs
     sampled = {'reversible_langevin': statistics_of(ours, first, dof, kT,
-                                                    edges),
-               'ase_langevin': statistics_of(theirs, first, dof, kT, edges)}
+                                                    edges, h),
+               'ase_langevin': statistics_of(theirs, first, dof, kT, edges,
+                                             h)}
     sampled['ase_langevin']['seconds'] = ase_seconds
     a = sampled['reversible_langevin']['potential_energy']
     b = sampled['ase_langevin']['potential_energy']
@@ -395,6 +419,9 @@ def speed_case(system, repeat, settings):
     steps = choose_steps(by_name['ase_langevin'], settings)
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
     median = {k: statistics.median(v) for k, v in wall.items()}
+    # ASE's integrators ask for the forces again at unchanged positions.
+    forces_again, _ = time_cached_queries(
+        by_name['velocity_verlet'].runner.atoms, min(steps, 20))
     result = {
         'system': system.label, 'calculator': system.calculator,
         'n_atoms': len(template), 'timestep_fs': system.timestep_fs,
@@ -406,6 +433,7 @@ def speed_case(system, repeat, settings):
                                for k, v in cpu.items()},
         'spread': {k: (max(v) - min(v)) / statistics.median(v)
                    for k, v in wall.items()},
+        'get_forces_again_seconds': forces_again,
     }
     print(f'  {system.calculator:10s} N={len(template):5d} S={steps:4d}  '
           + '  '.join(f'{k}={v * 1e6:.0f}µs' for k, v in median.items()),
@@ -429,6 +457,7 @@ def run(quick):
         'load_average': load,
         'settings': {'friction_per_fs': FRICTION_PER_FS, 'seed': SEED,
                      'blocks': BLOCKS, 'window_c': WINDOW_C,
+                     'force_every': FORCE_EVERY,
                      'temperature_goal_percent': TEMPERATURE_GOAL_PERCENT,
                      'bits_goal_ratio': BITS_GOAL_RATIO,
                      'trajectory_bytes_per_coordinate':
