@@ -24,7 +24,7 @@ DOCS = ROOT / 'docs'
 #: and benchmarks/pages/<name>.py (renders).
 SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
             'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
-            'force_noise', 'full_precision', 'long_reversal')
+            'thermostat', 'force_noise', 'full_precision', 'long_reversal')
 
 
 def page_module(name):
