@@ -41,6 +41,13 @@ def langevin(atoms, dt_fs=5, temperature_K=300, **kwargs):
                               **kwargs)
 
 
+def ar13():
+    """Ar13 at 60 K with ASE's Lennard-Jones."""
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    return atoms
+
+
 def assert_buffers_empty(dyn):
     buffers = dyn.friction_step.buffers.values()
     assert buffers and all(b.is_empty() for b in buffers)
@@ -62,8 +69,7 @@ def test_round_trip_is_exact(case, fixcm):
 
 @pytest.mark.parametrize('constraint', ['FixAtoms', 'FixCartesian'])
 def test_constrained_coordinates_stay_put_and_reversal_is_exact(constraint):
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
+    atoms = ar13()
     if constraint == 'FixAtoms':
         atoms.set_constraint(FixAtoms(indices=[0, 5]))
         frozen = np.zeros((len(atoms), 3), bool)
@@ -86,8 +92,7 @@ def test_constrained_coordinates_stay_put_and_reversal_is_exact(constraint):
 
 
 def test_a_plane_constraint_is_refused_and_nothing_changes():
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
+    atoms = ar13()
     atoms.set_constraint(FixedPlane(0, (0, 0, 1)))
     before = snapshot(atoms)
     with pytest.raises(UnsupportedConstraintError,
@@ -97,8 +102,7 @@ def test_a_plane_constraint_is_refused_and_nothing_changes():
 
 
 def test_going_back_past_the_anchor_is_refused_at_a_valid_state():
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
+    atoms = ar13()
     dyn = langevin(atoms)
     start = snapshot(atoms)
     dyn.run(30)
@@ -116,13 +120,9 @@ def test_going_back_past_the_anchor_is_refused_at_a_valid_state():
 def test_back_and_forth_is_one_trajectory():
     """The noise is keyed by the step's index: retracing part of a run and
     running it again gives the same states, bit for bit."""
-    def build():
-        atoms = argon_cluster(2, 60)
-        atoms.calc = CALCULATORS['ase-lj']()
-        return atoms
-    straight = build()
+    straight = ar13()
     langevin(straight).run(120)
-    wandering = build()
+    wandering = ar13()
     dyn = langevin(wandering)
     dyn.run(80)
     dyn.reverse().run(50)
@@ -133,8 +133,7 @@ def test_back_and_forth_is_one_trajectory():
 def test_the_seed_decides_the_run():
     runs = {}
     for seed in (3, 3, 4):
-        atoms = argon_cluster(2, 60)
-        atoms.calc = CALCULATORS['ase-lj']()
+        atoms = ar13()
         dyn = langevin(atoms, seed=seed)
         assert dyn.seed == seed
         dyn.run(50)
@@ -148,8 +147,7 @@ def test_the_seed_decides_the_run():
 def test_a_default_seed_is_drawn_kept_and_resumed_from_the_record():
     seeds = []
     for _ in range(2):
-        atoms = argon_cluster(2, 60)
-        atoms.calc = CALCULATORS['ase-lj']()
+        atoms = ar13()
         dyn = ReversibleLangevin(atoms, units.fs, 300, FRICTION)
         seeds.append(dyn.seed)
         assert dyn.todict()['seed'] == dyn.seed
@@ -167,8 +165,7 @@ def test_a_default_seed_is_drawn_kept_and_resumed_from_the_record():
 ])
 def test_bad_arguments_are_refused_before_anything_changes(kwargs, error,
                                                           match):
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
+    atoms = ar13()
     before = snapshot(atoms)
     arguments = {'timestep': 5 * units.fs, 'temperature_K': 300,
                  'friction': FRICTION, 'seed': 1, **kwargs}
@@ -178,8 +175,7 @@ def test_bad_arguments_are_refused_before_anything_changes(kwargs, error,
 
 
 def test_a_new_temperature_moves_the_anchor_and_reversal_leads_there():
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
+    atoms = ar13()
     dyn = langevin(atoms)
     dyn.run(40)
     with pytest.warns(AnchorMovedWarning, match='temperature'):
@@ -196,8 +192,7 @@ def test_a_new_temperature_moves_the_anchor_and_reversal_leads_there():
 
 
 def test_a_new_friction_is_taken_like_a_new_temperature():
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
+    atoms = ar13()
     dyn = langevin(atoms)
     dyn.run(20)
     with pytest.warns(AnchorMovedWarning, match='friction'):
@@ -210,8 +205,7 @@ def test_a_new_friction_is_taken_like_a_new_temperature():
 
 
 def test_a_changed_time_step_can_be_retraced_after_setting_it_back():
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
+    atoms = ar13()
     dyn = langevin(atoms)
     start = snapshot(atoms)
     dyn.run(30)
@@ -257,8 +251,7 @@ def test_energy_minus_heat_is_conserved_and_noise_has_no_net_momentum():
 
 
 def test_trajectory_frames_and_the_log_work_as_for_ase(tmp_path):
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
+    atoms = ar13()
     log = tmp_path / 'md.log'
     traj = tmp_path / 'md.traj'
     dyn = langevin(atoms, trajectory=str(traj), logfile=str(log),
@@ -279,11 +272,7 @@ def test_a_frame_and_its_buffer_continue_bit_for_bit_and_run_back_through(
         tmp_path):
     traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
 
-    def build():
-        atoms = argon_cluster(2, 60)
-        atoms.calc = CALCULATORS['ase-lj']()
-        return atoms
-    atoms = build()
+    atoms = ar13()
     dyn = langevin(atoms, seed=9, trajectory=str(traj))
     start = dyn.state
     dyn.run(60)
@@ -311,8 +300,7 @@ def test_a_frame_and_its_buffer_continue_bit_for_bit_and_run_back_through(
 
 def test_a_frame_alone_resumes_the_noise_but_not_the_way_back(tmp_path):
     traj = tmp_path / 'md.traj'
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
+    atoms = ar13()
     dyn = langevin(atoms, seed=4, trajectory=str(traj))
     dyn.run(30)
     dyn.close()
@@ -329,8 +317,7 @@ def test_a_frame_alone_resumes_the_noise_but_not_the_way_back(tmp_path):
 
 def test_a_buffer_file_from_another_state_is_refused(tmp_path):
     traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
+    atoms = ar13()
     dyn = langevin(atoms, trajectory=str(traj))
     dyn.run(20)
     dyn.write_buffer(saved)
