@@ -84,8 +84,8 @@ class Friction(SubStep):
         self.system = system
         self.settings = settings
         self.step_of = step_of
-        size = system.p.ints.size
-        self.noise = StepNoise(size)
+        self.shape = system.p.ints.shape
+        self.noise = StepNoise(math.prod(self.shape))
         self.buffers = {}
         self.heat = self._saved_heat = 0.0
 
@@ -119,13 +119,12 @@ class Friction(SubStep):
     def prepare(self, ch):
         friction, temperature_K, fixcm, seed = self.settings()
         s = self.system
-        n = friction_ratio(math.exp(-friction * abs(ch)))
-        ratio = n / 2**DIGIT_BITS
+        n, ratio = exact_ratio(friction, ch)
         buffer = self.buffers.get(n)
         if buffer is None:
-            buffer = self.buffers[n] = InformationBuffer(s.p.ints.size, n)
-        free_nc = np.ones(s.p.ints.shape)
-        s.project(free_nc)
+            buffer = self.buffers[n] = InformationBuffer(
+                math.prod(self.shape), n)
+        free_nc = self._free()
         free_k = free_nc.reshape(-1) != 0
         mass_k = np.repeat(s.m_n1[:, 0], 3)
         sigma_k = np.sqrt((1.0 - ratio**2) * mass_k * units.kB
@@ -160,7 +159,7 @@ class Friction(SubStep):
         both_k = (new_k + x_k).astype(np.float64)
         both_k *= inverse_mass_k
         self.heat += 0.5 * p.quantum**2 * float(both_k.dot(r_k))
-        p.add_integers(r_k.reshape(p.ints.shape))
+        p.add_integers(r_k.reshape(self.shape))
 
     def checkpoint(self):
         self._saved_heat = self.heat
@@ -177,11 +176,22 @@ class Friction(SubStep):
         c`` on the coordinates it moves (the noise does not depend on the
         state), after the pending kicks."""
         cotangents.flush()
-        friction = self.settings()[0]
-        ratio = friction_ratio(math.exp(-friction * abs(ch))) / 2**DIGIT_BITS
-        free_nc = np.ones(self.system.p.ints.shape)
+        ratio = exact_ratio(self.settings()[0], ch)[1]
+        cotangents['momentum'] *= np.where(self._free() != 0, ratio, 1.0)
+
+    def _free(self):
+        """``[n_atoms, 3]``: nonzero where the constraints leave a momentum
+        free (the O step moves only those)."""
+        free_nc = np.ones(self.shape)
         self.system.project(free_nc)
-        cotangents['momentum'] *= np.where(free_nc != 0, ratio, 1.0)
+        return free_nc
+
+
+def exact_ratio(friction, ch):
+    """``(n, n / 2**16)``: the exact friction factor of a step of ``ch``
+    (ASE time units, either sign) at ``friction`` (1 / ASE time unit)."""
+    n = friction_ratio(math.exp(-friction * abs(ch)))
+    return n, n / 2**DIGIT_BITS
 
 
 def _zero_sum_weights(m_n1, free_nc):
@@ -416,8 +426,8 @@ class ReversibleLangevin(ReversibleDynamics):
         """The friction the O step applies, 1 / ASE time unit:
         ``-ln(n / 2**16) / |dt|`` for the exact ratio ``n / 2**16``
         nearest to ``exp(-friction |dt|)``."""
-        n = friction_ratio(math.exp(-self._friction * abs(self.dt)))
-        return -math.log(n / 2**DIGIT_BITS) / abs(self.dt)
+        return -math.log(exact_ratio(self._friction, self.dt)[1]) \
+            / abs(self.dt)
 
     @property
     def fixcm(self) -> bool:
