@@ -2,7 +2,8 @@
 
 :class:`~.base.ReversibleDynamics` is the thin base (ASE's run loop, the
 change contract, the clock, ``backpropagate``); :class:`~.verlet.ReversibleVerlet`
-declares NVE on it, :class:`~.langevin.ReversibleLangevin` NVT.  :mod:`.hamiltonian` holds the drift and kick,
+declares NVE on it, :class:`~.langevin.ReversibleLangevin` and
+:class:`~.nose.ReversibleNose` NVT.  :mod:`.hamiltonian` holds the drift and kick,
 :mod:`.watch` what is checked around a run, :mod:`.constraints` the exact
 constraint projections.
 """
@@ -10,6 +11,8 @@ constraint projections.
 from .base import ReversibleDynamics
 from .state import FixedPointState
 from .langevin import ReversibleLangevin
+from .nose import ReversibleNose
 from .verlet import ReversibleVerlet
 
-__all__ = ['ReversibleDynamics', 'ReversibleVerlet', 'ReversibleLangevin', 'FixedPointState']
+__all__ = ['ReversibleDynamics', 'ReversibleVerlet', 'ReversibleLangevin', 'ReversibleNose',
+           'FixedPointState']

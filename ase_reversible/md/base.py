@@ -275,6 +275,13 @@ class ReversibleDynamics(MolecularDynamics):
                                self.system.p.ints.copy())
 
     @property
+    def counts(self) -> dict:
+        """Copies of every exact variable's int64 counts, by name
+        (``'position'``, ``'momentum'``, and a thermostat's own): the whole
+        state reversal restores."""
+        return self.engine.snapshot()
+
+    @property
     def grid(self):
         """The two quanta (Å; amu Å / ASE time unit) and their ranges, a
         :class:`~ase_reversible.core.quanta.Grid` (fixed at construction)."""
@@ -294,14 +301,18 @@ class ReversibleDynamics(MolecularDynamics):
         """
         return self.system.purity
 
+    def _grid_values(self, atoms):
+        """``{name: float array or None}``: what the atoms show that an
+        unedited frame holds on the grid of its record."""
+        return {'position': atoms.positions,
+                'momentum': atoms.arrays.get('momenta')}
+
     def _resumable_record(self, atoms):
         """The restart record in ``atoms.info`` if it fits the atoms."""
         record = read_record(atoms.info, sections=self.record_sections)
         if record is None:
             return None
-        mismatch = record_mismatch(record, {
-            'position': atoms.positions,
-            'momentum': atoms.arrays.get('momenta')})
+        mismatch = record_mismatch(record, self._grid_values(atoms))
         if mismatch is None:
             return record
         warnings.warn(
@@ -381,19 +392,31 @@ class ReversibleDynamics(MolecularDynamics):
                 f'Call backpropagate with at most {available} steps.')
         atoms, n = self.atoms, len(self.atoms)
         cotangents = Cotangents(
-            {'position': checked_gradient(grad_positions, n,
-                                          'grad_positions'),
-             'momentum': checked_gradient(grad_momenta, n, 'grad_momenta')},
+            self._cotangents_of(
+                checked_gradient(grad_positions, n, 'grad_positions'),
+                checked_gradient(grad_momenta, n, 'grad_momenta')),
             hvp=hvp_for(atoms.calc, hvp),
             parameters=checked_parameters(atoms.calc, parameters))
         try:
             self.engine.retrace(steps, cotangents)
         finally:
             self._committed()
-        ap_nc = cotangents['momentum'].copy()
+        ax_nc, ap_nc = self._gradients_of(cotangents)
         self.system.project(ap_nc)
-        return Gradients(cotangents['position'].copy(), ap_nc,
-                         cotangents.grad_parameters, cotangents.products)
+        return Gradients(ax_nc, ap_nc, cotangents.grad_parameters,
+                         cotangents.products)
+
+    def _cotangents_of(self, ax_nc, ap_nc):
+        """The cotangent of every exact variable, by name, for a loss
+        with gradients ``ax_nc``, ``ap_nc`` on the shown positions and
+        momenta."""
+        return {'position': ax_nc, 'momentum': ap_nc}
+
+    def _gradients_of(self, cotangents):
+        """``(dL/dx, dL/dp)`` on the shown positions and momenta, new
+        arrays, from the cotangents of the exact variables."""
+        return (cotangents['position'].copy(),
+                cotangents['momentum'].copy())
 
     # -- changes made around the run --------------------------------------
 
@@ -406,7 +429,7 @@ class ReversibleDynamics(MolecularDynamics):
         momenta = atoms.arrays.get('momenta')
         if (same_values(atoms.arrays['positions'], self.system.x.floats)
                 and momenta is not None
-                and same_values(momenta, self.system.p.floats)):
+                and same_values(momenta, self.system.shown_momenta())):
             return
         self._install(self._encode(atoms, self.system.project))
         warnings.warn(
@@ -490,7 +513,8 @@ class ReversibleDynamics(MolecularDynamics):
         return masses_n, project, purity, self._resumable_record(atoms)
 
     def _hamiltonian(self, atoms, max_kick, position_quantum,
-                     momentum_quantum, force_purity, force_noise):
+                     momentum_quantum, force_purity, force_noise,
+                     system_class=Hamiltonian):
         """The atoms as a :class:`~.hamiltonian.Hamiltonian` on its grid,
         and the restart record it resumes (or None).
 
@@ -513,8 +537,8 @@ class ReversibleDynamics(MolecularDynamics):
             masses_n, projected_momenta(atoms, project), grid, origin, purity)
         counts = encoded(atoms, grid.position_quantum, grid.momentum_quantum,
                          project)
-        return Hamiltonian(atoms, grid, counts, masses_n, project,
-                           purity), record
+        return system_class(atoms, grid, counts, masses_n, project,
+                            purity), record
 
     def _install(self, counts):
         """Make ``counts`` the anchor of reversal and show it on the atoms."""

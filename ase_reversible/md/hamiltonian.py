@@ -82,6 +82,11 @@ class Hamiltonian:
         else:
             self.p.write_floats(momenta)
 
+    def shown_momenta(self):
+        """The momenta the atoms show, ``[n_atoms, 3]`` (not to be
+        modified): the exact image of the momentum counts."""
+        return self.p.floats
+
     def show(self):
         """Write positions and momenta."""
         self.show_positions()
@@ -137,13 +142,21 @@ class Drift(SubStep):
                 2.0 * s.p.quantum * float(np.abs(factor_n1).max(initial=0.0)))
 
     def apply(self, prepared):
+        self._drift(prepared, (self.system.p.label, prepared[0]))
+
+    def _drift(self, prepared, key, scale=None):
+        """The drift of ``prepared``, its velocities times the float
+        ``scale`` if given; ``key`` names the increment (the values it
+        is a function of), so one already computed is reused."""
         ch, factor_nc, growth = prepared
         s = self.system
         y_nc = self._y_nc
-        key = (s.p.label, ch)
         if self._y_key != key:
             self._y_key = None  # y_nc is about to be overwritten
             np.multiply(s.p.floats, factor_nc, out=y_nc)
+            if scale is not None:
+                y_nc *= scale
+                growth *= abs(scale)
             if s.project is not no_projection:
                 s.project(y_nc)
             round_odd(y_nc, out=y_nc)

@@ -1,0 +1,577 @@
+"""ReversibleNose: deterministic constant-temperature dynamics that runs back
+exactly, with no memory that grows with the run.
+
+Nosé's extended system (S. Nosé, "A unified formulation of the constant
+temperature molecular dynamics methods", J. Chem. Phys. 81, 511 (1984))
+adds a coordinate ``s > 0`` and its momentum ``pi`` to the atoms.  In
+Nosé's virtual time, with virtual momenta ``p' = s p``,
+
+    H = sum p'**2 / (2 m s**2) + U(x) + pi**2 / (2 Q) + g kT ln s
+
+is conserved.  It splits into three parts whose flows are shears -- each
+adds to some variables a function of variables it leaves alone:
+
+* ``A = sum p'**2 / (2 m s**2) + g kT ln s`` (a function of ``p'`` and
+  ``s``): ``x += h p' / (m s**2)`` and ``pi += h (sum p'**2 / (m s**3) -
+  g kT / s)``;
+* ``B = U(x)``: ``p' += h F(x)``, the kick of :mod:`.hamiltonian`;
+* ``C = pi**2 / (2 Q)``: ``s += h pi / Q``.
+
+Each update is rounded odd to its quantum, so each is undone exactly with
+``-h``, and the step ``B/2 A/2 C A/2 B/2`` is a palindrome: one force call,
+with the forces at the step's end as in velocity Verlet, and no buffer.
+
+Which ensemble, and the clock.  Steps are equal in virtual time.
+Integrating the microcanonical density of ``H`` over ``s`` leaves, for
+the real variables ``x`` and ``p = p' / s``, the weight ``exp(-(N_f + 1)
+H_0 / (g kT))`` (``H_0`` the atoms' energy, ``N_f`` the momenta's degrees
+of freedom): averages over virtual time -- over the frames of a run -- are
+canonical for ``g = N_f + 1`` (Nosé 1984, section 2), which is the ``g``
+used.  Real time runs at ``dt = dtau / s``; it is a further exact variable
+updated during ``A`` (where ``s`` is fixed), so :meth:`get_time` is real
+time and runs back exactly too.
+
+``N_f`` counts the free momentum coordinates (the trace of the constraint
+projection), less 3 when there are no constraints: the forces then sum to
+zero and the total virtual momentum is conserved.  That count assumes the
+total momentum is zero (``ase.md.velocitydistribution.Stationary``).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+from ase import units
+
+from ..core.codec import round_odd
+from ..core.compositions import composition_for
+from ..core.engine import Engine, InvariantCheck
+from ..core.plans import SubStep
+from ..core.record import read_record
+from ..core.variables import ExactVariable
+from ..errors import AnchorMovedWarning, UnstableIntegrationError
+from .base import ReversibleDynamics, projected_momenta
+from .checks import check_energy_watch, check_timestep, fixed
+from .constraints import no_projection
+from .hamiltonian import Drift, Hamiltonian
+from .langevin import _checked_positive
+from .watch import SystemWatch
+
+S, PI, CLOCK = 'thermostat_position', 'thermostat_momentum', 'time'
+DRIFT, KICK, S_DRIFT, PI_KICK, TICK = ('drift', 'kick', 's-drift',
+                                       'pi-kick', 'tick')
+
+#: ``B/2 A/2 C A/2 B/2`` (module docstring); the three parts of ``A``
+#: depend on ``p'`` and ``s`` only, so their order within ``A`` is free.
+SCHEME = ((KICK, 0.5), (DRIFT, 0.5), (PI_KICK, 0.5), (TICK, 0.5),
+          (S_DRIFT, 1.0), (TICK, 0.5), (PI_KICK, 0.5), (DRIFT, 0.5),
+          (KICK, 0.5))
+
+#: Default steps between checks of the extended energy.
+ENERGY_CHECK_INTERVAL = 100
+
+#: Quantum of ``s`` (dimensionless, starts at 1): 2**-40 leaves 2**12 of
+#: range above 1 and resolves an increment of ``h pi / Q`` to 2**-40.
+S_QUANTUM = 2.0**-40
+#: Bits of ``sqrt(Q kT)`` (the spread of ``pi``) below its quantum.
+PI_BITS = 40
+#: Bits of ``|dt|`` below the clock's quantum: the clock rounds each half
+#: step to 2**-24 of the time step and runs for 2**28 steps of ``|dt|``
+#: before its counts reach 2**53.
+CLOCK_BITS = 24
+#: Virtual momentum counts below this are recovered exactly from a
+#: frame's momenta ``p' / s`` and ``s`` (two roundings of 2**-53 each);
+#: above, the record stores them.
+RECOVERABLE = 2.0**50
+
+
+def _power_of_two_below(value):
+    return math.ldexp(1.0, math.frexp(value)[1] - 1)
+
+
+def degrees_of_freedom(n_atoms, project):
+    """``N_f``: the free momentum coordinates, less 3 without constraints
+    (the total momentum is then conserved)."""
+    if project is no_projection:
+        return 3 * n_atoms - 3
+    trace = 0.0
+    for c in range(3):
+        unit_nc = np.zeros((n_atoms, 3))
+        unit_nc[:, c] = 1.0
+        project(unit_nc)
+        trace += float(unit_nc[:, c].sum())
+    return int(round(trace))
+
+
+class NoseHamiltonian(Hamiltonian):
+    """The atoms with Nosé's thermostat: ``'momentum'`` holds the virtual
+    momenta ``p' = s p``, the atoms show ``p = p' / s``; ``s``, ``pi`` and
+    the real time are exact variables of shape ``[1]``.
+
+    Parameters as for :class:`~.hamiltonian.Hamiltonian`; the thermostat is
+    set with :meth:`set_thermostat`.
+    """
+
+    def __init__(self, atoms, grid, counts, masses_n, project, purity):
+        self.kT = self.tdamp = None
+        super().__init__(atoms, grid, counts, masses_n, project, purity)
+        self.drift = ScaledDrift(self)
+        self._shown_nc = np.empty(self.p.ints.shape)
+        self._shown_key = None
+
+    def set_thermostat(self, counts, quanta, temperature_K, tdamp):
+        """Take ``s``, ``pi`` and the clock from ``counts`` (int64 ``[1]``
+        by name) in ``quanta``, at ``temperature_K`` (K) and ``tdamp``
+        (ASE time units)."""
+        self.s = ExactVariable(S, counts[S], quanta[S])
+        self.pi = ExactVariable(PI, counts[PI], quanta[PI])
+        self.clock = ExactVariable(CLOCK, counts[CLOCK], quanta[CLOCK])
+        self.variables.update({S: self.s, PI: self.pi, CLOCK: self.clock})
+        self.tdamp = tdamp
+        self.set_temperature(temperature_K)
+
+    def set_temperature(self, temperature_K):
+        self.temperature_K = temperature_K
+        self.kT = units.kB * temperature_K
+        self._set_mass()
+
+    def set_dynamics(self, masses_n, project, purity):
+        super().set_dynamics(masses_n, project, purity)
+        self.degrees_of_freedom = degrees_of_freedom(len(masses_n), project)
+        if self.degrees_of_freedom < 1:
+            raise ValueError('ReversibleNose needs at least one free degree '
+                             'of freedom; every momentum is constrained.')
+        self.g = self.degrees_of_freedom + 1
+        if self.kT is not None:
+            self._set_mass()
+
+    def _set_mass(self):
+        #: The thermostat's mass Q, eV (ASE time)**2: its period is of the
+        #: order of tdamp.
+        self.Q = self.g * self.kT * self.tdamp**2
+
+    # -- what the atoms show ----------------------------------------------
+
+    def s_value(self) -> float:
+        """``s``, its exact float image."""
+        return float(self.s.floats[0])
+
+    def shown_momenta(self):
+        key = (self.p.label, self.s.label)
+        if self._shown_key != key:
+            np.divide(self.p.floats, self.s_value(), out=self._shown_nc)
+            self._shown_key = key
+        return self._shown_nc
+
+    def show_momenta(self):
+        momenta = self.atoms.arrays.get('momenta')
+        if momenta is None:
+            self.atoms.set_momenta(self.shown_momenta(),
+                                   apply_constraint=False)
+        else:
+            np.copyto(momenta, self.shown_momenta())
+
+    def virtual_counts(self, momenta_nc, s_value):
+        """The virtual momentum counts ``rint(p s / q_p)`` of real momenta
+        ``momenta_nc`` ``[n_atoms, 3]`` (projected) at ``s``."""
+        y_nc = momenta_nc * (s_value / self.p.quantum)
+        return round_odd(y_nc).astype(np.int64)
+
+    # -- energies ---------------------------------------------------------
+
+    def thermostat_energy(self) -> float:
+        """``pi**2 / 2Q + g kT ln s``, eV."""
+        pi = float(self.pi.floats[0])
+        return 0.5 * pi * pi / self.Q + self.g * self.kT * math.log(
+            self.s_value())
+
+    def kinetic_energy(self):
+        """The atoms' real kinetic energy ``sum p'**2 / (2 m s**2)``, eV."""
+        return super().kinetic_energy() / self.s_value()**2
+
+    def extended_energy(self):
+        """``(H, proposed tolerance)``, eV: the conserved extended energy
+        and the tolerance the energy check proposes."""
+        energy, proposed = self.energy()
+        return energy + self.thermostat_energy(), proposed
+
+
+class ScaledDrift(Drift):
+    """``x += round_odd(c h P p' / (m s**2) / q_x)``."""
+
+    def apply(self, prepared):
+        s = self.system
+        self._drift(prepared, (s.p.label, s.s.label, prepared[0]),
+                    1.0 / s.s_value()**2)
+
+    def adjoint(self, cotangents, ch):
+        """``a_p' += c h P a_x / (m s**2)``; ``a_s -= 2 c h a_x . P p' /
+        (m s**3)``."""
+        cotangents.flush()
+        sys, s = self.system, self.system.s_value()
+        w_nc = np.divide(cotangents['position'], sys.m_n1)
+        sys.project(w_nc)
+        cotangents[S] -= 2.0 * ch / s**3 * float(np.vdot(w_nc, sys.p.floats))
+        cotangents['momentum'] += (ch / s**2) * w_nc
+
+
+class ThermostatKick(SubStep):
+    """``pi += round_odd(c h (sum p'**2 / (m s**3) - g kT / s) / q_pi)``."""
+
+    def __init__(self, system):
+        self.system = system
+
+    def prepare(self, ch):
+        return ch / self.system.pi.quantum
+
+    def apply(self, scale):
+        sys = self.system
+        s = sys.s_value()
+        two_k = 2.0 * Hamiltonian.kinetic_energy(sys)  # sum p'^2 / m
+        y = np.array([scale * (two_k / s**3 - sys.g * sys.kT / s)])
+        sys.pi.add_integers(round_odd(y, out=y))
+
+    def adjoint(self, cotangents, ch):
+        """``a_p' += c h a_pi 2 p' / (m s**3)``; ``a_s += c h a_pi (g kT /
+        s**2 - 3 sum p'**2 / (m s**4))``."""
+        cotangents.flush()
+        sys = self.system
+        a_pi = float(cotangents[PI][0])
+        if a_pi == 0.0:
+            return
+        s = sys.s_value()
+        two_k = 2.0 * Hamiltonian.kinetic_energy(sys)
+        cotangents[S] += ch * a_pi * (sys.g * sys.kT / s**2
+                                      - 3.0 * two_k / s**4)
+        cotangents['momentum'] += (2.0 * ch * a_pi / s**3) * (
+            sys.p.floats / sys.m_n1)
+
+
+class ThermostatDrift(SubStep):
+    """``s += round_odd(c h pi / Q / q_s)``; ``s`` must stay positive."""
+
+    def __init__(self, system):
+        self.system = system
+
+    def prepare(self, ch):
+        sys = self.system
+        return ch * sys.pi.quantum / (sys.Q * sys.s.quantum)
+
+    def apply(self, factor):
+        sys = self.system
+        y = factor * sys.pi.ints.astype(np.float64)
+        sys.s.add_integers(round_odd(y, out=y))
+        if not sys.s.floats[0] > 0.0:
+            raise UnstableIntegrationError(
+                'The Nosé thermostat coordinate s reached zero: the '
+                'thermostat is unstable. Use a larger tdamp or a smaller '
+                'time step. The step was not taken; the state is valid and '
+                'reversible.')
+
+    def adjoint(self, cotangents, ch):
+        """``a_pi += c h a_s / Q``."""
+        cotangents[PI] += ch / self.system.Q * cotangents[S]
+
+
+class Tick(SubStep):
+    """The real-time clock: ``t += round_odd(c h / s / q_t)``.  Nothing
+    depends on it, so its adjoint is empty."""
+
+    def __init__(self, system):
+        self.system = system
+
+    def prepare(self, ch):
+        return ch / self.system.clock.quantum
+
+    def apply(self, scale):
+        y = np.array([scale / self.system.s_value()])
+        self.system.clock.add_integers(round_odd(y, out=y))
+
+    def adjoint(self, cotangents, ch):
+        pass
+
+
+class ReversibleNose(ReversibleDynamics):
+    """Nosé's constant-temperature dynamics in fixed point, run back
+    exactly with no buffer: a deterministic NVT.
+
+    The atoms, a thermostat coordinate ``s`` and its momentum ``pi``
+    evolve under Nosé's extended Hamiltonian (module docstring), split so
+    that every update is an exact shear.  After ``run(n)``,
+    :meth:`reverse` and ``run(n)``, positions, momenta, ``s``, ``pi`` and
+    the clock are bitwise those right after the constructor, however long
+    the run: nothing is stored.  The frames of a run sample the canonical
+    distribution at ``temperature_K`` if the dynamics is ergodic, which a
+    single Nosé thermostat is not for small or stiff systems (a handful of
+    atoms, a cold harmonic crystal): use
+    :class:`~ase_reversible.ReversibleLangevin` for those.
+
+    The atoms show the real momenta ``p = p' / s``; the exact variable is
+    the virtual momentum ``p'`` (:attr:`state` holds its counts).  Steps are
+    equal in Nosé's virtual time; :meth:`get_time` is real time, which
+    advances by ``dt / s`` per step.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        With a calculator attached; best with zero total momentum (module
+        docstring).
+    timestep : float
+        ASE time units (``5 * ase.units.fs``), in virtual time.
+    temperature_K : float
+        Target temperature, K.
+    tdamp : float
+        Characteristic time of the thermostat, ASE time units (``100 *
+        timestep`` is a common choice, as for ASE's
+        ``NoseHooverChainNVT``); its mass is ``Q = g kB T tdamp**2``.
+    trajectory, logfile, loginterval
+        As for :class:`ase.md.verlet.VelocityVerlet`.
+    position_quantum, momentum_quantum, force_purity, force_noise
+        As for :class:`~ase_reversible.ReversibleVerlet`.
+    energy_check : int
+        As for :class:`~ase_reversible.ReversibleVerlet`, for the extended
+        energy :meth:`get_conserved_energy`.
+    energy_tolerance : float, optional
+        eV; default as for :class:`~ase_reversible.ReversibleVerlet`.
+    **kwargs
+        Passed to :class:`ase.md.md.MolecularDynamics`.
+
+    A frame the run wrote resumes it bit for bit: the restart record
+    (``atoms.info['reversible']``) holds ``s``, ``pi`` and their quanta.
+
+    Raises
+    ------
+    ValueError, TypeError
+        A non-positive or non-finite temperature or tdamp, or the errors
+        of :class:`~ase_reversible.ReversibleVerlet`.
+    UnsupportedConstraintError
+        As for :class:`~ase_reversible.ReversibleVerlet`.
+    """
+
+    record_sections = ('nose',)
+
+    def __init__(self, atoms, timestep, temperature_K, tdamp, *,
+                 trajectory=None, logfile=None, loginterval=1,
+                 position_quantum=None, momentum_quantum=None,
+                 force_purity='auto', force_noise=None,
+                 energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
+                 **kwargs):
+        timestep = check_timestep(timestep)
+        temperature_K = _checked_positive(temperature_K, 'temperature_K',
+                                          'K')
+        tdamp = _checked_positive(tdamp, 'tdamp', 'ASE time units, e.g. '
+                                  '100 * ase.units.fs')
+        energy_check, energy_tolerance = check_energy_watch(
+            energy_check, energy_tolerance)
+        system, record = self._hamiltonian(
+            atoms, 0.5 * abs(timestep), position_quantum, momentum_quantum,
+            force_purity, force_noise, system_class=NoseHamiltonian)
+        counts, quanta = self._thermostat_start(system, record, timestep,
+                                                temperature_K, tdamp)
+        system.set_thermostat(counts, quanta, temperature_K, tdamp)
+        if record is not None and record.get('nose') is not None:
+            self._resume_virtual_momenta(system, record['nose'])
+        substep = {KICK: system.kick, DRIFT: system.drift,
+                   PI_KICK: ThermostatKick(system),
+                   S_DRIFT: ThermostatDrift(system), TICK: Tick(system)}
+        invariant = InvariantCheck(
+            energy_check, energy_tolerance, system.extended_energy,
+            self._explain_drift, trigger=self._trigger)
+        engine = Engine(system.variables,
+                        tuple((substep[k], c) for k, c in SCHEME),
+                        composition_for(2, None), timestep,
+                        invariant=invariant)
+        self._attach(system, engine, (force_purity, force_noise),
+                     record['time'] if record else 0.0)
+        super().__init__(atoms, timestep, trajectory=trajectory,
+                         logfile=logfile, loginterval=loginterval, **kwargs)
+        self._start(SystemWatch(atoms))
+
+    # -- construction -------------------------------------------------------
+
+    @staticmethod
+    def _thermostat_start(system, record, timestep, temperature_K, tdamp):
+        """Counts and quanta of ``s``, ``pi`` and the clock: from the
+        record's ``'nose'`` section if it has one, else ``s = 1``, ``pi =
+        0``.  The clock counts from 0 (the record's time is added)."""
+        g = system.g
+        spread = math.sqrt(g * units.kB * temperature_K * tdamp**2
+                           * units.kB * temperature_K)
+        quanta = {S: S_QUANTUM,
+                  PI: math.ldexp(_power_of_two_below(spread), -PI_BITS),
+                  CLOCK: math.ldexp(_power_of_two_below(abs(timestep)),
+                                    -CLOCK_BITS)}
+        counts = {S: np.array([round(1.0 / S_QUANTUM)], np.int64),
+                  PI: np.zeros(1, np.int64), CLOCK: np.zeros(1, np.int64)}
+        section = record.get('nose') if record else None
+        if section is not None:
+            saved = read_record(system.atoms.info, names=(S, PI))
+            try:
+                s_count = int(section[S])
+                pi_count = int(section[PI])
+            except (KeyError, TypeError, ValueError):
+                saved = None
+            if saved is not None and s_count > 0:
+                quanta[S], quanta[PI] = saved[f'{S}_quantum'], \
+                    saved[f'{PI}_quantum']
+                counts[S][0], counts[PI][0] = s_count, pi_count
+            else:
+                record['nose'] = None
+        return counts, quanta
+
+    def _resume_virtual_momenta(self, system, section):
+        """Set ``p'`` from a frame: stored in the record, or recovered from
+        the momenta shown, ``p' / s``, and checked to show them again
+        bit for bit."""
+        atoms = system.atoms
+        momenta = atoms.arrays.get('momenta')
+        stored = section.get('virtual_momentum')
+        if stored is not None:
+            counts = np.array(stored, dtype=np.int64).reshape(-1, 3)
+        elif momenta is not None:
+            counts = system.virtual_counts(momenta, system.s_value())
+        else:
+            counts = None
+        if counts is not None and counts.shape == system.p.ints.shape:
+            system.p.reset(counts)
+            if momenta is not None and np.array_equal(
+                    system.shown_momenta(), momenta):
+                return
+        # Not the frame the record was written with: begin afresh from
+        # what the atoms show.
+        system.p.reset(system.virtual_counts(
+            projected_momenta(atoms, system.project),
+            system.s_value()))
+        warnings.warn(
+            'The momenta of these atoms are not those their restart record '
+            'was written with (edited since?); the thermostat goes on from '
+            'the record, with the momenta as they are. This is a new run '
+            'from here, not the old one resumed.',
+            AnchorMovedWarning, stacklevel=4)
+
+    def _grid_values(self, atoms):
+        # The momenta shown are p' / s, off the grid: checked when p' is
+        # recovered.
+        return {'position': atoms.positions}
+
+    def _encode(self, atoms, project):
+        system = self.system
+        counts = {'position': super()._encode(atoms, project)['position'],
+                  'momentum': system.virtual_counts(
+                      projected_momenta(atoms, project), system.s_value())}
+        for name in (S, PI, CLOCK):
+            counts[name] = system.variables[name].ints
+        return counts
+
+    # -- what the run reads -----------------------------------------------
+
+    def _trigger(self):
+        system = self.system
+        return system.kinetic_energy() + system.thermostat_energy()
+
+    def _explain_drift(self, number, drift, tolerance):
+        return (
+            f'The extended energy (atoms plus Nosé thermostat) has changed '
+            f'by {drift:.4g} eV since the anchor of reversal (tolerance '
+            f'{tolerance:.4g} eV) after step {number}: the integration is '
+            f'unstable. Use a smaller time step (now '
+            f'{abs(self.dt) / units.fs:g} fs) or a larger tdamp (now '
+            f'{self.tdamp / units.fs:g} fs). The step was not taken; the '
+            'state is valid and reverse() leads back exactly. If the change '
+            'is expected, raise energy_tolerance or pass energy_check=0.')
+
+    def _ready(self):
+        self.system.kick.forces()
+
+    def get_time(self):
+        """Real time in ASE time units (``sum dt / s`` over the steps),
+        continued from a restart record; goes back when run backwards."""
+        return self._time0 + float(self.system.clock.floats[0])
+
+    def _record_sections(self):
+        system = self.system
+        section = {S: int(system.s.ints[0]), PI: int(system.pi.ints[0]),
+                   'temperature_K': system.temperature_K,
+                   'tdamp': system.tdamp}
+        if not system.p.bound < RECOVERABLE:
+            section['virtual_momentum'] = system.p.ints.reshape(-1).tolist()
+        return {'nose': section}
+
+    # -- gradients ----------------------------------------------------------
+
+    def _cotangents_of(self, ax_nc, ap_nc):
+        # L(x, p) with p = p' / s: dL/dp' = dL/dp / s, dL/ds = -dL/dp . p / s
+        system = self.system
+        s = system.s_value()
+        a_s = -float(np.vdot(ap_nc, system.shown_momenta())) / s
+        return {'position': ax_nc, 'momentum': ap_nc / s,
+                S: np.array([a_s]), PI: np.zeros(1), CLOCK: np.zeros(1)}
+
+    def _gradients_of(self, cotangents):
+        # At fixed s and pi, p' = s p: dL/dp = s dL/dp'.
+        return (cotangents['position'].copy(),
+                cotangents['momentum'] * self.system.s_value())
+
+    # -- the thermostat -----------------------------------------------------
+
+    @property
+    def temperature_K(self) -> float:
+        """Target temperature, K (change it with :meth:`set_temperature`)."""
+        return self.system.temperature_K
+
+    @property
+    def tdamp(self) -> float:
+        """The thermostat's time, ASE time units (fixed at construction)."""
+        return self.system.tdamp
+
+    @tdamp.setter
+    def tdamp(self, value):
+        fixed('tdamp')
+
+    @property
+    def thermostat_position(self) -> float:
+        """Nosé's ``s`` (dimensionless): real time runs at ``1 / s`` of
+        virtual time."""
+        return self.system.s_value()
+
+    @property
+    def thermostat_momentum(self) -> float:
+        """Nosé's ``pi``, eV ASE time."""
+        return float(self.system.pi.floats[0])
+
+    @property
+    def degrees_of_freedom(self) -> int:
+        """``N_f``; the thermostat uses ``g = N_f + 1`` (module docstring)."""
+        return self.system.degrees_of_freedom
+
+    def get_conserved_energy(self) -> float:
+        """The extended energy ``E_atoms + pi**2 / 2Q + g kT ln s``, eV,
+        which the dynamics conserves but for its time-step error."""
+        self._sync()
+        return self.system.extended_energy()[0]
+
+    def set_temperature(self, temperature_K):
+        """Use ``temperature_K`` (K) from the next step on; the anchor
+        moves here (:class:`~ase_reversible.AnchorMovedWarning` if steps
+        were taken)."""
+        value = _checked_positive(temperature_K, 'temperature_K', 'K')
+        self._sync()
+        taken = self.engine.steps_since_anchor
+        self.system.set_temperature(value)
+        self.engine.set_dt(self.engine.dt)  # prepare with the new Q
+        self._install(self.engine.snapshot())
+        if taken:
+            warnings.warn(
+                f'The temperature of ReversibleNose changed after {taken} '
+                'steps; reversal now leads back to this point (time '
+                f'{self.get_time() / units.fs:.6g} fs), not beyond.',
+                AnchorMovedWarning, stacklevel=2)
+
+    def todict(self):
+        """ASE's description plus the thermostat's settings and the
+        quanta."""
+        return {**super().todict(), 'temperature_K': self.temperature_K,
+                'tdamp': self.tdamp, **self.system.grid.todict(),
+                'force_purity': self.force_purity.mode}
