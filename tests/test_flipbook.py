@@ -270,3 +270,29 @@ def test_command_line_without_a_display_says_what_to_do(capsys):
     assert matplotlib.get_backend().lower() == 'agg'
     assert cli.flipbook(['ring']) == 2
     assert '--png FRAME --out FILE' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('thermostat', ['ReversibleNose',
+                                        'ReversibleLangevin'])
+def test_a_thermostatted_run_is_browsed_back_to_its_first_frame_exactly(
+        thermostat):
+    from ase import units
+    from ase.calculators.lj import LennardJones
+    from ase_reversible import ReversibleLangevin, ReversibleNose
+    from ase_reversible.app.systems import AR_EPSILON, AR_SIGMA, argon_cluster
+    atoms = argon_cluster(2, 20)
+    atoms.calc = LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=8.5)
+    if thermostat == 'ReversibleNose':
+        dyn = ReversibleNose(atoms, 5 * units.fs, 80, 100 * units.fs)
+    else:
+        dyn = ReversibleLangevin(atoms, 5 * units.fs, 80, 0.01 / units.fs,
+                                 seed=3)
+    start = dyn.counts
+    book = Flipbook(dyn, stride=5)
+    book.goto(40).back(25).forward(10).goto(0)
+    assert book.frame == 0 and book.time == 0.0
+    for name, counts in dyn.counts.items():
+        assert np.array_equal(counts, start[name]), name
+    book.goto(20)
+    assert book.time > 0
+    assert not np.array_equal(dyn.counts['position'], start['position'])

@@ -24,13 +24,20 @@ class Gradients(tuple):
         ``dL/dtheta`` for each potential parameter asked for.
     hessian_vector_products : int
         Products computed during the retrace.
+    thermostat : dict
+        dL/d(variable) for a thermostat's own variables (empty for
+        dynamics without any), at fixed positions and momenta: for
+        :class:`~ase_reversible.ReversibleNose`, ``'s'`` and ``'pi'``.
+        A loss on several states passes them on to the next segment's
+        retrace (``backpropagate(..., carry=gradients)``).
     """
 
     def __new__(cls, positions, momenta, parameters=None,
-                hessian_vector_products=0):
+                hessian_vector_products=0, thermostat=None):
         self = super().__new__(cls, (positions, momenta))
         self.parameters = dict(parameters or {})
         self.hessian_vector_products = hessian_vector_products
+        self.thermostat = dict(thermostat or {})
         return self
 
     @property

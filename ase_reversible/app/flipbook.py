@@ -1,7 +1,9 @@
 """Browse a simulation back and forth without storing its frames.
 
-A :class:`Flipbook` holds a :class:`~ase_reversible.ReversibleVerlet` and a
-frame number.  Asking for another frame runs the dynamics to it: forward
+A :class:`Flipbook` holds a reversible dynamics
+(:class:`~ase_reversible.ReversibleVerlet`, or a thermostat:
+:class:`~ase_reversible.ReversibleNose`,
+:class:`~ase_reversible.ReversibleLangevin`) and a frame number.  Asking for another frame runs the dynamics to it: forward
 if it is later, backward (time step negated, exactly retracing the path)
 if it is earlier.  Because every step is undone bit for bit, frame ``k``
 is the same state however it was reached, so nothing is stored: memory
@@ -31,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ReversibilityError
-from ..md import ReversibleVerlet
+from ..md import ReversibleDynamics
 from .view import AtomsView
 
 #: Key -> frames to move.  'home' is handled apart.
@@ -47,8 +49,11 @@ class Flipbook:
 
     Parameters
     ----------
-    dyn : ReversibleVerlet
-        The dynamics, at the state that becomes frame 0.  Its observers
+    dyn : ReversibleDynamics
+        The dynamics, at the state that becomes frame 0.  A
+        ReversibleLangevin cannot go before its anchor (it raises
+        :class:`~ase_reversible.RetraceLimitError` there), so frame 0 is
+        as far back as it goes if it is at its anchor.  Its observers
         (trajectory writers, loggers) are not called while the flipbook
         steps: browsing does not write frames.
     stride : int
@@ -68,9 +73,10 @@ class Flipbook:
 
     def __init__(self, dyn, stride=1, view=None, limits=None,
                  figsize=(5.0, 5.0), first=0, last=None):
-        if not isinstance(dyn, ReversibleVerlet):
+        if not isinstance(dyn, ReversibleDynamics):
             raise TypeError(
-                f'Flipbook needs a ReversibleVerlet, got '
+                f'Flipbook needs a reversible dynamics (ReversibleVerlet, '
+                f'ReversibleNose, ReversibleLangevin), got '
                 f'{type(dyn).__name__}: other dynamics cannot step back to '
                 'an earlier frame without storing it.')
         if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) \
@@ -82,8 +88,9 @@ class Flipbook:
         self.view = AtomsView() if view is None else view
         self.first, self.last = first, last
         self.figsize = figsize
-        #: Step count of the dynamics at frame 0.
+        #: Step count and time of the dynamics at frame 0.
         self._origin = dyn.step_index
+        self._time0 = dyn.get_time()
         self.limits = self._default_limits() if limits is None else limits
         self._figure = None
         self._message = ''
@@ -112,8 +119,9 @@ class Flipbook:
 
     @property
     def time(self) -> float:
-        """Simulated time since frame 0, ASE time units."""
-        return self.steps * abs(self.dyn.dt)
+        """Simulated time since frame 0, ASE time units (real time: for
+        ReversibleNose not a multiple of the time step)."""
+        return self.dyn.get_time() - self._time0
 
     # -- moving ----------------------------------------------------------
 

@@ -327,7 +327,7 @@ class ReversibleDynamics(MolecularDynamics):
     # -- the adjoint ------------------------------------------------------
 
     def backpropagate(self, steps, grad_positions, grad_momenta=None, *,
-                      hvp='auto', parameters=()):
+                      hvp='auto', parameters=(), carry=None):
         """Gradients of a loss with respect to the state ``steps`` steps ago.
 
         After ``run(steps)``, with ``grad_positions`` = dL/d(positions)
@@ -345,7 +345,11 @@ class ReversibleDynamics(MolecularDynamics):
         all; one per kick for drift-kick-drift).  Observers are not called
         during it.  A loss on several states of a run is handled by calling
         this once per segment, adding each state's own dL/dx, dL/dp to the
-        gradients returned.
+        gradients returned and passing them on as ``carry``::
+
+            g = dyn.backpropagate(k, dL_dx_T, dL_dp_T)
+            g = dyn.backpropagate(k, g.positions + dL_dx_T_minus_k,
+                                  g.momenta, carry=g)
 
         Parameters
         ----------
@@ -365,6 +369,15 @@ class ReversibleDynamics(MolecularDynamics):
             Potential parameters (e.g. ``('epsilon', 'sigma')`` for
             :class:`ase_reversible.LennardJones`) whose gradients to
             accumulate; returned in ``.parameters``.
+        carry : Gradients or False, optional
+            What the previous segment's retrace returned, for a loss on
+            several states: its thermostat cotangents (``.thermostat``) go
+            on from here.  Its positions and momenta are not used: pass
+            them, plus this state's own gradients, as ``grad_positions``
+            and ``grad_momenta``.  A dynamics with thermostat variables
+            (:class:`~ase_reversible.ReversibleNose`) refuses to go on from
+            where its last retrace ended without it; ``False`` says that
+            a new loss starts there.
 
         Returns
         -------
@@ -391,32 +404,37 @@ class ReversibleDynamics(MolecularDynamics):
                 'size of dt). Steps before it ran under other dynamics. '
                 f'Call backpropagate with at most {available} steps.')
         atoms, n = self.atoms, len(self.atoms)
+        if carry not in (None, False) and not isinstance(carry, Gradients):
+            raise TypeError('carry must be the Gradients the previous '
+                            f'backpropagate returned (or False), got '
+                            f'{type(carry).__name__}')
         cotangents = Cotangents(
             self._cotangents_of(
                 checked_gradient(grad_positions, n, 'grad_positions'),
-                checked_gradient(grad_momenta, n, 'grad_momenta')),
+                checked_gradient(grad_momenta, n, 'grad_momenta'), carry),
             hvp=hvp_for(atoms.calc, hvp),
             parameters=checked_parameters(atoms.calc, parameters))
         try:
             self.engine.retrace(steps, cotangents)
         finally:
             self._committed()
-        ax_nc, ap_nc = self._gradients_of(cotangents)
+        ax_nc, ap_nc, thermostat = self._gradients_of(cotangents)
         self.system.project(ap_nc)
         return Gradients(ax_nc, ap_nc, cotangents.grad_parameters,
-                         cotangents.products)
+                         cotangents.products, thermostat)
 
-    def _cotangents_of(self, ax_nc, ap_nc):
+    def _cotangents_of(self, ax_nc, ap_nc, carry):
         """The cotangent of every exact variable, by name, for a loss
         with gradients ``ax_nc``, ``ap_nc`` on the shown positions and
-        momenta."""
+        momenta, going on from ``carry`` (Gradients or None)."""
         return {'position': ax_nc, 'momentum': ap_nc}
 
     def _gradients_of(self, cotangents):
-        """``(dL/dx, dL/dp)`` on the shown positions and momenta, new
-        arrays, from the cotangents of the exact variables."""
+        """``(dL/dx, dL/dp, thermostat)`` on the shown positions and
+        momenta (new arrays) and a thermostat's own variables (a dict),
+        from the cotangents of the exact variables."""
         return (cotangents['position'].copy(),
-                cotangents['momentum'].copy())
+                cotangents['momentum'].copy(), {})
 
     # -- changes made around the run --------------------------------------
 

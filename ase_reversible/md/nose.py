@@ -351,6 +351,8 @@ class ReversibleNose(ReversibleDynamics):
     """
 
     record_sections = ('nose',)
+    #: The labels of the state the last backpropagate ended at.
+    _retrace_end = None
 
     def __init__(self, atoms, timestep, temperature_K, tdamp, *,
                  trajectory=None, logfile=None, loginterval=1,
@@ -501,18 +503,46 @@ class ReversibleNose(ReversibleDynamics):
 
     # -- gradients ----------------------------------------------------------
 
-    def _cotangents_of(self, ax_nc, ap_nc):
-        # L(x, p) with p = p' / s: dL/dp' = dL/dp / s, dL/ds = -dL/dp . p / s
+    def _cotangents_of(self, ax_nc, ap_nc, carry):
+        # The user's gradients are on (x, p, s, pi) with p = p' / s; the
+        # exact variables are (x, p', s, pi): dL/dp' = dL/dp / s and
+        # dL/ds at fixed p' = dL/ds at fixed p - dL/dp . p / s.
         system = self.system
         s = system.s_value()
-        a_s = -float(np.vdot(ap_nc, system.shown_momenta())) / s
+        here = self._retrace_key()
+        if carry is None and here == self._retrace_end:
+            raise ValueError(
+                'The atoms are where the last backpropagate ended. To go on '
+                'with a loss on several states, pass what it returned as '
+                'carry= (the thermostat carries part of the gradient from '
+                'one segment to the next); to start a new loss here, pass '
+                'carry=False.')
+        if carry and here != self._retrace_end:
+            raise ValueError(
+                'carry= goes on from where the last backpropagate ended, '
+                'but the state has changed since: pass carry=False or none.')
+        thermostat = carry.thermostat if carry else {}
+        a_s = float(thermostat.get('s', 0.0)) - float(
+            np.vdot(ap_nc, system.shown_momenta())) / s
         return {'position': ax_nc, 'momentum': ap_nc / s,
-                S: np.array([a_s]), PI: np.zeros(1), CLOCK: np.zeros(1)}
+                S: np.array([a_s]),
+                PI: np.array([float(thermostat.get('pi', 0.0))]),
+                CLOCK: np.zeros(1)}
 
     def _gradients_of(self, cotangents):
-        # At fixed s and pi, p' = s p: dL/dp = s dL/dp'.
-        return (cotangents['position'].copy(),
-                cotangents['momentum'] * self.system.s_value())
+        # Back to (x, p, s, pi): dL/dp = s dL/dp', dL/ds at fixed p =
+        # dL/ds at fixed p' + dL/dp' . p.
+        system = self.system
+        s = system.s_value()
+        ap_nc = cotangents['momentum'] * s
+        a_s = float(cotangents[S][0]) + float(
+            np.vdot(cotangents['momentum'], system.shown_momenta()))
+        self._retrace_end = self._retrace_key()
+        return (cotangents['position'].copy(), ap_nc,
+                {'s': a_s, 'pi': float(cotangents[PI][0])})
+
+    def _retrace_key(self):
+        return tuple(v.label for v in self.system.variables.values())
 
     # -- the thermostat -----------------------------------------------------
 
