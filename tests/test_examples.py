@@ -22,7 +22,7 @@ EXAMPLES = Path(__file__).resolve().parent.parent / 'examples'
 pytestmark = pytest.mark.filterwarnings(
     'error::ase_reversible.AnchorMovedWarning')
 
-OPTIMISATIONS = ['steer_argon', 'keyframe_chain']
+OPTIMISATIONS = ['steer_argon', 'keyframe_chain', 'tune_nvt_radius']
 SCENES = ['ring_collapse', 'chaotic_chain']
 USER_SCRIPTS = ['argon_cluster', 'copper_surface', 'argon_nvt']
 

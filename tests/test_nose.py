@@ -269,9 +269,9 @@ def test_an_unsupported_constraint_is_refused():
         nose(atoms)
 
 
-# -- gradients ------------------------------------------------------------------
+# -- gradients ---------------------------------------------------------------
 
-def test_state_and_parameter_gradients_match_complex_step_through_a_float_nose_run():
+def test_gradients_match_complex_step_through_a_float_nose_run():
     """backpropagate against complex-step differentiation of a plain float
     run of the same splitting written here (s = 1, pi = 0 at the start),
     for the initial state and the potential's epsilon and sigma, of a loss

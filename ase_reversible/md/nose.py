@@ -4,10 +4,8 @@ exactly, with no memory that grows with the run.
 Nosé's extended system (S. Nosé, "A unified formulation of the constant
 temperature molecular dynamics methods", J. Chem. Phys. 81, 511 (1984))
 adds a coordinate ``s > 0`` and its momentum ``pi`` to the atoms.  In
-Nosé's virtual time, with virtual momenta ``p' = s p``,
-
-    H = sum p'**2 / (2 m s**2) + U(x) + pi**2 / (2 Q) + g kT ln s
-
+Nosé's virtual time, with virtual momenta ``p' = s p``, the extended
+energy ``H = sum p'**2 / (2 m s**2) + U(x) + pi**2 / (2 Q) + g kT ln s``
 is conserved.  It splits into three parts whose flows are shears -- each
 adds to some variables a function of variables it leaves alone:
 
@@ -28,8 +26,8 @@ H_0 / (g kT))`` (``H_0`` the atoms' energy, ``N_f`` the momenta's degrees
 of freedom): averages over virtual time -- over the frames of a run -- are
 canonical for ``g = N_f + 1`` (Nosé 1984, section 2), which is the ``g``
 used.  Real time runs at ``dt = dtau / s``; it is a further exact variable
-updated during ``A`` (where ``s`` is fixed), so :meth:`get_time` is real
-time and runs back exactly too.
+updated during ``A`` (where ``s`` is fixed), so
+:meth:`ReversibleNose.get_time` is real time and runs back exactly too.
 
 ``N_f`` counts the free momentum coordinates (the trace of the constraint
 projection), less 3 when there are no constraints: the forces then sum to
@@ -133,6 +131,7 @@ class NoseHamiltonian(Hamiltonian):
         self.set_temperature(temperature_K)
 
     def set_temperature(self, temperature_K):
+        """Thermostat at ``temperature_K`` (K); the mass ``Q`` follows."""
         self.temperature_K = temperature_K
         self.kT = units.kB * temperature_K
         self._set_mass()
@@ -309,9 +308,10 @@ class ReversibleNose(ReversibleDynamics):
     :class:`~ase_reversible.ReversibleLangevin` for those.
 
     The atoms show the real momenta ``p = p' / s``; the exact variable is
-    the virtual momentum ``p'`` (:attr:`state` holds its counts).  Steps are
-    equal in Nosé's virtual time; :meth:`get_time` is real time, which
-    advances by ``dt / s`` per step.
+    the virtual momentum ``p'`` (``state`` and ``counts`` hold its
+    counts).  Steps are equal in Nosé's virtual time;
+    :meth:`ReversibleNose.get_time` is real time, which advances by ``dt /
+    s`` per step.
 
     Parameters
     ----------
@@ -478,9 +478,13 @@ class ReversibleNose(ReversibleDynamics):
             f'The extended energy (atoms plus Nosé thermostat) has changed '
             f'by {drift:.4g} eV since the anchor of reversal (tolerance '
             f'{tolerance:.4g} eV) after step {number}: the integration is '
-            f'unstable. Use a smaller time step (now '
+            f'unstable. s is {self.thermostat_position:.3g}, so a step '
+            f'is {abs(self.dt) / self.thermostat_position / units.fs:.3g} '
+            'fs of real time. Use a smaller time step (now '
             f'{abs(self.dt) / units.fs:g} fs) or a larger tdamp (now '
-            f'{self.tdamp / units.fs:g} fs). The step was not taken; the '
+            f'{self.tdamp / units.fs:g} fs), and start nearer the target '
+            'temperature (s moves far from 1 when the thermostat has to '
+            'heat or cool the atoms a lot). The step was not taken; the '
             'state is valid and reverse() leads back exactly. If the change '
             'is expected, raise energy_tolerance or pass energy_check=0.')
 
