@@ -19,7 +19,7 @@ from ase import units
 
 from ..core.codec import round_odd
 from ..core.plans import SubStep
-from ..core.variables import ExactVariable
+from ..core.variables import ExactVariable, inner
 from .constraints import no_projection
 from ..errors import NonFiniteForcesError, QuantumRangeError
 
@@ -97,7 +97,7 @@ class Hamiltonian:
         trigger, two numpy calls and no force call."""
         v_k = np.multiply(self.p.floats.reshape(-1),
                           self._root_inverse_mass_k, out=self._v_k)
-        return 0.5 * float(v_k.dot(v_k))
+        return 0.5 * inner(v_k, v_k)
 
     def energy(self):
         """``(total energy, proposed tolerance)`` in eV, for the check: the

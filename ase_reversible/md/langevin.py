@@ -40,6 +40,7 @@ from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
                                InformationBuffer, friction_ratio)
 from ..core.noise import StepNoise, step_key
 from ..core.plans import SubStep
+from ..core.variables import inner
 from ..errors import (AnchorMovedWarning, RetraceLimitError,
                       UnsupportedConstraintError)
 from .base import ReversibleDynamics
@@ -158,7 +159,7 @@ class Friction(SubStep):
         # The kinetic energy the step adds, sum (x'^2 - x^2) q^2 / 2m.
         both_k = (new_k + x_k).astype(np.float64)
         both_k *= inverse_mass_k
-        self.heat += 0.5 * p.quantum**2 * float(both_k.dot(r_k))
+        self.heat += 0.5 * p.quantum**2 * inner(both_k, r_k)
         p.add_integers(r_k.reshape(self.shape))
 
     def checkpoint(self):

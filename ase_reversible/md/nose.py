@@ -16,8 +16,9 @@ adds to some variables a function of variables it leaves alone:
 * ``C = pi**2 / (2 Q)``: ``s += h pi / Q``.
 
 Each update is rounded odd to its quantum, so each is undone exactly with
-``-h``, and the step ``B/2 A/2 C A/2 B/2`` is a palindrome: one force call,
-with the forces at the step's end as in velocity Verlet, and no buffer.
+``-h``, and the step ``B/2 C/2 A C/2 B/2`` is a palindrome: one force call,
+with the forces at the step's end as in velocity Verlet, one drift of the
+positions, and no buffer.
 
 Which ensemble, and the clock.  Steps are equal in virtual time.
 Integrating the microcanonical density of ``H`` over ``s`` leaves, for
@@ -61,10 +62,12 @@ S, PI, CLOCK = 'thermostat_position', 'thermostat_momentum', 'time'
 DRIFT, KICK, S_DRIFT, PI_KICK, TICK = ('drift', 'kick', 's-drift',
                                        'pi-kick', 'tick')
 
-#: ``B/2 A/2 C A/2 B/2`` (module docstring); the three parts of ``A``
-#: depend on ``p'`` and ``s`` only, so their order within ``A`` is free.
-SCHEME = ((KICK, 0.5), (DRIFT, 0.5), (PI_KICK, 0.5), (TICK, 0.5),
-          (S_DRIFT, 1.0), (TICK, 0.5), (PI_KICK, 0.5), (DRIFT, 0.5),
+#: ``B/2 C/2 A C/2 B/2`` (module docstring).  The three parts of ``A``
+#: depend on ``p'`` and ``s`` only, which none of them changes, so they
+#: commute; written as a palindrome around the one drift of the positions,
+#: the step's only pass over the atoms besides the kick.
+SCHEME = ((KICK, 0.5), (S_DRIFT, 0.5), (PI_KICK, 0.5), (TICK, 0.5),
+          (DRIFT, 1.0), (TICK, 0.5), (PI_KICK, 0.5), (S_DRIFT, 0.5),
           (KICK, 0.5))
 
 #: Default steps between checks of the extended energy.
@@ -217,20 +220,35 @@ class ScaledDrift(Drift):
 
 
 class ThermostatKick(SubStep):
-    """``pi += round_odd(c h (sum p'**2 / (m s**3) - g kT / s) / q_pi)``."""
+    """``pi += round_odd(c h (sum p'**2 / (m s**3) - g kT / s) / q_pi)``.
+
+    The force on ``pi`` is computed once per value of ``p'`` and ``s``: the
+    two half kicks of a step share it.
+    """
 
     def __init__(self, system):
         self.system = system
+        self._key = self._force = None
 
     def prepare(self, ch):
         return ch / self.system.pi.quantum
 
-    def apply(self, scale):
+    def force(self):
+        """``sum p'**2 / (m s**3) - g kT / s``, eV / (ASE time unit)
+        per ASE time unit of virtual time."""
         sys = self.system
-        s = sys.s_value()
-        two_k = 2.0 * Hamiltonian.kinetic_energy(sys)  # sum p'^2 / m
-        y = np.array([scale * (two_k / s**3 - sys.g * sys.kT / s)])
-        sys.pi.add_integers(round_odd(y, out=y))
+        key = (sys.p.label, sys.s.label)
+        if self._key != key:
+            s = sys.s_value()
+            two_k = 2.0 * Hamiltonian.kinetic_energy(sys)  # sum p'^2 / m
+            self._force = two_k / s**3 - sys.g * sys.kT / s
+            self._key = key
+        return self._force
+
+    def apply(self, scale):
+        y = np.array([scale * self.force()])
+        round_odd(y, out=y)
+        self.system.pi.add_integers(y, abs(float(y[0])))
 
     def adjoint(self, cotangents, ch):
         """``a_p' += c h a_pi 2 p' / (m s**3)``; ``a_s += c h a_pi (g kT /
@@ -261,7 +279,8 @@ class ThermostatDrift(SubStep):
     def apply(self, factor):
         sys = self.system
         y = factor * sys.pi.ints.astype(np.float64)
-        sys.s.add_integers(round_odd(y, out=y))
+        round_odd(y, out=y)
+        sys.s.add_integers(y, abs(float(y[0])))
         if not sys.s.floats[0] > 0.0:
             raise UnstableIntegrationError(
                 'The Nosé thermostat coordinate s reached zero: the '
@@ -286,7 +305,8 @@ class Tick(SubStep):
 
     def apply(self, scale):
         y = np.array([scale / self.system.s_value()])
-        self.system.clock.add_integers(round_odd(y, out=y))
+        round_odd(y, out=y)
+        self.system.clock.add_integers(y, abs(float(y[0])))
 
     def adjoint(self, cotangents, ch):
         pass
