@@ -2,7 +2,7 @@
 
 Usage (from the repository root)::
 
-    python benchmarks/run_all.py                    # the default sections, ~55 min
+    python benchmarks/run_all.py                    # the default sections, ~65 min
     python benchmarks/run_all.py --quick            # small cases, a few minutes
     python benchmarks/run_all.py --only step_cost   # one section (any of SECTIONS)
     python benchmarks/render.py                     # only render the stored results
@@ -36,7 +36,7 @@ SECTIONS = render.SECTIONS
 #: LennardJones); --only runs them, and the page shows them once stored.
 DEFAULT_SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
                     'reversal_error', 'stress', 'gradient_accuracy',
-                    'adjoint', 'thermostat')
+                    'adjoint', 'thermostat', 'nose')
 
 
 def measure(name, quick, only, machine) -> dict:

@@ -360,13 +360,18 @@ def extrapolated(checkpoints, steps=EXTRAPOLATE_TO):
     return out
 
 
+def histogram_edges(dof, kT):
+    """Bins of the kinetic-energy histograms: equal widths over the central
+    99.9% of Gamma(dof / 2, kT)."""
+    ends = stats.gamma.ppf([0.0005, 0.9995], dof / 2, scale=kT)
+    return np.linspace(ends[0], ends[1], HISTOGRAM_BINS + 1)
+
+
 def sampling_system(system, lengths):
     n_atoms = 4 * int(np.prod(system.repeat))
     dof = 3 * n_atoms - 3
     kT = units.kB * system.temperature_K
-    edges = stats.gamma.ppf(np.linspace(0.0005, 0.9995, 2), dof / 2,
-                            scale=kT)
-    edges = np.linspace(edges[0], edges[1], HISTOGRAM_BINS + 1)
+    edges = histogram_edges(dof, kT)
     ours, round_trip, buffer = run_reversible(system, lengths)
     theirs, ase_seconds = run_ase(system, lengths.round_trip)
     first = lengths.equilibration + 1
@@ -406,17 +411,21 @@ def sampling_system(system, lengths):
 
 # -- cost per step ----------------------------------------------------------
 
-def speed_case(system, repeat, settings):
+def speed_case(system, repeat, settings, names=SPEED_CONTESTANTS,
+               integrators=INTEGRATORS, reference='ase_langevin'):
+    """Interleaved per-step times of the integrators ``names`` (keys of
+    ``integrators``, each ``(atoms, system) -> dynamics``), blocks sized on
+    ``reference``; ``names`` must include 'velocity_verlet'."""
     template = system.atoms(repeat)
     contestants = []
-    for name in SPEED_CONTESTANTS:
+    for name in names:
         atoms = template.copy()
         atoms.calc = CALCULATORS[system.calculator]()
-        contestants.append(Contestant(name, INTEGRATORS[name](atoms, system)))
+        contestants.append(Contestant(name, integrators[name](atoms, system)))
     for c in contestants:
         c.runner.run(settings.warmup_steps)
     by_name = {c.name: c for c in contestants}
-    steps = choose_steps(by_name['ase_langevin'], settings)
+    steps = choose_steps(by_name[reference], settings)
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
     median = {k: statistics.median(v) for k, v in wall.items()}
     # ASE's integrators ask for the forces again at unchanged positions.

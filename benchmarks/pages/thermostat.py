@@ -106,10 +106,10 @@ def us(seconds):
 
 # -- sections ----------------------------------------------------------------
 
-def sampling_table(results, goal):
+def sampling_table(results, goal, thermostats=THERMOSTATS):
     rows = []
     for s in results['systems']:
-        for key, label in THERMOSTATS:
+        for key, label in thermostats:
             r = s['sampling'][key]
             t, e, ks = r['temperature_K'], r['potential_energy'], r['ks']
             rows.append([
@@ -146,14 +146,14 @@ def potential_lines(results):
     return '\n'.join(out)
 
 
-def ks_lines(results):
+def ks_lines(results, thermostats=THERMOSTATS):
     def judged(p):
         return (f'p = {p:.3g}, '
                 + ('rejected' if p < KS_LEVEL else 'not rejected'))
 
     out = []
     for s in results['systems']:
-        for key, label in THERMOSTATS:
+        for key, label in thermostats:
             ks = s['sampling'][key]['ks']
             out.append(f"- {label}, {s['system']}: against Gamma at the "
                        f"target T {judged(ks['p_value'])}; with the scale "
@@ -247,22 +247,23 @@ def forces_again_lines(results):
     return '; '.join(out) + '.'
 
 
-def speed_table(results):
+def speed_table(results, columns=SPEED_COLUMNS, base_key='ase_langevin'):
+    base_label = dict(columns)[base_key]
     rows = []
     for r in results['speed']:
         med = r['median_seconds']
-        base = med['ase_langevin']
+        base = med[base_key]
         wall_cpu = max(med[k] / r['median_cpu_seconds'][k] for k in med)
         rows.append(
             [f"{r['calculator']} {r['system']}", r['n_atoms'],
              f"{r['steps_per_block']} × {r['rounds']}"]
             + [f'{us(med[k])} (×{med[k] / base:.2f})' for k, _ in
-               SPEED_COLUMNS]
+               columns]
             + [f"{100 * max(r['spread'].values()):.0f}%",
                f'{wall_cpu:.2f}'])
     return markdown_table(
         ['calculator, system', 'atoms', 'steps × rounds']
-        + [f'{label} µs/step (× ASE Langevin)' for _, label in SPEED_COLUMNS]
+        + [f'{label} µs/step (× {base_label})' for _, label in columns]
         + ['round spread', 'wall / CPU'], rows)
 
 
