@@ -247,7 +247,19 @@ def memory_lines(results):
         out.append(f"- {label}: traced peak ×{last_decade(nose, key):.3f} "
                    f"from {nose[-2]['steps']:,} to {hi['steps']:,} steps, "
                    f"×{hi[key] / lo[key]:.3f} from {lo['steps']:,}.")
+    for key, label in (('forward_traced_end_bytes', 'run'),
+                       ('backpropagate_traced_end_bytes', 'backpropagate')):
+        grown = hi[key] - nose[-2][key]
+        out.append(f'- held after {label}: {size(abs(grown))} '
+                   f"{'more' if grown >= 0 else 'less'} at "
+                   f"{hi['steps']:,} steps than at {nose[-2]['steps']:,} "
+                   f"({grown / (hi['steps'] - nose[-2]['steps']):+.3f} bytes "
+                   'per step).')
     points = m['langevin']['checkpoints']
+    grown = points[-1]['nbytes'] - points[-2]['nbytes']
+    out.append(f"- ReversibleLangevin's buffer grows by "
+               f"{grown / (points[-1]['steps'] - points[-2]['steps']):.2f} "
+               'bytes per step.')
     out.append(f"- ReversibleLangevin's buffer: "
                f"×{last_decade(points, 'nbytes'):.2f} from "
                f"{points[-2]['steps']:,} to {points[-1]['steps']:,} steps.")
