@@ -3,8 +3,11 @@ memory, cost.
 
 A section of ``run_all.py``::
 
-    python benchmarks/run_all.py --only nose           # ~10 minutes
-    python benchmarks/run_all.py --quick --only nose   # ~20 s
+    python benchmarks/run_all.py --only nose           # 12-15 minutes
+    python benchmarks/run_all.py --quick --only nose   # ~15 s
+
+(703 s and 923 s measured on the 2-core machine at a load average of 2 to
+3.5, another job running beside it.)
 
 Systems: those of ``thermostat.py`` -- periodic fcc argon (asap3
 LennardJones, 80 K) and copper (asap3 EMT, 600 K, no rattle), 256 atoms

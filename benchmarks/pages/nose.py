@@ -291,7 +291,8 @@ def memory_warning_lines(results):
     m = results['memory']
     seen = sorted({w for r in m['nose'] + [m['langevin']]
                    for w in r.get('warnings', ())})
-    return ('Warnings in the memory workers (count of the longest run):\n\n'
+    return ('Warnings in the memory workers, each with how often it came in '
+            'its worker:\n\n'
             + '\n'.join(f'- `{w}`' for w in seen)) if seen else \
         'The memory workers gave no warning.'
 
@@ -420,8 +421,8 @@ The π kicks read the momenta between the step's two half kicks, so those
 are what the thermostat steers to T. If they are at T, then for a harmonic
 mode of frequency ω the momenta at the step's end, where they are read
 here, are cooler by a factor 1 − h²ω²/4, h the real step dt / s (as for
-BAOAB in the section above). A harmonic estimate, with ⟨ω²⟩ over the internal
-modes from ⟨Σ F²/m⟩ / ((3N − 3) kT) (read every
+BAOAB in the section above). A harmonic estimate, with ⟨ω²⟩ over the
+internal modes from ⟨Σ F²/m⟩ / ((3N − 3) kT) (read every
 {st['force_every']} steps) and h² from ⟨(dt / s)²⟩:
 
 {harmonic_lines(results)}
@@ -457,7 +458,10 @@ same step counts: its information buffers (`nbytes`, and the words
 allocated) and the traced memory it holds. {m['parallel_workers']} workers
 run at a time; their times are with `tracemalloc` on. The gradient of a
 chaotic system grows exponentially with N; "max |gradient|" shows it stayed
-finite.
+finite. A traced peak is the largest transient a run met, not memory that
+accumulates, so flatness is judged from the last two points (see the
+profile below); a ratio near the goal's ×{st['memory_goal_ratio']:g} can
+fall either side of it from one run to the next.
 
 {memory_table(results)}
 
