@@ -336,10 +336,12 @@ def test_a_buffer_file_from_another_state_is_refused(tmp_path):
 def test_gradients_match_complex_step_through_a_float_baoab_run():
     """backpropagate against complex-step differentiation of a plain float
     BAOAB run written here, with the same friction ratio and the same noise
-    integers.  The fixed-point friction rounds to within n = c 2**16 momentum
-    quanta per step, so the two paths part by more than NVE's: measured
-    relative errors 8e-10 to 7.2e-9 here; without the friction's adjoint
-    (a_p *= c, c = 0.905) they would be of order one."""
+    integers, for the initial state and the potential's epsilon and sigma.
+    The fixed-point friction rounds to within n = c 2**16 momentum quanta
+    per step, so the two paths part by more than NVE's: measured relative
+    errors 8e-10 to 7.2e-9 for the state, 2.4e-9 (epsilon) and 8.4e-12
+    (sigma); without the friction's adjoint (a_p *= c, c = 0.905) they
+    would be of order one."""
     from ase_reversible.core.infobuffer import friction_ratio
     from ase_reversible.core.noise import StepNoise, step_key
     from finite_differences import complex_forces
@@ -352,10 +354,16 @@ def test_gradients_match_complex_step_through_a_float_baoab_run():
                              seed=2, energy_check=0, **FINE)
     x0_nc, p0_nc = atoms.positions.copy(), atoms.get_momenta()
     dyn.run(steps)
-    g = dyn.backpropagate(steps, a_nc, b_nc)
+    g = dyn.backpropagate(steps, a_nc, b_nc, parameters=('epsilon', 'sigma'))
     assert np.array_equal(atoms.positions, x0_nc)
 
     m_n1 = atoms.get_masses()[:, None]
+    potential = {'epsilon': AR_EPSILON, 'sigma': AR_SIGMA}
+
+    def forces(x_nc):
+        return complex_forces(x_nc, potential['epsilon'],
+                              potential['sigma'])
+
     qp = dyn.grid.momentum_quantum
     ratio = friction_ratio(np.exp(-FRICTION * dt)) / 2**16
     sigma_nc = np.sqrt((1 - ratio**2) * m_n1 * units.kB * temperature) / qp \
@@ -366,13 +374,11 @@ def test_gradients_match_complex_step_through_a_float_baoab_run():
 
     def run(x_nc, p_nc):
         for k in range(steps):
-            p_nc = p_nc + 0.5 * dt * complex_forces(x_nc, AR_EPSILON,
-                                                    AR_SIGMA)
+            p_nc = p_nc + 0.5 * dt * forces(x_nc)
             x_nc = x_nc + 0.5 * dt * p_nc / m_n1
             p_nc = ratio * p_nc + noise[k]
             x_nc = x_nc + 0.5 * dt * p_nc / m_n1
-            p_nc = p_nc + 0.5 * dt * complex_forces(x_nc, AR_EPSILON,
-                                                    AR_SIGMA)
+            p_nc = p_nc + 0.5 * dt * forces(x_nc)
         return x_nc, p_nc
 
     h = 1e-20
@@ -386,4 +392,10 @@ def test_gradients_match_complex_step_through_a_float_baoab_run():
                          + np.vdot(b_nc, p_nc.imag)) / h
             error = abs(np.vdot(ours, u_nc) - reference) / abs(reference)
             errors.append(error)
+    for name, value in list(potential.items()):
+        potential[name] = value + 1j * h
+        x_nc, p_nc = run(x0_nc, p0_nc)
+        potential[name] = value
+        reference = (np.vdot(a_nc, x_nc.imag) + np.vdot(b_nc, p_nc.imag)) / h
+        errors.append(abs(g.parameters[name] - reference) / abs(reference))
     assert max(errors) < 1e-7, errors
