@@ -331,7 +331,7 @@ def test_a_buffer_file_from_another_state_is_refused(tmp_path):
                                buffer=saved)
 
 
-# -- gradients ------------------------------------------------------------------
+# -- gradients ---------------------------------------------------------------
 
 def test_gradients_match_complex_step_through_a_float_baoab_run():
     """backpropagate against complex-step differentiation of a plain float
@@ -354,7 +354,8 @@ def test_gradients_match_complex_step_through_a_float_baoab_run():
                              seed=2, energy_check=0, **FINE)
     x0_nc, p0_nc = atoms.positions.copy(), atoms.get_momenta()
     dyn.run(steps)
-    g = dyn.backpropagate(steps, a_nc, b_nc, parameters=('epsilon', 'sigma'))
+    g = dyn.backpropagate(steps, a_nc, b_nc,
+                          parameters=('epsilon', 'sigma'))
     assert np.array_equal(atoms.positions, x0_nc)
 
     m_n1 = atoms.get_masses()[:, None]
