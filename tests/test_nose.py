@@ -354,3 +354,27 @@ def test_gradients_match_complex_step_through_a_float_nose_run():
         potential[name] = value
         errors.append(abs(g.parameters[name] - reference) / abs(reference))
     assert max(errors) < 1e-7, errors
+
+
+def test_higher_orders_run_back_exactly_and_conserve_better():
+    """Composed steps (order 4, 6) are exact too.  Measured on Ar13 over
+    1 ps at 5 fs, the largest change of the extended energy: 2.2e-4 eV at
+    order 2, 4.2e-7 at order 4, 2.6e-8 at order 6 (that at 10 fs)."""
+    drift = {}
+    for order, dt_fs in ((2, 5), (4, 5), (6, 10)):
+        atoms = ar13()
+        dyn = nose(atoms, dt_fs, temperature_K=40, order=order)
+        assert dyn.composition.order == order
+        assert dyn.todict()['order'] == order
+        start, e0 = dyn.counts, dyn.get_conserved_energy()
+        changes = []
+        dyn.attach(lambda: changes.append(
+            abs(dyn.get_conserved_energy() - e0)), interval=10)
+        steps = int(1000 / dt_fs)
+        dyn.run(steps)
+        dyn.observers.clear()
+        dyn.reverse().run(steps)
+        assert_same_counts(dyn.counts, start)
+        drift[order] = max(changes)
+    assert drift[4] < 0.01 * drift[2]
+    assert drift[6] < drift[4]

@@ -47,7 +47,7 @@ from ase import units
 from ..core.codec import round_odd
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
-from ..core.plans import SubStep
+from ..core.plans import SubStep, compose
 from ..core.record import read_record
 from ..core.variables import ExactVariable
 from ..errors import AnchorMovedWarning, UnstableIntegrationError
@@ -348,6 +348,10 @@ class ReversibleNose(ReversibleDynamics):
         ``NoseHooverChainNVT``); its mass is ``Q = g kB T tdamp**2``.
     trajectory, logfile, loginterval
         As for :class:`ase.md.verlet.VelocityVerlet`.
+    order, composition
+        As for :class:`~ase_reversible.ReversibleVerlet`: above 2, a step
+        is a symmetric composition of the second-order step, still exactly
+        reversible, one force call per stage.
     position_quantum, momentum_quantum, force_purity, force_noise
         As for :class:`~ase_reversible.ReversibleVerlet`.
     energy_check : int
@@ -375,8 +379,9 @@ class ReversibleNose(ReversibleDynamics):
     _retrace_end = None
 
     def __init__(self, atoms, timestep, temperature_K, tdamp, *,
-                 trajectory=None, logfile=None, loginterval=1,
-                 position_quantum=None, momentum_quantum=None,
+                 trajectory=None, logfile=None, loginterval=1, order=2,
+                 composition=None, position_quantum=None,
+                 momentum_quantum=None,
                  force_purity='auto', force_noise=None,
                  energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
                  **kwargs):
@@ -387,8 +392,12 @@ class ReversibleNose(ReversibleDynamics):
                                   '100 * ase.units.fs')
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
+        composition = composition_for(order, composition)
+        max_kick = abs(timestep) * max(
+            abs(c) for kind, c in compose(SCHEME, composition)
+            if kind == KICK)
         system, record = self._hamiltonian(
-            atoms, 0.5 * abs(timestep), position_quantum, momentum_quantum,
+            atoms, max_kick, position_quantum, momentum_quantum,
             force_purity, force_noise, system_class=NoseHamiltonian)
         counts, quanta = self._thermostat_start(system, record, timestep,
                                                 temperature_K, tdamp)
@@ -403,7 +412,7 @@ class ReversibleNose(ReversibleDynamics):
             self._explain_drift, trigger=self._trigger)
         engine = Engine(system.variables,
                         tuple((substep[k], c) for k, c in SCHEME),
-                        composition_for(2, None), timestep,
+                        composition, timestep,
                         invariant=invariant)
         self._attach(system, engine, (force_purity, force_noise),
                      record['time'] if record else 0.0)
@@ -585,6 +594,16 @@ class ReversibleNose(ReversibleDynamics):
         fixed('tdamp')
 
     @property
+    def composition(self):
+        """The :class:`~ase_reversible.core.compositions.Composition` in
+        use (fixed at construction)."""
+        return self.engine.composition
+
+    @composition.setter
+    def composition(self, value):
+        fixed('composition (and order)')
+
+    @property
     def thermostat_position(self) -> float:
         """Nosé's ``s`` (dimensionless): real time runs at ``1 / s`` of
         virtual time."""
@@ -627,5 +646,7 @@ class ReversibleNose(ReversibleDynamics):
         """ASE's description plus the thermostat's settings and the
         quanta."""
         return {**super().todict(), 'temperature_K': self.temperature_K,
-                'tdamp': self.tdamp, **self.system.grid.todict(),
+                'tdamp': self.tdamp, 'order': self.composition.order,
+                'composition': self.composition.name,
+                **self.system.grid.todict(),
                 'force_purity': self.force_purity.mode}
