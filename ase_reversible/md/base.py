@@ -506,6 +506,22 @@ class ReversibleDynamics(MolecularDynamics):
             AnchorMovedWarning, stacklevel=4)
         return True
 
+    def _change_setting(self, what, assign):
+        """Take a new setting of the dynamics (``assign()`` makes it) from
+        the next step on; the anchor moves here, with an
+        :class:`AnchorMovedWarning` naming ``what`` if steps were taken."""
+        self._sync()
+        taken = self.engine.steps_since_anchor
+        assign()
+        self.engine.set_dt(self.engine.dt)  # prepare with the new setting
+        self._install(self.engine.snapshot())
+        if taken:
+            warnings.warn(
+                f'The {what} of {type(self).__name__} changed after {taken} '
+                'steps; reversal now leads back to this point (time '
+                f'{self.get_time() / units.fs:.6g} fs), not beyond.',
+                AnchorMovedWarning, stacklevel=3)
+
     def _encode(self, atoms, project):
         return encoded(atoms, self.system.x.quantum, self.system.p.quantum,
                        project)

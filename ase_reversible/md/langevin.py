@@ -455,27 +455,15 @@ class ReversibleLangevin(ReversibleDynamics):
         cannot be retraced with it: the anchor moves here
         (:class:`~ase_reversible.AnchorMovedWarning` if steps were taken)."""
         value = _checked_positive(temperature_K, 'temperature_K', 'K')
-        self._change('temperature', lambda: setattr(
+        self._change_setting('temperature', lambda: setattr(
             self, '_temperature_K', value))
 
     def set_friction(self, friction):
         """Use ``friction`` (1 / ASE time unit) from the next step on; the
         anchor moves here, as for :meth:`set_temperature`."""
         value = _checked_friction(friction, self.dt)
-        self._change('friction', lambda: setattr(self, '_friction', value))
-
-    def _change(self, what, assign):
-        self._sync()
-        taken = self.engine.steps_since_anchor
-        assign()
-        self.engine.set_dt(self.engine.dt)  # prepare with the new setting
-        self._install(self.engine.snapshot())
-        if taken:
-            warnings.warn(
-                f'The {what} of ReversibleLangevin changed after {taken} '
-                'steps; reversal now leads back to this point (time '
-                f'{self.get_time() / units.fs:.6g} fs), not beyond.',
-                AnchorMovedWarning, stacklevel=3)
+        self._change_setting('friction',
+                             lambda: setattr(self, '_friction', value))
 
     def todict(self):
         """ASE's description plus the thermostat's settings and the

@@ -630,17 +630,8 @@ class ReversibleNose(ReversibleDynamics):
         moves here (:class:`~ase_reversible.AnchorMovedWarning` if steps
         were taken)."""
         value = _checked_positive(temperature_K, 'temperature_K', 'K')
-        self._sync()
-        taken = self.engine.steps_since_anchor
-        self.system.set_temperature(value)
-        self.engine.set_dt(self.engine.dt)  # prepare with the new Q
-        self._install(self.engine.snapshot())
-        if taken:
-            warnings.warn(
-                f'The temperature of ReversibleNose changed after {taken} '
-                'steps; reversal now leads back to this point (time '
-                f'{self.get_time() / units.fs:.6g} fs), not beyond.',
-                AnchorMovedWarning, stacklevel=2)
+        self._change_setting('temperature',
+                             lambda: self.system.set_temperature(value))
 
     def todict(self):
         """ASE's description plus the thermostat's settings and the

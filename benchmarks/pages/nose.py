@@ -10,7 +10,7 @@ import numpy as np
 
 from . import markdown_table, pyplot
 from .thermostat import (deviation_in_errors, deviation_percent,
-                         forces_again_lines, gamma_density, ks_lines,
+                         forces_again_lines, histograms, ks_lines,
                          sampling_table, size, speed_table, temperature_ok,
                          verdict, yes)
 
@@ -30,31 +30,10 @@ COUNTS = ('position', 'momentum', 'thermostat_position',
 
 
 def plot(results, figures):
-    plt = pyplot()
     systems = results['systems']
-    fig, axes = plt.subplots(1, len(systems), figsize=(5 * len(systems), 3.8))
-    for ax, s in zip(np.atleast_1d(axes), systems):
-        edges = np.asarray(s['histogram_edges_eV'])
-        width = np.diff(edges)
-        for (key, label), color in zip(THERMOSTATS, ('C0', 'C3')):
-            run = s['sampling'][key]
-            density = np.asarray(run['histogram_counts']) / (
-                run['samples'] * width)
-            ax.stairs(density, edges, color=color, lw=1.4,
-                      label=f'{label} ({run["samples"]:,} steps)')
-        x = np.linspace(edges[0], edges[-1], 400)
-        ax.plot(x, gamma_density(x, s['dof'] / 2, s['kT_eV']), 'k--', lw=1,
-                label=f"Gamma({s['dof']}/2, kT)")
-        ax.set_xlabel('internal kinetic energy (eV)')
-        ax.set_ylabel('density (1/eV)')
-        ax.set_title(f"{s['system']} {s['n_atoms']} atoms, "
-                     f"{s['calculator']}, {s['temperature_K']:g} K, "
-                     f"{s['timestep_fs']:g} fs", fontsize=10)
-        ax.legend(fontsize=8, loc='upper right')
-    fig.tight_layout()
-    fig.savefig(figures / PLOT, dpi=110)
-    plt.close(fig)
+    histograms(systems, THERMOSTATS, figures / PLOT)
 
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 3.4))
     for s, color in zip(systems, ('C0', 'C1')):
         th = s['thermostat']

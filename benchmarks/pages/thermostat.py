@@ -33,13 +33,18 @@ def gamma_density(x, shape, scale):
 
 
 def plot(results, figures):
+    histograms(results['systems'], THERMOSTATS, figures / PLOT)
+
+
+def histograms(systems, thermostats, path):
+    """One panel per system: each thermostat's histogram of the internal
+    kinetic energy against the analytic Gamma density, saved to ``path``."""
     plt = pyplot()
-    systems = results['systems']
     fig, axes = plt.subplots(1, len(systems), figsize=(5 * len(systems), 3.8))
     for ax, s in zip(np.atleast_1d(axes), systems):
         edges = np.asarray(s['histogram_edges_eV'])
         width = np.diff(edges)
-        for (key, label), color in zip(THERMOSTATS, ('C0', 'C3')):
+        for (key, label), color in zip(thermostats, ('C0', 'C3')):
             run = s['sampling'][key]
             density = np.asarray(run['histogram_counts']) / (
                 run['samples'] * width)
@@ -55,7 +60,7 @@ def plot(results, figures):
                      f"{s['timestep_fs']:g} fs", fontsize=10)
         ax.legend(fontsize=8, loc='upper right')
     fig.tight_layout()
-    fig.savefig(figures / PLOT, dpi=110)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
