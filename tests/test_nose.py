@@ -251,6 +251,7 @@ def test_trajectory_and_log_work_as_for_ase(tmp_path):
     ({'temperature_K': float('nan')}, ValueError, 'temperature_K must be'),
     ({'tdamp': -1.0}, ValueError, 'tdamp must be positive'),
     ({'tdamp': 'long'}, TypeError, 'tdamp must be a number'),
+    ({'tchain': 3}, TypeError, 'not a chain'),
 ])
 def test_bad_arguments_are_refused_before_anything_changes(kwargs, error,
                                                           match):

@@ -368,8 +368,9 @@ class ReversibleNose(ReversibleDynamics):
     Raises
     ------
     ValueError, TypeError
-        A non-positive or non-finite temperature or tdamp, or the errors
-        of :class:`~ase_reversible.ReversibleVerlet`.
+        A non-positive or non-finite temperature or tdamp, ``tchain`` or
+        ``tloop`` (arguments of ASE's chain), or the errors of
+        :class:`~ase_reversible.ReversibleVerlet`.
     UnsupportedConstraintError
         As for :class:`~ase_reversible.ReversibleVerlet`.
     """
@@ -385,6 +386,14 @@ class ReversibleNose(ReversibleDynamics):
                  force_purity='auto', force_noise=None,
                  energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
                  **kwargs):
+        for chain in ('tchain', 'tloop'):
+            if chain in kwargs:
+                raise TypeError(
+                    f'ReversibleNose is one Nosé thermostat, not a chain: '
+                    f'{chain} is an argument of ASE\'s NoseHooverChainNVT '
+                    'that has no counterpart here. Leave it out (a single '
+                    'thermostat samples liquids and large systems; use '
+                    'ReversibleLangevin for small or stiff ones).')
         timestep = check_timestep(timestep)
         temperature_K = _checked_positive(temperature_K, 'temperature_K',
                                           'K')
