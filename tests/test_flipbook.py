@@ -280,7 +280,9 @@ def test_a_thermostatted_run_is_browsed_back_to_its_first_frame_exactly(
     from ase.calculators.lj import LennardJones
     from ase_reversible import ReversibleLangevin, ReversibleNose
     from ase_reversible.app.systems import AR_EPSILON, AR_SIGMA, argon_cluster
+    from ase.md.velocitydistribution import Stationary
     atoms = argon_cluster(2, 20)
+    Stationary(atoms)
     atoms.calc = LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=8.5)
     if thermostat == 'ReversibleNose':
         dyn = ReversibleNose(atoms, 5 * units.fs, 80, 100 * units.fs)

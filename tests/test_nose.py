@@ -265,6 +265,18 @@ def test_bad_arguments_are_refused_before_anything_changes(kwargs, error,
     assert 'reversible' not in atoms.info
 
 
+def test_atoms_moving_as_a_whole_are_warned_about():
+    atoms = argon_cluster(2, 60)  # thermal momenta, total not zero
+    atoms.calc = CALCULATORS['ase-lj']()
+    with pytest.warns(UserWarning, match='Stationary'):
+        nose(atoms)
+    Stationary(atoms)
+    atoms.info.pop('reversible')  # a new run, not the first one resumed
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', UserWarning)
+        nose(atoms)
+
+
 def test_an_unsupported_constraint_is_refused():
     from ase.constraints import FixBondLength
     atoms = ar13()

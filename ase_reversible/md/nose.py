@@ -70,6 +70,11 @@ SCHEME = ((KICK, 0.5), (S_DRIFT, 0.5), (PI_KICK, 0.5), (TICK, 0.5),
           (DRIFT, 1.0), (TICK, 0.5), (PI_KICK, 0.5), (S_DRIFT, 0.5),
           (KICK, 0.5))
 
+#: Centre-of-mass kinetic energy (in kT) above which unconstrained atoms
+#: are warned about: a thermal centre of mass has 1.5 kT, one at rest
+#: (``Stationary``) a few momentum quanta.
+CENTRE_OF_MASS_TOLERANCE = 0.01
+
 #: Default steps between checks of the extended energy.
 ENERGY_CHECK_INTERVAL = 100
 
@@ -312,6 +317,23 @@ class Tick(SubStep):
         pass
 
 
+def _warn_if_moving(system):
+    """Warn if unconstrained atoms move as a whole: the thermostat then
+    cannot give the internal motion the canonical distribution."""
+    if system.project is not no_projection:
+        return
+    momentum_c = system.p.floats.sum(axis=0)
+    drift = 0.5 * float(momentum_c @ momentum_c) / float(system.m_n1.sum())
+    if drift > CENTRE_OF_MASS_TOLERANCE * system.kT:
+        warnings.warn(
+            f'The atoms move as a whole (centre-of-mass kinetic energy '
+            f'{drift / system.kT:.3g} kT). Without constraints ReversibleNose '
+            'conserves the total (virtual) momentum and thermostats 3N - 3 '
+            'degrees of freedom: the frames are canonical only at zero '
+            'total momentum. Call ase.md.velocitydistribution.Stationary('
+            'atoms) before constructing it.', UserWarning, stacklevel=3)
+
+
 class ReversibleNose(ReversibleDynamics):
     """Nosé's constant-temperature dynamics in fixed point, run back
     exactly with no buffer: a deterministic NVT.
@@ -413,6 +435,7 @@ class ReversibleNose(ReversibleDynamics):
         system.set_thermostat(counts, quanta, temperature_K, tdamp)
         if record is not None and record.get('nose') is not None:
             self._resume_virtual_momenta(system, record['nose'])
+        _warn_if_moving(system)
         substep = {KICK: system.kick, DRIFT: system.drift,
                    PI_KICK: ThermostatKick(system),
                    S_DRIFT: ThermostatDrift(system), TICK: Tick(system)}
