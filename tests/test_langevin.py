@@ -16,22 +16,12 @@ from ase.io import Trajectory, read
 from ase_reversible import (AnchorMovedWarning, ReversibleLangevin,
                             RetraceLimitError, UnsupportedConstraintError)
 
-from conftest import (AR_EPSILON, AR_SIGMA, CALCULATORS, argon_bulk,
-                      argon_cluster, copper_bulk, copper_cluster)
+from conftest import (AR_EPSILON, AR_SIGMA, CALCULATORS, THERMOSTAT_CASES,
+                      argon_bulk, argon_cluster)
 from exactness import assert_same_state, forward_and_back, snapshot
 
 FRICTION = 0.02 / units.fs
 
-# (system builder, calculator, time step in fs, steps each way)
-CASES = {
-    'Ar13 ase-lj': (lambda: argon_cluster(2, 60), 'ase-lj', 5, 400),
-    'Ar bulk ase-lj': (lambda: argon_bulk((2, 2, 2), 80), 'ase-lj', 10, 60),
-    'Cu55 ase-emt': (lambda: copper_cluster(3, 600), 'ase-emt', 5, 40),
-    'Ar bulk asap-lj': (lambda: argon_bulk((4, 4, 4), 80), 'asap-lj', 10,
-                        1000),
-    'Cu108 asap-emt': (lambda: copper_bulk((3, 3, 3), 600), 'asap-emt', 5,
-                       1000),
-}
 
 
 def langevin(atoms, dt_fs=5, temperature_K=300, **kwargs):
@@ -54,9 +44,9 @@ def assert_buffers_empty(dyn):
 
 
 @pytest.mark.parametrize('fixcm', [True, False])
-@pytest.mark.parametrize('case', list(CASES))
+@pytest.mark.parametrize('case', list(THERMOSTAT_CASES))
 def test_round_trip_is_exact(case, fixcm):
-    build, calc, dt_fs, steps = CASES[case]
+    build, calc, dt_fs, steps = THERMOSTAT_CASES[case]
     atoms = build()
     atoms.calc = CALCULATORS[calc]()
     dyn = langevin(atoms, dt_fs, fixcm=fixcm)
