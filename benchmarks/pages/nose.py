@@ -12,7 +12,7 @@ from . import markdown_table, pyplot
 from .thermostat import (deviation_in_errors, deviation_percent,
                          forces_again_lines, histograms, ks_lines,
                          sampling_table, size, speed_table, temperature_ok,
-                         verdict, yes)
+                         verdict, warning_lines, yes)
 
 TITLE = "Nosé thermostat: ReversibleNose against ASE's thermostats"
 PLOT = 'nose_kinetic_energy.png'
@@ -158,16 +158,6 @@ def round_trip_table(results):
         + ['atoms: positions equal', 'atoms: momenta equal',
            'get_time() after (fs)', 'forward (s)', 'back (s)',
            'total (s)'], rows)
-
-
-def warning_lines(results):
-    out = []
-    for s in results['systems']:
-        for w in s['round_trip']['warnings']:
-            out.append(f"- {s['system']}: `{w}`")
-    return ('Warnings ReversibleNose gave during the round trips:\n\n'
-            + '\n'.join(out)) if out else \
-        'ReversibleNose gave no warning during the round trips.'
 
 
 def memory_table(results):
@@ -421,7 +411,7 @@ The forward time includes the sampling observer.
 
 {round_trip_table(results)}
 
-{warning_lines(results)}
+{warning_lines(results, 'ReversibleNose')}
 
 ### Memory against steps
 

@@ -197,14 +197,14 @@ def round_trip_table(results):
          'total (s)'], rows)
 
 
-def warning_lines(results):
+def warning_lines(results, name='ReversibleLangevin'):
     out = []
     for s in results['systems']:
         for w in s['round_trip']['warnings']:
             out.append(f"- {s['system']}: `{w}`")
-    return ('Warnings ReversibleLangevin gave during the round trip:\n\n'
+    return (f'Warnings {name} gave during the round trips:\n\n'
             + '\n'.join(out)) if out else \
-        'ReversibleLangevin gave no warning during the round trips.'
+        f'{name} gave no warning during the round trips.'
 
 
 def buffer_table(results, goal):
