@@ -53,7 +53,6 @@ import gc
 import json
 import resource
 import statistics
-import subprocess
 import sys
 import time
 import tracemalloc
@@ -255,16 +254,8 @@ def memory_worker(kind, steps):
 
 
 def _run_memory_worker(kind, steps):
-    started = time.perf_counter()
-    proc = subprocess.run(
-        [sys.executable, str(Path(__file__).resolve()), '--memory-worker',
-         kind, str(steps)], capture_output=True, text=True, cwd=common.ROOT)
-    if proc.returncode != 0:
-        raise RuntimeError(f'memory worker {kind} {steps} failed:\n'
-                           + proc.stderr[-3000:])
-    result = json.loads(proc.stdout.strip().splitlines()[-1])
-    result['process_seconds'] = time.perf_counter() - started
-    return result
+    return common.run_worker(Path(__file__).resolve(),
+                             ['--memory-worker', kind, steps])
 
 
 def measure_memory(quick):

@@ -87,3 +87,21 @@ def machine_info() -> dict:
         'blas_threads': ', '.join(f'{name}={os.environ.get(name)}'
                                   for name in BLAS_THREAD_VARIABLES),
     }
+
+
+def run_worker(script, args) -> dict:
+    """Run ``python script *args`` in a fresh process (from the repository
+    root) and return the JSON object its last line of output holds, with
+    the process's wall time added as ``'process_seconds'``.  A process of
+    its own measures memory from a clean start."""
+    import json
+    import time
+    started = time.perf_counter()
+    proc = subprocess.run([sys.executable, str(script), *map(str, args)],
+                          capture_output=True, text=True, cwd=ROOT)
+    if proc.returncode != 0:
+        raise RuntimeError(f'worker {Path(script).name} {args} failed:\n'
+                           + proc.stderr[-3000:])
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    result['process_seconds'] = time.perf_counter() - started
+    return result

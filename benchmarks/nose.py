@@ -69,7 +69,6 @@ import gc
 import json
 import math
 import os
-import subprocess
 import sys
 import time
 import tracemalloc
@@ -470,17 +469,8 @@ def langevin_memory_worker(checkpoints):
 
 
 def _run_worker(kind, steps):
-    started = time.perf_counter()
-    proc = subprocess.run(
-        [sys.executable, str(Path(__file__).resolve()), '--memory-worker',
-         kind] + [str(n) for n in steps], capture_output=True, text=True,
-        cwd=common.ROOT)
-    if proc.returncode != 0:
-        raise RuntimeError(f'memory worker {kind} {steps} failed:\n'
-                           + proc.stderr[-3000:])
-    result = json.loads(proc.stdout.strip().splitlines()[-1])
-    result['process_seconds'] = time.perf_counter() - started
-    return result
+    return common.run_worker(Path(__file__).resolve(),
+                             ['--memory-worker', kind, *steps])
 
 
 def measure_memory(lengths):

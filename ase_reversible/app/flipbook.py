@@ -3,9 +3,10 @@
 A :class:`Flipbook` holds a reversible dynamics
 (:class:`~ase_reversible.ReversibleVerlet`, or a thermostat:
 :class:`~ase_reversible.ReversibleNose`,
-:class:`~ase_reversible.ReversibleLangevin`) and a frame number.  Asking for another frame runs the dynamics to it: forward
-if it is later, backward (time step negated, exactly retracing the path)
-if it is earlier.  Because every step is undone bit for bit, frame ``k``
+:class:`~ase_reversible.ReversibleLangevin`) and a frame number.  Asking
+for another frame runs the dynamics to it: forward if it is later,
+backward (time step negated, exactly retracing the path) if it is
+earlier.  Because every step is undone bit for bit, frame ``k``
 is the same state however it was reached, so nothing is stored: memory
 is one state whatever the length of the run, and a frame costs the steps
 between it and the current one.

@@ -1,11 +1,12 @@
 """The ASE adapters: integrators that are ``ase.md`` dynamics.
 
 :class:`~.base.ReversibleDynamics` is the thin base (ASE's run loop, the
-change contract, the clock, ``backpropagate``); :class:`~.verlet.ReversibleVerlet`
-declares NVE on it, :class:`~.langevin.ReversibleLangevin` and
-:class:`~.nose.ReversibleNose` NVT.  :mod:`.hamiltonian` holds the drift and kick,
-:mod:`.watch` what is checked around a run, :mod:`.constraints` the exact
-constraint projections.
+change contract, the clock, ``backpropagate``);
+:class:`~.verlet.ReversibleVerlet` declares NVE on it,
+:class:`~.langevin.ReversibleLangevin` and :class:`~.nose.ReversibleNose`
+NVT.  :mod:`.hamiltonian` holds the drift and kick, :mod:`.watch` what is
+checked around a run, :mod:`.constraints` the exact constraint
+projections.
 """
 
 from .base import ReversibleDynamics
@@ -14,5 +15,5 @@ from .langevin import ReversibleLangevin
 from .nose import ReversibleNose
 from .verlet import ReversibleVerlet
 
-__all__ = ['ReversibleDynamics', 'ReversibleVerlet', 'ReversibleLangevin', 'ReversibleNose',
-           'FixedPointState']
+__all__ = ['ReversibleDynamics', 'ReversibleVerlet', 'ReversibleLangevin',
+           'ReversibleNose', 'FixedPointState']

@@ -18,7 +18,7 @@ import numpy as np
 from ase import units
 
 from ..core.codec import round_odd
-from ..core.plans import SubStep
+from ..core.plans import SubStep, compose
 from ..core.variables import ExactVariable, inner
 from .constraints import no_projection
 from ..errors import NonFiniteForcesError, QuantumRangeError
@@ -92,12 +92,17 @@ class Hamiltonian:
         self.show_positions()
         self.show_momenta()
 
+    def momentum_square(self):
+        """``sum p^2 / m`` (eV) of the momentum counts' exact image, two
+        numpy calls."""
+        v_k = np.multiply(self.p.floats.reshape(-1),
+                          self._root_inverse_mass_k, out=self._v_k)
+        return inner(v_k, v_k)
+
     def kinetic_energy(self):
         """``sum p^2 / 2m`` (eV) of the exact momenta: the energy check's
         trigger, two numpy calls and no force call."""
-        v_k = np.multiply(self.p.floats.reshape(-1),
-                          self._root_inverse_mass_k, out=self._v_k)
-        return 0.5 * inner(v_k, v_k)
+        return 0.5 * self.momentum_square()
 
     def energy(self):
         """``(total energy, proposed tolerance)`` in eV, for the check: the
@@ -109,6 +114,14 @@ class Hamiltonian:
         floor = 1.5 * len(self.atoms) * units.kB * \
             ENERGY_TOLERANCE_TEMPERATURE
         return energy, max(kinetic, floor)
+
+
+def largest_kick(scheme, composition, dt, kick):
+    """ASE time units: the largest ``|c h|`` of the sub-step ``kick`` in a
+    step of ``scheme`` composed by ``composition`` at time step ``dt``
+    (what the force-purity provider's momentum quantum must allow for)."""
+    return abs(dt) * max(abs(c) for kind, c in compose(scheme, composition)
+                         if kind == kick)
 
 
 class Drift(SubStep):

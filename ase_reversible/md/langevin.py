@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import warnings
 
 import numpy as np
 from ase import units
@@ -41,10 +40,10 @@ from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
 from ..core.noise import StepNoise, step_key
 from ..core.plans import SubStep
 from ..core.variables import inner
-from ..errors import (AnchorMovedWarning, RetraceLimitError,
-                      UnsupportedConstraintError)
+from ..errors import RetraceLimitError, UnsupportedConstraintError
 from .base import ReversibleDynamics
 from .checks import check_energy_watch, check_timestep
+from .hamiltonian import largest_kick
 from .watch import SystemWatch
 
 DRIFT, KICK, FRICTION = 'drift', 'kick', 'friction'
@@ -302,7 +301,9 @@ class ReversibleLangevin(ReversibleDynamics):
             energy_check, energy_tolerance)
         _refuse_projections(atoms)
         system, record = self._hamiltonian(
-            atoms, 0.5 * abs(timestep), position_quantum, momentum_quantum,
+            atoms, largest_kick(SCHEME, composition_for(2, None), timestep,
+                                KICK),
+            position_quantum, momentum_quantum,
             force_purity, force_noise)
         resumed = _resumed_noise(record, timestep)
         if seed is None and resumed is not None:

@@ -47,14 +47,14 @@ from ase import units
 from ..core.codec import round_odd
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
-from ..core.plans import SubStep, compose
+from ..core.plans import SubStep
 from ..core.record import read_record
 from ..core.variables import ExactVariable
 from ..errors import AnchorMovedWarning, UnstableIntegrationError
 from .base import ReversibleDynamics, projected_momenta
 from .checks import check_energy_watch, check_timestep, fixed
 from .constraints import no_projection
-from .hamiltonian import Drift, Hamiltonian
+from .hamiltonian import Drift, Hamiltonian, largest_kick
 from .langevin import _checked_positive
 from .watch import SystemWatch
 
@@ -95,6 +95,13 @@ RECOVERABLE = 2.0**50
 
 def _power_of_two_below(value):
     return math.ldexp(1.0, math.frexp(value)[1] - 1)
+
+
+def thermostat_mass(g, kT, tdamp):
+    """Nosé's ``Q = g kT tdamp**2``, eV (ASE time)**2 (``kT`` in eV,
+    ``tdamp`` in ASE time units): the thermostat's period is of the order
+    of ``tdamp``."""
+    return g * kT * tdamp**2
 
 
 def degrees_of_freedom(n_atoms, project):
@@ -155,9 +162,7 @@ class NoseHamiltonian(Hamiltonian):
             self._set_mass()
 
     def _set_mass(self):
-        #: The thermostat's mass Q, eV (ASE time)**2: its period is of the
-        #: order of tdamp.
-        self.Q = self.g * self.kT * self.tdamp**2
+        self.Q = thermostat_mass(self.g, self.kT, self.tdamp)
 
     # -- what the atoms show ----------------------------------------------
 
@@ -196,7 +201,7 @@ class NoseHamiltonian(Hamiltonian):
 
     def kinetic_energy(self):
         """The atoms' real kinetic energy ``sum p'**2 / (2 m s**2)``, eV."""
-        return super().kinetic_energy() / self.s_value()**2
+        return 0.5 * self.momentum_square() / self.s_value()**2
 
     def extended_energy(self):
         """``(H, proposed tolerance)``, eV: the conserved extended energy
@@ -224,6 +229,14 @@ class ScaledDrift(Drift):
         cotangents['momentum'] += (ch / s**2) * w_nc
 
 
+def _add_rounded(variable, y):
+    """Add ``round_odd(y)`` (a float, in quanta) to a variable of shape
+    ``[1]``; its magnitude is the bound, so no pass over it is needed."""
+    r = np.array([y])
+    round_odd(r, out=r)
+    variable.add_integers(r, abs(float(r[0])))
+
+
 class ThermostatKick(SubStep):
     """``pi += round_odd(c h (sum p'**2 / (m s**3) - g kT / s) / q_pi)``.
 
@@ -245,15 +258,13 @@ class ThermostatKick(SubStep):
         key = (sys.p.label, sys.s.label)
         if self._key != key:
             s = sys.s_value()
-            two_k = 2.0 * Hamiltonian.kinetic_energy(sys)  # sum p'^2 / m
+            two_k = sys.momentum_square()  # sum p'^2 / m
             self._force = two_k / s**3 - sys.g * sys.kT / s
             self._key = key
         return self._force
 
     def apply(self, scale):
-        y = np.array([scale * self.force()])
-        round_odd(y, out=y)
-        self.system.pi.add_integers(y, abs(float(y[0])))
+        _add_rounded(self.system.pi, scale * self.force())
 
     def adjoint(self, cotangents, ch):
         """``a_p' += c h a_pi 2 p' / (m s**3)``; ``a_s += c h a_pi (g kT /
@@ -264,7 +275,7 @@ class ThermostatKick(SubStep):
         if a_pi == 0.0:
             return
         s = sys.s_value()
-        two_k = 2.0 * Hamiltonian.kinetic_energy(sys)
+        two_k = sys.momentum_square()
         cotangents[S] += ch * a_pi * (sys.g * sys.kT / s**2
                                       - 3.0 * two_k / s**4)
         cotangents['momentum'] += (2.0 * ch * a_pi / s**3) * (
@@ -279,13 +290,11 @@ class ThermostatDrift(SubStep):
 
     def prepare(self, ch):
         sys = self.system
-        return ch * sys.pi.quantum / (sys.Q * sys.s.quantum)
+        return ch / (sys.Q * sys.s.quantum)
 
     def apply(self, factor):
         sys = self.system
-        y = factor * sys.pi.ints.astype(np.float64)
-        round_odd(y, out=y)
-        sys.s.add_integers(y, abs(float(y[0])))
+        _add_rounded(sys.s, factor * float(sys.pi.floats[0]))
         if not sys.s.floats[0] > 0.0:
             raise UnstableIntegrationError(
                 'The Nosé thermostat coordinate s reached zero: the '
@@ -309,9 +318,7 @@ class Tick(SubStep):
         return ch / self.system.clock.quantum
 
     def apply(self, scale):
-        y = np.array([scale / self.system.s_value()])
-        round_odd(y, out=y)
-        self.system.clock.add_integers(y, abs(float(y[0])))
+        _add_rounded(self.system.clock, scale / self.system.s_value())
 
     def adjoint(self, cotangents, ch):
         pass
@@ -424,11 +431,9 @@ class ReversibleNose(ReversibleDynamics):
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
         composition = composition_for(order, composition)
-        max_kick = abs(timestep) * max(
-            abs(c) for kind, c in compose(SCHEME, composition)
-            if kind == KICK)
         system, record = self._hamiltonian(
-            atoms, max_kick, position_quantum, momentum_quantum,
+            atoms, largest_kick(SCHEME, composition, timestep, KICK),
+            position_quantum, momentum_quantum,
             force_purity, force_noise, system_class=NoseHamiltonian)
         counts, quanta = self._thermostat_start(system, record, timestep,
                                                 temperature_K, tdamp)
@@ -459,9 +464,8 @@ class ReversibleNose(ReversibleDynamics):
         """Counts and quanta of ``s``, ``pi`` and the clock: from the
         record's ``'nose'`` section if it has one, else ``s = 1``, ``pi =
         0``.  The clock counts from 0 (the record's time is added)."""
-        g = system.g
-        spread = math.sqrt(g * units.kB * temperature_K * tdamp**2
-                           * units.kB * temperature_K)
+        kT = units.kB * temperature_K
+        spread = math.sqrt(thermostat_mass(system.g, kT, tdamp) * kT)
         quanta = {S: S_QUANTUM,
                   PI: math.ldexp(_power_of_two_below(spread), -PI_BITS),
                   CLOCK: math.ldexp(_power_of_two_below(abs(timestep)),

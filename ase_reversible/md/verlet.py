@@ -11,10 +11,9 @@ from __future__ import annotations
 
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
-from ..core.plans import compose
 from .base import ReversibleDynamics
 from .checks import check_energy_watch, check_timestep, fixed
-from .hamiltonian import explain_energy_drift
+from .hamiltonian import explain_energy_drift, largest_kick
 from .watch import SystemWatch
 
 DRIFT, KICK = 'drift', 'kick'
@@ -150,9 +149,7 @@ class ReversibleVerlet(ReversibleDynamics):
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
         composition = composition_for(order, composition)
-        max_kick = abs(timestep) * max(
-            abs(c) for kind, c in compose(SCHEMES[scheme], composition)
-            if kind == KICK)
+        max_kick = largest_kick(SCHEMES[scheme], composition, timestep, KICK)
         # Refusals end here, before the base class opens any file.
         system, record = self._hamiltonian(
             atoms, max_kick, position_quantum, momentum_quantum,
