@@ -1,0 +1,517 @@
+"""Exact, reversible velocity Verlet inside LAMMPS, each rank on its own atoms.
+
+The exact state is LAMMPS's own: positions ``x`` and velocities ``v`` in
+the distributed per-atom arrays, kept on power-of-two grids so that every
+float64 value is an exact image of an integer count.  Nothing is gathered:
+atoms migrate between ranks, are sorted and wrap across periodic faces with
+the arrays LAMMPS already moves, and those moves are exact on the grid.
+
+One step of ``dt`` (a power of two, in LAMMPS time units), as LAMMPS runs it:
+
+``initial_integrate`` (``fix move``, velocity variables)
+    ``v += k``, then ``x += dt v``.  ``k``, the first half-kick, is a
+    per-atom array (``fix property/atom``) left by the previous step.  The
+    drift needs no rounding: ``dt v`` is a multiple of ``dt q_v``, itself a
+    multiple of the position quantum, so the float sum is exact.
+``post_force`` (``fix external``, a Python callback on every rank)
+    ``k = q_v rint(dt/2 F/(m q_v))`` from this step's forces; ``v += k``
+    (the second half-kick) and ``k`` is kept for the next step's first.
+
+Running with ``-dt`` undoes a step bit for bit: the rounding is odd, so the
+negated time step rounds every increment to its negative.
+
+Forces are a pure function of the positions only up to history noise:
+which rank computed a pair, and the order of the neighbour lists, set the
+rounding of the sums.  Kicks are therefore *guarded* (one rule with the
+ASE integrators, :mod:`ase_reversible.purity`): an increment within the
+noise bound of a rounding boundary on any rank stops the run after that
+step, the step's kick is taken back, and the forces are recomputed by a
+LAMMPS setup, which re-sorts every rank's atoms into spatial bins holding
+one atom each (a canonical order, a function of the positions alone) and
+rebuilds every list from there.  Both branches give ``rint`` of the clean
+increment.  A setup whose bins held two atoms, where it mattered, is
+retried with bins half the size.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core.codec import LIMIT, check_quantum, guard_band_crossed, quantum_for
+from ..core.codec import round_odd
+from ..core.quanta import MIN_MOMENTUM_BITS, POSITION_ROOM
+from ..errors import ImpureForcesError
+from ..purity import (DEFAULT_FORCE_NOISE, TARGET_CLEAN_RATE,
+                      NOISE_REFERENCE_EXTENT)
+from .mpi import World
+
+#: The callback's verdicts, reduced by maximum over the ranks.
+_AMBIGUOUS = 1     # an increment lay within the guard: take the step back
+_NOT_CANONICAL = 2  # a setup's sort bins held two atoms where it mattered
+_OUT_OF_RANGE = 4  # forces not finite, or kicks beyond the grid's range
+
+#: Unit styles whose force and distance scales the noise bound assumes
+#: (forces of order 1, coordinates of order 10 to 1000).
+SUPPORTED_UNITS = ('metal', 'real', 'lj')
+
+#: Default sort-bin width over the mean interatomic spacing (V/N)^(1/3).
+#: Two atoms share a bin only if closer than 2 sqrt(3) times the width,
+#: 0.87 (V/N)^(1/3): 0.77 of the nearest-neighbour distance of an fcc
+#: crystal, closer than any pair comes in a liquid or solid at the
+#: temperatures MD runs at.
+SORT_BIN_SPACING = 0.25
+
+
+class ReversibleLammps:
+    """Exact reversible velocity Verlet on a running LAMMPS instance.
+
+    Parameters
+    ----------
+    lmp : lammps.lammps
+        An instance on every rank (``mpiexec -n R python ...``), with the
+        atoms, masses and interactions defined, an orthogonal box that is
+        periodic or shrink-wrapped in each direction, and no
+        time-integration fix: this object defines its own.  The time step
+        is LAMMPS's ``timestep``; it must be a power of two (in magnitude)
+        in LAMMPS time units, such as 0.001953125 ps (2^-9) in metal units.
+        A negative time step runs back.
+    velocity_quantum : float, optional
+        Velocity grid, LAMMPS velocity units; a power of two.  Default:
+        the finest for which about ``TARGET_CLEAN_RATE`` of steps need a
+        clean recomputation, from the atom count, the lightest mass, the
+        time step and ``force_noise``.  It depends on nothing that changes
+        during a run, so a restart from a LAMMPS restart or data file
+        chooses the same grid.
+    force_noise : float
+        Bound on the history noise of a force component, LAMMPS force
+        units, for forces up to 1 and coordinates up to 32 (scaled by
+        max|F| and the box's extent above): the same rule and default as
+        the ASE integrators' guarded rounding.
+    sort_bin : float, optional
+        Width of the spatial bins LAMMPS sorts atoms into at every setup,
+        LAMMPS distance units.  Default ``SORT_BIN_SPACING`` times the mean
+        interatomic spacing.
+    name : str
+        Prefix of the fixes and variables it defines.
+
+    The fixes it defines are ``{name}_k`` (property/atom: the pending
+    half-kick), ``{name}_move`` (move: the drift), ``{name}_ext`` (external:
+    the kicks) and ``{name}_halt`` (halt: stops a run for a clean
+    recomputation).  Fixes that change forces must be defined before it.
+    """
+
+    def __init__(self, lmp, *, velocity_quantum=None,
+                 force_noise=DEFAULT_FORCE_NOISE, sort_bin=None, name='rev'):
+        self.lmp = lmp
+        self.name = name
+        self.world = World(lmp.extract_setting('world_size'))
+        self.rank = lmp.extract_setting('world_rank')
+        self._check_system()
+        self.force_noise = float(force_noise)
+        if not (math.isfinite(self.force_noise) and self.force_noise > 0):
+            raise ValueError(f'force_noise must be positive and finite, '
+                             f'got {force_noise!r}')
+        boxlo, boxhi = self._box()
+        self.extent = float(max(np.abs(boxlo).max(), np.abs(boxhi).max(),
+                                (boxhi - boxlo).max()))
+        #: Position grid, LAMMPS distance units: room for POSITION_ROOM
+        #: times the box's extent.
+        self.position_quantum = quantum_for(POSITION_ROOM * self.extent)
+        dt = self._timestep()
+        self.natoms = int(lmp.get_natoms())
+        masses = self._type_masses()
+        if velocity_quantum is None:
+            velocity_quantum = self._default_velocity_quantum(
+                self.natoms, abs(dt), masses.min())
+        #: Velocity grid, LAMMPS velocity units.
+        self.velocity_quantum = check_quantum(velocity_quantum,
+                                              'velocity_quantum')
+        self._check_drift_grid(dt)
+        if sort_bin is None:
+            volume = float(np.prod(boxhi - boxlo))
+            sort_bin = SORT_BIN_SPACING * (volume / self.natoms) ** (1 / 3)
+        self.sort_bin = float(sort_bin)
+        #: Steps whose kicks were taken back and recomputed from clean
+        #: forces, and setups retried with finer sort bins.
+        self.clean_recomputations = 0
+        self.sort_retries = 0
+        #: Largest |F_run - F_clean| seen at a clean recomputation, and
+        #: the bound the guard held it to (LAMMPS force units).
+        self.max_observed_noise = 0.0
+        self.noise_bound_at_max = 0.0
+        self._mode = 'start'
+        self._flag = 0
+        self._k = None
+        self._noisy = None
+        self._define_fixes()
+
+    # -- the per-step callback ---------------------------------------------
+
+    def _callback(self, caller, step, nlocal, tag, x, fext):
+        """``post_force`` on every rank: round, guard and apply the kick."""
+        if self._mode == 'halted':
+            return
+        lmp, np_ = self.lmp, self.lmp.numpy
+        f = np_.extract_atom('f')[:nlocal]
+        v = np_.extract_atom('v')[:nlocal]
+        pending = np_.extract_atom(f'd2_{self.name}_k')[:nlocal]
+        scale = self._scale(nlocal)
+        y = np.multiply(f, scale)
+        k = round_odd(y)
+        r_max = float(np.abs(k).max(initial=0.0))
+        f_max = (r_max + 0.5) / self._scale_min
+        bound = (self.force_noise * self._extent_factor * max(1.0, f_max)
+                 * self._scale_max)
+        local = 0
+        if not r_max < LIMIT / 4:  # also catches NaN
+            local |= _OUT_OF_RANGE
+        elif guard_band_crossed(y, k, bound):
+            local |= _AMBIGUOUS
+        setup = self._mode in ('start', 'redo')
+        if setup and not self._sorted_canonically(x[:nlocal]):
+            local |= _NOT_CANONICAL
+        flag = int(self.world.max(local)[0])
+        np.multiply(k, self.velocity_quantum, out=k)
+        if flag & _OUT_OF_RANGE:
+            self._halt(_OUT_OF_RANGE)
+            return
+        if setup:
+            if flag & _AMBIGUOUS and flag & _NOT_CANONICAL:
+                # The clean forces may depend on history after all: take
+                # nothing, drift once with the velocities as they are,
+                # and let run() undo that drift and retry finer.
+                pending[:] = 0.0
+                self._halt(_NOT_CANONICAL)
+                return
+            if self._mode == 'redo':
+                self._compare_with_noisy(f, tag[:nlocal])
+                v += k
+            pending[:] = k
+            self._mode = 'step'
+            return
+        v += k
+        pending[:] = k
+        if flag & _AMBIGUOUS:
+            self._k = k
+            self._noisy = (np.array(tag[:nlocal]), f.copy(), bound)
+            self._halt(_AMBIGUOUS)
+
+    def _halt(self, flag):
+        self._flag = flag
+        self._mode = 'halted'
+        self.lmp.fix_external_set_vector(f'{self.name}_ext', 1, float(flag))
+
+    def _scale(self, nlocal):
+        """Per-atom ``dt/2 ftm2v / (m q_v)`` as a column ``[n, 1]``, or a
+        scalar when every type has the same mass."""
+        if self._type_scale is None:
+            return self._scalar_scale
+        types = self.lmp.numpy.extract_atom('type')[:nlocal]
+        return self._type_scale[types][:, None]
+
+    def _sorted_canonically(self, x_nc):
+        """Whether this rank's atoms sit one to a sort bin, in bin order,
+        as LAMMPS's ``Atom::sort`` left them at this setup: then their
+        order, and so every sum over them, is a function of positions."""
+        lo = np.array(self.lmp.extract_global('sublo'), dtype=float)
+        hi = np.array(self.lmp.extract_global('subhi'), dtype=float)
+        n_bins = np.maximum(((hi - lo) * (1.0 / self.sort_bin)).astype(int),
+                            1)
+        index = ((x_nc - lo) * (n_bins / (hi - lo))).astype(np.int64)
+        np.clip(index, 0, n_bins - 1, out=index)
+        flat = (index[:, 2] * n_bins[1] + index[:, 1]) * n_bins[0] \
+            + index[:, 0]
+        return bool(np.all(np.diff(flat) > 0))
+
+    def _compare_with_noisy(self, f_clean, tags):
+        """Record how far the run's forces at the taken-back step were from
+        the clean ones, for the atoms this rank held both times."""
+        noisy_tags, f_noisy, bound = self._noisy
+        order = np.argsort(noisy_tags)
+        where = np.searchsorted(noisy_tags, tags, sorter=order)
+        where = np.minimum(where, len(order) - 1)
+        held = noisy_tags[order[where]] == tags
+        noise = float(np.abs(f_clean[held] - f_noisy[order[where[held]]])
+                      .max(initial=0.0))
+        self._observed = (noise, bound / self._scale_max)
+
+    # -- runs ----------------------------------------------------------------
+
+    def run(self, nsteps: int):
+        """Run ``nsteps`` exact steps of LAMMPS's current ``timestep``.
+
+        Collective: every rank calls it.  LAMMPS's own output (thermo,
+        dumps, restart files) works as in any run.  Raises
+        :class:`ImpureForcesError` if a clean recomputation found the
+        forces noisier than the guard's bound, and ValueError (before any
+        step) for a time step that is not a power of two.
+        """
+        nsteps = int(nsteps)
+        if nsteps < 0:
+            raise ValueError(f'nsteps must be >= 0, got {nsteps}; to run '
+                             'back, negate the timestep')
+        self._prepare()
+        target = self.step + nsteps
+        self._mode = 'start'
+        self._attach()
+        try:
+            self._run_to(target)
+        finally:
+            self._detach()
+            self._noisy = None
+
+    def _run_to(self, target):
+        while self.step < target:
+            self._flag = 0
+            self.lmp.fix_external_set_vector(f'{self.name}_ext', 1, 0.0)
+            self._observed = None
+            self.lmp.command(f'run {target - self.step}')
+            self._check_observed_noise()
+            if self._flag == 0:
+                break
+            if self._flag & _AMBIGUOUS:
+                nlocal = self.lmp.extract_setting('nlocal')
+                self.lmp.numpy.extract_atom('v')[:nlocal] -= self._k
+                self.clean_recomputations += 1
+                self._k = None
+                self._mode = 'redo'
+                self._print(f'exact step {self.step} recomputed from clean '
+                            'forces (an increment was within the guard)')
+            elif self._flag & _NOT_CANONICAL:
+                retry = 'redo' if self._noisy is not None else 'start'
+                self._undo_drift()
+                self.sort_retries += 1
+                self.sort_bin /= 2
+                self._set_sort()
+                self._mode = retry
+            else:
+                self._undo_drift()
+                raise FloatingPointError(
+                    f'forces at step {self.step + 1} are not finite or '
+                    'too large for the velocity grid; the atoms are back at '
+                    f'step {self.step}, where this exact run can still be '
+                    'reversed. Check the potential and the time step.')
+
+    @property
+    def step(self) -> int:
+        """LAMMPS's current step number."""
+        return int(self.lmp.extract_global('ntimestep'))
+
+    def _undo_drift(self):
+        """Take back the one drift of a step that took no kick, and its
+        step number."""
+        nlocal = self.lmp.extract_setting('nlocal')
+        x = self.lmp.numpy.extract_atom('x')[:nlocal]
+        v = self.lmp.numpy.extract_atom('v')[:nlocal]
+        x -= self.lmp.extract_global('dt') * v
+        self._detach()
+        self.lmp.command(f'reset_timestep {self.step - 1}')
+        self._attach()
+
+    def _check_observed_noise(self):
+        observed = self._observed or (0.0, math.inf)
+        noise, bound = observed
+        noise, inv_bound = self.world.max(noise, -bound if bound else 0.0)
+        bound = -inv_bound
+        if noise > self.max_observed_noise:
+            self.max_observed_noise = float(noise)
+            self.noise_bound_at_max = float(bound)
+        if self._observed is not None and noise > bound:
+            raise ImpureForcesError(
+                f'forces at step {self.step} differed from their clean '
+                f'recomputation by {noise:.3g}, more than the guard\'s bound '
+                f'{bound:.3g} (LAMMPS force units): earlier kicks may have '
+                'been rounded from noisy forces. Construct ReversibleLammps '
+                'with a larger force_noise.')
+
+    # -- set-up ----------------------------------------------------------------
+
+    def _prepare(self):
+        """Everything a run needs that the user may have changed since the
+        last: the time step, the masses, the box and the atoms' grid."""
+        dt = self._timestep()
+        self._check_drift_grid(dt)
+        masses = self._type_masses()
+        ftm2v = self.lmp.extract_global('ftm2v')
+        per_type = 0.5 * dt * ftm2v / (masses * self.velocity_quantum)
+        self._scale_max = float(np.abs(per_type).max())
+        self._scale_min = float(np.abs(per_type).min())
+        if np.all(per_type == per_type[0]):
+            self._type_scale, self._scalar_scale = None, float(per_type[0])
+        else:
+            self._type_scale = np.concatenate([[np.nan], per_type])
+        extent = max(self.extent, *np.abs(np.concatenate(self._box())))
+        self._extent_factor = max(1.0, extent / NOISE_REFERENCE_EXTENT)
+        self._snap_box()
+        self._snap_atoms()
+        self.lmp.command('neigh_modify delay 0 every 1 check yes')
+
+    def _snap_box(self):
+        q = self.position_quantum
+        lo, hi = self._box()
+        snapped_lo, snapped_hi = np.rint(lo / q) * q, np.rint(hi / q) * q
+        if np.array_equal(lo, snapped_lo) and np.array_equal(hi, snapped_hi):
+            return
+        words = ' '.join(f'{axis} final {float(a)!r} {float(b)!r}' for axis, a, b
+                         in zip('xyz', snapped_lo, snapped_hi))
+        self.lmp.command(f'change_box all {words} units box')
+        change = max(np.abs(snapped_lo - lo).max(),
+                     np.abs(snapped_hi - hi).max())
+        self._print(f'box snapped to the position grid {q!r} '
+                    f'(moved by at most {change:.2g})')
+
+    def _snap_atoms(self):
+        nlocal = self.lmp.extract_setting('nlocal')
+        moved = []
+        for name, q in (('x', self.position_quantum),
+                        ('v', self.velocity_quantum)):
+            a = self.lmp.numpy.extract_atom(name)[:nlocal]
+            snapped = np.rint(a / q) * q
+            off = np.any(snapped != a, axis=1)
+            change = float(np.abs(snapped - a).max(initial=0.0))
+            a[:] = snapped
+            moved += [off.sum(), change]
+        counts = self.world.sum(moved[0], moved[2])
+        changes = self.world.max(moved[1], moved[3])
+        if counts.any():
+            self._print(
+                f'snapped to the exact grid: {int(counts[0])} positions (by '
+                f'at most {changes[0]:.2g}), {int(counts[1])} velocities '
+                f'(by at most {changes[1]:.2g}); runs back return here')
+
+    def _define_fixes(self):
+        n = self.name
+        for command in (f'fix {n}_k all property/atom d2_{n}_k 3 ghost no',
+                        f'variable {n}_vx atom vx+d2_{n}_k[1]',
+                        f'variable {n}_vy atom vy+d2_{n}_k[2]',
+                        f'variable {n}_vz atom vz+d2_{n}_k[3]',
+                        f'variable {n}_halt equal f_{n}_ext[1]'):
+            self.lmp.command(command)
+        self._set_sort()
+
+    def _attach(self):
+        """Define the fixes of a run, last, so that fixes which change
+        forces run before the kick.  They exist only during run(): LAMMPS
+        refuses a new timestep while a fix move exists, and a run or
+        minimisation outside run() must not call the kick."""
+        n = self.name
+        for command in (f'fix {n}_move all move variable NULL NULL NULL '
+                        f'v_{n}_vx v_{n}_vy v_{n}_vz',
+                        f'fix {n}_ext all external pf/callback 1 1',
+                        f'fix {n}_halt all halt 1 v_{n}_halt > 0.5 '
+                        'error continue message no'):
+            self.lmp.command(command)
+        self.lmp.fix_external_set_vector_length(f'{n}_ext', 1)
+        self.lmp.set_fix_external_callback(f'{n}_ext', self._callback, None)
+
+    def _detach(self):
+        for fix in ('halt', 'ext', 'move'):
+            self.lmp.command(f'unfix {self.name}_{fix}')
+
+    def _set_sort(self):
+        self.lmp.command(f'atom_modify sort 1000 {self.sort_bin!r}')
+
+    def _check_system(self):
+        lmp = self.lmp
+        units = lmp.extract_global('units')
+        if units not in SUPPORTED_UNITS:
+            raise ValueError(
+                f'units {units} are not supported: the force-noise bound '
+                f'assumes the scales of {", ".join(SUPPORTED_UNITS)}')
+        if lmp.extract_global('triclinic'):
+            raise ValueError('the box is triclinic; exact runs need an '
+                             'orthogonal box')
+        if lmp.get_natoms() == 0:
+            raise ValueError('there are no atoms: define them first')
+        boundary = lmp.extract_global('boundary')
+        if boundary is not None and any(
+                code == 1 for pair in np.reshape(boundary, (-1,))
+                for code in [pair]):
+            raise ValueError(
+                'a boundary is fixed (f): atoms leaving through it are lost '
+                'and cannot come back; use p, s or m')
+
+    def _box(self):
+        lo, hi, *_ = self.lmp.extract_box()
+        return np.array(lo, dtype=float), np.array(hi, dtype=float)
+
+    def _timestep(self) -> float:
+        dt = float(self.lmp.extract_global('dt'))
+        if not (math.isfinite(dt) and dt != 0
+                and math.frexp(abs(dt))[0] == 0.5):
+            exponent = round(math.log2(abs(dt))) if dt else -9
+            raise ValueError(
+                f'timestep {dt!r} is not a power of two: the drift x += dt v '
+                'is exact only then. Use, for example, timestep '
+                f'{math.copysign(2.0 ** exponent, dt or 1)!r} (2^{exponent})')
+        return dt
+
+    def _check_drift_grid(self, dt):
+        if self.velocity_quantum * abs(dt) < self.position_quantum:
+            raise ValueError(
+                f'timestep {dt!r} times the velocity quantum '
+                f'{self.velocity_quantum!r} is finer than the position '
+                f'quantum {self.position_quantum!r}: the drift would leave '
+                'the grid. Use a larger timestep or velocity_quantum.')
+
+    def _type_masses(self) -> np.ndarray:
+        if self.lmp.extract_setting('rmass_flag'):
+            raise ValueError('per-atom masses (rmass) are not supported; '
+                             'use per-type masses')
+        ntypes = self.lmp.extract_global('ntypes')
+        masses = np.array(self.lmp.numpy.extract_atom('mass')[1:ntypes + 1],
+                          dtype=float)
+        if not np.all(masses > 0):
+            raise ValueError('every atom type needs a positive mass')
+        return masses
+
+    def _default_velocity_quantum(self, natoms, dt, m_min):
+        # P(clean) per step ~ 2 * 3N * noise / q in units of the kick:
+        # the same rule as GuardedForces.min_momentum_quantum.
+        ftm2v = self.lmp.extract_global('ftm2v')
+        noise = (self.force_noise
+                 * max(1.0, self.extent / NOISE_REFERENCE_EXTENT))
+        wanted = (2 * 3 * natoms * noise * 0.5 * dt * ftm2v / m_min
+                  / TARGET_CLEAN_RATE)
+        q = 2.0 ** math.ceil(math.log2(wanted))
+        return q
+
+    def _print(self, text):
+        """A line in LAMMPS's own output (screen and log), from rank 0."""
+        self.lmp.command(f'print "{text}"')
+
+    # -- inspection ------------------------------------------------------------
+
+    def gather(self):
+        """``(ids, x, v)`` of every atom, ordered by id, on every rank:
+        ``x`` unwrapped by the image flags (exact on the grid).  A
+        collective copy of the whole system, for tests and small systems."""
+        lmp = self.lmp
+        n = int(lmp.get_natoms())
+        ids = np.ctypeslib.as_array(lmp.gather_atoms('id', 0, 1)).copy()
+        x = np.ctypeslib.as_array(lmp.gather_atoms('x', 1, 3)).reshape(n, 3)
+        v = np.ctypeslib.as_array(lmp.gather_atoms('v', 1, 3)).reshape(n, 3)
+        image = np.ctypeslib.as_array(
+            lmp.gather_atoms('image', 0, 3)).reshape(n, 3)
+        lo, hi = self._box()
+        x = x + image * (hi - lo)
+        order = np.argsort(ids)
+        return ids[order], x[order], v[order].copy()
+
+    def todict(self) -> dict:
+        """The grid and guard settings, for logs and restarts."""
+        return {'position_quantum': self.position_quantum,
+                'velocity_quantum': self.velocity_quantum,
+                'force_noise': self.force_noise, 'sort_bin': self.sort_bin}
+
+
+def velocity_bits(velocity_quantum, temperature, mass, boltz, mvv2e):
+    """Bits with which ``velocity_quantum`` resolves the thermal velocity
+    ``sqrt(kT/m)`` (LAMMPS units)."""
+    scale = math.sqrt(boltz * temperature / (mass * mvv2e))
+    return math.log2(scale / velocity_quantum)
+
+
+__all__ = ['ReversibleLammps', 'MIN_MOMENTUM_BITS', 'velocity_bits']
