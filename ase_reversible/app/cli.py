@@ -3,7 +3,8 @@
 
 ``demo`` runs :mod:`ase_reversible.app.demo`; ``flipbook`` opens a
 :class:`~ase_reversible.Flipbook` on a scene of
-:mod:`ase_reversible.app.scenes` or on a trajectory frame.
+:mod:`ase_reversible.app.scenes` or on a trajectory frame; ``lammps`` runs a
+LAMMPS input script with exact runs (:mod:`ase_reversible.lammps.script`).
 """
 
 import argparse
@@ -24,6 +25,7 @@ from .view import PLANES, AtomsView
 COMMANDS = {
     'demo': 'a hot argon cluster run forward, reversed, and back to the bit',
     'flipbook': 'step a simulation forward and backward on demand',
+    'lammps': 'a LAMMPS input script with exact runs (under mpiexec)',
 }
 
 
@@ -41,6 +43,9 @@ def main(argv=None):
         return demo.main(argv[1:])
     if argv[0] == 'flipbook':
         return flipbook(argv[1:])
+    if argv[0] == 'lammps':
+        from ..lammps.script import main as lammps_script
+        return lammps_script(argv[1:])
     print(f'unknown command {argv[0]!r}; try: python -m ase_reversible '
           f'{" or ".join(COMMANDS)}', file=sys.stderr)
     return 2

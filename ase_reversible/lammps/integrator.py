@@ -145,6 +145,7 @@ class ReversibleLammps:
         self._flag = 0
         self._k = None
         self._noisy = None
+        self._anchor_defined = False
         self._define_fixes()
 
     # -- the per-step callback ---------------------------------------------
@@ -153,7 +154,7 @@ class ReversibleLammps:
         """``post_force`` on every rank: round, guard and apply the kick."""
         if self._mode == 'halted':
             return
-        lmp, np_ = self.lmp, self.lmp.numpy
+        np_ = self.lmp.numpy
         f = np_.extract_atom('f')[:nlocal]
         v = np_.extract_atom('v')[:nlocal]
         pending = np_.extract_atom(f'd2_{self.name}_k')[:nlocal]
@@ -383,8 +384,7 @@ class ReversibleLammps:
 
     def _define_fixes(self):
         n = self.name
-        for command in (f'fix {n}_k all property/atom d2_{n}_k 3 ghost no',
-                        f'variable {n}_vx atom vx+d2_{n}_k[1]',
+        for command in (f'variable {n}_vx atom vx+d2_{n}_k[1]',
                         f'variable {n}_vy atom vy+d2_{n}_k[2]',
                         f'variable {n}_vz atom vz+d2_{n}_k[3]',
                         f'variable {n}_halt equal f_{n}_ext[1]'):
@@ -394,10 +394,13 @@ class ReversibleLammps:
     def _attach(self):
         """Define the fixes of a run, last, so that fixes which change
         forces run before the kick.  They exist only during run(): LAMMPS
-        refuses a new timestep while a fix move exists, and a run or
-        minimisation outside run() must not call the kick."""
+        refuses a new timestep while a fix move exists, a run or
+        minimisation outside run() must not call the kick, and restart
+        and data files written between runs hold nothing of them (the
+        pending half-kick is recomputed when a run starts)."""
         n = self.name
-        for command in (f'fix {n}_move all move variable NULL NULL NULL '
+        for command in (f'fix {n}_k all property/atom d2_{n}_k 3 ghost no',
+                        f'fix {n}_move all move variable NULL NULL NULL '
                         f'v_{n}_vx v_{n}_vy v_{n}_vz',
                         f'fix {n}_ext all external pf/callback 1 1',
                         f'fix {n}_halt all halt 1 v_{n}_halt > 0.5 '
@@ -407,7 +410,7 @@ class ReversibleLammps:
         self.lmp.set_fix_external_callback(f'{n}_ext', self._callback, None)
 
     def _detach(self):
-        for fix in ('halt', 'ext', 'move'):
+        for fix in ('halt', 'ext', 'move', 'k'):
             self.lmp.command(f'unfix {self.name}_{fix}')
 
     def _set_sort(self):
@@ -481,6 +484,58 @@ class ReversibleLammps:
     def _print(self, text):
         """A line in LAMMPS's own output (screen and log), from rank 0."""
         self.lmp.command(f'print "{text}"')
+
+    # -- the anchor: where a run back must land ---------------------------------
+
+    def mark_anchor(self):
+        """Keep every atom's exact state beside it, as a per-atom array that
+        migrates with the atom: :meth:`compare_with_anchor` then needs no
+        gather.  Collective."""
+        if not self._anchor_defined:
+            self.lmp.command(f'fix {self.name}_anchor all property/atom '
+                             f'd2_{self.name}_anchor 6 ghost no')
+            self._anchor_defined = True
+        self._snap_atoms()
+        anchor, x_u, v = self._anchor_views()
+        anchor[:, :3] = x_u
+        anchor[:, 3:] = v
+
+    def compare_with_anchor(self):
+        """``(atoms_off, largest_difference)`` over every rank: how many
+        atoms' unwrapped positions or velocities differ from the anchor in
+        any bit, and by how much at most.  Collective."""
+        if not self._anchor_defined:
+            raise RuntimeError('no anchor: call mark_anchor() first')
+        anchor, x_u, v = self._anchor_views()
+        off = np.any(anchor[:, :3] != x_u, axis=1) \
+            | np.any(anchor[:, 3:] != v, axis=1)
+        largest = max(float(np.abs(anchor[:, :3] - x_u).max(initial=0.0)),
+                      float(np.abs(anchor[:, 3:] - v).max(initial=0.0)))
+        count = self.world.sum(off.sum())[0]
+        return int(count), float(self.world.max(largest)[0])
+
+    def _anchor_views(self):
+        lmp = self.lmp
+        nlocal = lmp.extract_setting('nlocal')
+        anchor = lmp.numpy.extract_atom(f'd2_{self.name}_anchor')[:nlocal]
+        x = lmp.numpy.extract_atom('x')[:nlocal]
+        v = lmp.numpy.extract_atom('v')[:nlocal]
+        return anchor, x + self._images(nlocal) * self._period(), v
+
+    def _images(self, nlocal):
+        """Image flags ``[n, 3]`` unpacked from LAMMPS's packed integers."""
+        lmp = self.lmp
+        packed = np.asarray(lmp.numpy.extract_atom('image')[:nlocal],
+                            dtype=np.int64)
+        bits = lmp.extract_setting('IMGBITS')
+        mask = lmp.extract_setting('IMGMASK')
+        middle = lmp.extract_setting('IMGMAX')
+        return np.stack([((packed >> (bits * axis)) & mask) - middle
+                         for axis in range(3)], axis=1)
+
+    def _period(self):
+        lo, hi = self._box()
+        return hi - lo
 
     # -- inspection ------------------------------------------------------------
 

