@@ -31,15 +31,16 @@ def mpiexec():
     return launcher
 
 
-def launch(ranks, *args, timeout=300):
-    """Run ``args`` on ``ranks`` MPI processes; skip if MPI cannot start."""
+def launch(ranks, *args, cwd=None, timeout=300):
+    """Run ``args`` on ``ranks`` MPI processes in ``cwd`` (where the scripts
+    write their files); skip if MPI cannot start."""
     command = [str(mpiexec()), '-n', str(ranks), sys.executable, *map(str,
                                                                      args)]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [str(Path(__file__).resolve().parent.parent)]
         + os.environ.get('PYTHONPATH', '').split(os.pathsep)))
     done = subprocess.run(command, capture_output=True, text=True,
-                          timeout=timeout, env=env)
+                          timeout=timeout, env=env, cwd=cwd)
     if done.returncode and 'MPI' in done.stderr and 'Traceback' not in \
             done.stderr:
         pytest.skip(f'MPI cannot start {ranks} processes here: '
@@ -116,7 +117,7 @@ def test_restart_continues_bit_for_bit_and_runs_back(kind, ranks, tmp_path):
 
 def test_input_script_runs_out_and_back(tmp_path):
     done = launch(2, '-m', 'ase_reversible.lammps', EXAMPLE,
-                  '-var', 'steps', '300', '-log', 'none')
+                  '-var', 'steps', '300', '-log', 'none', cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert 'reversible check: all 864 atoms are at the anchor, bit for ' \
         'bit' in done.stdout
@@ -142,7 +143,7 @@ def write_script(tmp_path, lines):
 def test_script_mistakes_get_clear_errors(lines, message, tmp_path):
     done = launch(1, '-m', 'ase_reversible.lammps',
                   write_script(tmp_path, lines), '-var', 'steps', '10',
-                  '-log', 'none')
+                  '-log', 'none', cwd=tmp_path)
     assert done.returncode == 1
     assert message in done.stderr
 
