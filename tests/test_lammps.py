@@ -18,8 +18,8 @@ import pytest
 from conftest import needs_lammps
 
 WORKER = Path(__file__).with_name('lammps_worker.py')
-EXAMPLE = Path(__file__).resolve().parent.parent / 'examples' / 'lammps' \
-    / 'in.argon'
+EXAMPLES = Path(__file__).resolve().parent.parent / 'examples' / 'lammps'
+EXAMPLE = EXAMPLES / 'in.argon'
 
 
 def mpiexec():
@@ -121,6 +121,13 @@ def test_input_script_runs_out_and_back(tmp_path):
     assert done.returncode == 0, done.stderr[-3000:]
     assert 'reversible check: all 864 atoms are at the anchor, bit for ' \
         'bit' in done.stdout
+
+
+def test_python_example_runs_out_and_back(tmp_path):
+    done = launch(2, EXAMPLES / 'argon.py', cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert ('2 ranks, 864 atoms; after 1000 steps 864 atoms differ from '
+            'the start, after 1000 back 0 ') in done.stdout
 
 
 def write_script(tmp_path, lines):
