@@ -140,6 +140,21 @@ def main(job, out, **options):
         lmp.command(f'timestep {-TIMESTEPS[system]!r}')
         rev.run(steps)
         states['back'] = rev.gather()
+    elif job == 'overlap':
+        # An atom dropped 0.05 Å from another: forces beyond any grid.
+        lmp = start(system)
+        rev = ReversibleLammps(lmp, **settings)
+        rev.run(steps)
+        lmp.command('create_atoms 1 single 0.05 0.0 0.0 units box')
+        lmp.command('velocity all create 240 4928459 loop geom')
+        rev.run(0)
+        states = {'before': rev.gather()}
+        step = rev.step
+        try:
+            rev.run(10)
+        except FloatingPointError as error:
+            refused = f'{error} (step {step} -> {rev.step})'
+        states['after'] = rev.gather()
     else:
         raise SystemExit(f'unknown job {job}')
     counters = {'clean_recomputations': rev.clean_recomputations,
@@ -147,7 +162,7 @@ def main(job, out, **options):
                 'max_observed_noise': rev.max_observed_noise,
                 'velocity_quantum': rev.velocity_quantum,
                 'ranks': rev.world.size}
-    if job == 'refused-timestep':
+    if job in ('refused-timestep', 'overlap'):
         counters['refused'] = refused
     if rev.rank == 0:
         arrays = {f'{name}_{part}': value for name, state in states.items()

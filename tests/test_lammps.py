@@ -161,3 +161,11 @@ def test_refused_timestep_loses_nothing(tmp_path):
     result = job(2, 'refused-timestep', tmp_path, system='argon', steps=200)
     assert 'is not a power of two' in result['counters']['refused']
     assert_same_state(result, 'back', 'start')
+
+
+def test_runaway_forces_stop_the_run_and_lose_nothing(tmp_path):
+    result = job(2, 'overlap', tmp_path, system='argon', steps=20)
+    refused = result['counters']['refused']
+    assert 'are not finite or too large for the velocity grid' in refused
+    assert refused.endswith('(step 20 -> 20)')
+    assert_same_state(result, 'after', 'before')

@@ -301,14 +301,17 @@ class ReversibleLammps:
         return int(self.lmp.extract_global('ntimestep'))
 
     def _undo_drift(self):
-        """Take back the one drift of a step that took no kick, and its
+        """Take back a step that stopped before its second half-kick: its
+        drift, its first half-kick (zero after a failed setup) and its
         step number."""
-        nlocal = self.lmp.extract_setting('nlocal')
-        x = self.lmp.numpy.extract_atom('x')[:nlocal]
-        v = self.lmp.numpy.extract_atom('v')[:nlocal]
-        x -= self.lmp.extract_global('dt') * v
+        lmp = self.lmp
+        nlocal = lmp.extract_setting('nlocal')
+        x = lmp.numpy.extract_atom('x')[:nlocal]
+        v = lmp.numpy.extract_atom('v')[:nlocal]
+        x -= lmp.extract_global('dt') * v
+        v -= lmp.numpy.extract_atom(f'd2_{self.name}_k')[:nlocal]
         self._detach()
-        self.lmp.command(f'reset_timestep {self.step - 1}')
+        lmp.command(f'reset_timestep {self.step - 1}')
         self._attach()
 
     def _check_observed_noise(self):
