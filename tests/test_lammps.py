@@ -91,11 +91,11 @@ def test_out_and_back_bit_for_bit(case, ranks, tmp_path):
 
 
 def test_guarded_kicks_are_recomputed_and_stay_exact(tmp_path):
-    # A grid 32 times finer than the default puts increments within the
-    # guard in about a third of the steps; one sort bin per rank makes the
+    # A fine grid and a coarse noise bound put increments within the guard
+    # in about a quarter of the steps; one sort bin per rank makes the
     # clean setups retry with finer bins.
     result = job(2, 'reversal', tmp_path, system='argon', steps=200,
-                 velocity_quantum=2.0**-28,
+                 velocity_quantum=2.0**-28, force_noise=2.0**-40,
                  sort_bin=64.0)
     counters = result['counters']
     assert counters['clean_recomputations'] >= 4

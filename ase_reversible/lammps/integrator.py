@@ -36,6 +36,7 @@ retried with bins half the size.
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -43,14 +44,27 @@ from ..core.codec import LIMIT, check_quantum, guard_band_crossed, quantum_for
 from ..core.codec import round_odd
 from ..core.quanta import MIN_MOMENTUM_BITS, POSITION_ROOM
 from ..errors import ImpureForcesError
-from ..purity import (DEFAULT_FORCE_NOISE, TARGET_CLEAN_RATE,
-                      NOISE_REFERENCE_EXTENT)
+from ..purity import NOISE_REFERENCE_EXTENT
 from .mpi import World
 
 #: The callback's verdicts, reduced by maximum over the ranks.
 _AMBIGUOUS = 1     # an increment lay within the guard: take the step back
 _NOT_CANONICAL = 2  # a setup's sort bins held two atoms where it mattered
 _OUT_OF_RANGE = 4  # forces not finite, or kicks beyond the grid's range
+
+#: Default bound on the history noise of a force component (LAMMPS force
+#: units, for forces up to 1 and coordinates up to NOISE_REFERENCE_EXTENT,
+#: scaled above as in the ASE integrators' guarded rounding).  Forces at
+#: identical positions, a run's against a fresh start's and one rank's
+#: against two ranks', differed by at most 1.1e-16 eV/Å for 864 argon
+#: atoms under lj/cut and 1.3e-15 eV/Å for 500 copper atoms under eam
+#: (max|F| 2 eV/Å); the clean recomputations of runs of 108,000 atoms saw
+#: at most 1.6e-15.  This bound, scaled for those boxes, is 240 times the
+#: largest.
+FORCE_NOISE = 2.0**-44
+#: Fraction of steps meant to need a clean recomputation: each costs a
+#: LAMMPS setup, 3 to 4 steps' time (measured, 4,000 to 256,000 atoms).
+CLEAN_RATE = 0.0025
 
 #: Unit styles whose force and distance scales the noise bound assumes
 #: (forces of order 1, coordinates of order 10 to 1000).
@@ -79,16 +93,16 @@ class ReversibleLammps:
         A negative time step runs back.
     velocity_quantum : float, optional
         Velocity grid, LAMMPS velocity units; a power of two.  Default:
-        the finest for which about ``TARGET_CLEAN_RATE`` of steps need a
-        clean recomputation, from the atom count, the lightest mass, the
+        the finest for which about ``CLEAN_RATE`` of steps need a clean
+        recomputation, from the atom count, the lightest mass, the
         time step and ``force_noise``.  It depends on nothing that changes
         during a run, so a restart from a LAMMPS restart or data file
         chooses the same grid.
     force_noise : float
         Bound on the history noise of a force component, LAMMPS force
         units, for forces up to 1 and coordinates up to 32 (scaled by
-        max|F| and the box's extent above): the same rule and default as
-        the ASE integrators' guarded rounding.
+        max|F| and the box's extent above), the rule of the ASE
+        integrators' guarded rounding; default ``FORCE_NOISE``.
     sort_bin : float, optional
         Width of the spatial bins LAMMPS sorts atoms into at every setup,
         LAMMPS distance units.  Default ``SORT_BIN_SPACING`` times the mean
@@ -103,7 +117,7 @@ class ReversibleLammps:
     """
 
     def __init__(self, lmp, *, velocity_quantum=None,
-                 force_noise=DEFAULT_FORCE_NOISE, sort_bin=None, name='rev'):
+                 force_noise=FORCE_NOISE, sort_bin=None, name='rev'):
         self.lmp = lmp
         self.name = name
         self.world = World(lmp.extract_setting('world_size'))
@@ -129,6 +143,10 @@ class ReversibleLammps:
         self.velocity_quantum = check_quantum(velocity_quantum,
                                               'velocity_quantum')
         self._check_drift_grid(dt)
+        #: Bits with which the grid resolves the rms velocity component
+        #: at construction (None for atoms at rest).
+        self.velocity_bits = None
+        self._check_resolution()
         if sort_bin is None:
             volume = float(np.prod(boxhi - boxlo))
             sort_bin = SORT_BIN_SPACING * (volume / self.natoms) ** (1 / 3)
@@ -146,6 +164,7 @@ class ReversibleLammps:
         self._k = None
         self._noisy = None
         self._anchor_defined = False
+        self._buffers = None
         self._define_fixes()
 
     # -- the per-step callback ---------------------------------------------
@@ -158,10 +177,11 @@ class ReversibleLammps:
         f = np_.extract_atom('f')[:nlocal]
         v = np_.extract_atom('v')[:nlocal]
         pending = np_.extract_atom(f'd2_{self.name}_k')[:nlocal]
-        scale = self._scale(nlocal)
-        y = np.multiply(f, scale)
-        k = round_odd(y)
-        r_max = float(np.abs(k).max(initial=0.0))
+        y, k = self._scratch(nlocal)
+        np.multiply(f, self._scale(nlocal), out=y)
+        round_odd(y, out=k)
+        # NaN propagates through both: the range test below refuses it.
+        r_max = max(float(k.max(initial=0.0)), -float(k.min(initial=0.0)))
         f_max = (r_max + 0.5) / self._scale_min
         bound = (self.force_noise * self._extent_factor * max(1.0, f_max)
                  * self._scale_max)
@@ -195,9 +215,17 @@ class ReversibleLammps:
         v += k
         pending[:] = k
         if flag & _AMBIGUOUS:
-            self._k = k
+            self._k = k.copy()
             self._noisy = (np.array(tag[:nlocal]), f.copy(), bound)
             self._halt(_AMBIGUOUS)
+
+    def _scratch(self, nlocal):
+        """Two reused ``[nlocal, 3]`` float arrays: fresh ones every step
+        cost more than the arithmetic on them."""
+        if self._buffers is None or len(self._buffers[0]) < nlocal:
+            size = int(nlocal * 1.2) + 16
+            self._buffers = (np.empty((size, 3)), np.empty((size, 3)))
+        return self._buffers[0][:nlocal], self._buffers[1][:nlocal]
 
     def _halt(self, flag):
         self._flag = flag
@@ -462,6 +490,29 @@ class ReversibleLammps:
                 f'quantum {self.position_quantum!r}: the drift would leave '
                 'the grid. Use a larger timestep or velocity_quantum.')
 
+    def _check_resolution(self):
+        """Warn when the velocity grid resolves the atoms' rms velocity
+        component with fewer than MIN_MOMENTUM_BITS bits (the ASE
+        integrators' limit): rounding errors of that size in every kick
+        swamp the integrator's own energy error."""
+        nlocal = self.lmp.extract_setting('nlocal')
+        v = self.lmp.numpy.extract_atom('v')[:nlocal]
+        total, count = self.world.sum(float(np.square(v).sum()), nlocal)
+        if not total > 0:
+            return
+        bits = math.log2(math.sqrt(total / (3 * count))
+                         / self.velocity_quantum)
+        self.velocity_bits = bits
+        if bits < MIN_MOMENTUM_BITS:
+            text = (f'the velocity quantum {self.velocity_quantum!r} resolves '
+                    f'the rms velocity with only {bits:.1f} bits (fewer than '
+                    f'{MIN_MOMENTUM_BITS}): kicks lose precision. For '
+                    f'{self.natoms} atoms the guard needs a grid this coarse '
+                    'to keep clean recomputations rare; pass a smaller '
+                    'velocity_quantum to trade speed for precision')
+            self._print(f'WARNING: {text}')
+            warnings.warn(text, RuntimeWarning, stacklevel=3)
+
     def _type_masses(self) -> np.ndarray:
         if self.lmp.extract_setting('rmass_flag'):
             raise ValueError('per-atom masses (rmass) are not supported; '
@@ -475,14 +526,15 @@ class ReversibleLammps:
 
     def _default_velocity_quantum(self, natoms, dt, m_min):
         # P(clean) per step ~ 2 * 3N * noise / q in units of the kick:
-        # the same rule as GuardedForces.min_momentum_quantum.
+        # the rule of GuardedForces.min_momentum_quantum.
         ftm2v = self.lmp.extract_global('ftm2v')
         noise = (self.force_noise
                  * max(1.0, self.extent / NOISE_REFERENCE_EXTENT))
         wanted = (2 * 3 * natoms * noise * 0.5 * dt * ftm2v / m_min
-                  / TARGET_CLEAN_RATE)
-        q = 2.0 ** math.ceil(math.log2(wanted))
-        return q
+                  / CLEAN_RATE)
+        # No finer than the drift allows: dt q_v a multiple of q_x.
+        wanted = max(wanted, self.position_quantum / dt)
+        return 2.0 ** math.ceil(math.log2(wanted))
 
     def _print(self, text):
         """A line in LAMMPS's own output (screen and log), from rank 0."""
@@ -565,11 +617,4 @@ class ReversibleLammps:
                 'force_noise': self.force_noise, 'sort_bin': self.sort_bin}
 
 
-def velocity_bits(velocity_quantum, temperature, mass, boltz, mvv2e):
-    """Bits with which ``velocity_quantum`` resolves the thermal velocity
-    ``sqrt(kT/m)`` (LAMMPS units)."""
-    scale = math.sqrt(boltz * temperature / (mass * mvv2e))
-    return math.log2(scale / velocity_quantum)
-
-
-__all__ = ['ReversibleLammps', 'MIN_MOMENTUM_BITS', 'velocity_bits']
+__all__ = ['ReversibleLammps', 'FORCE_NOISE', 'CLEAN_RATE']
