@@ -24,8 +24,8 @@ DOCS = ROOT / 'docs'
 #: and benchmarks/pages/<name>.py (renders).
 SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
             'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
-            'thermostat', 'nose', 'force_noise', 'full_precision',
-            'long_reversal')
+            'thermostat', 'nose', 'lammps_cost', 'force_noise',
+            'full_precision', 'long_reversal')
 
 
 def page_module(name):

@@ -36,7 +36,7 @@ SECTIONS = render.SECTIONS
 #: LennardJones); --only runs them, and the page shows them once stored.
 DEFAULT_SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
                     'reversal_error', 'stress', 'gradient_accuracy',
-                    'adjoint', 'thermostat', 'nose')
+                    'adjoint', 'thermostat', 'nose', 'lammps_cost')
 
 
 def measure(name, quick, only, machine) -> dict:

@@ -1,0 +1,157 @@
+"""ReversibleLammps against LAMMPS's own ``fix nve``, on 1 and 2 MPI ranks.
+
+A section of ``run_all.py``::
+
+    python benchmarks/run_all.py --only lammps_cost          # ~10-12 minutes
+    python benchmarks/run_all.py --quick --only lammps_cost  # < 40 s
+
+Method.  Each case is one process per rank, ``mpiexec -n R python
+lammps_worker.py`` (the mpiexec of the pip ``mpich`` wheel, beside this
+Python).  The worker builds the same input twice in that process: one LAMMPS
+instance integrated by ``fix nve``, one by ``ReversibleLammps``, both at a
+time step of 2^-9 ps.  After one warm-up block each (the crystal starts on
+its perfect lattice, where the pair loop is faster than in the thermalised
+solid), they run blocks of the same number of steps, ``run M`` against
+``rev.run(M)``, alternating which goes first; a block's wall time is taken
+between two MPI barriers, so it is the slowest rank's.  Per-step times are
+medians over the blocks; ratios are ratios of those medians.  Each block's
+LAMMPS log is read back for LAMMPS's own loop time (the steps without the
+setup that starts every ``run``), its timer breakdown (average over ranks)
+and the neighbour-list builds.
+
+Then, on each instance, a ``run 0`` (the setup a clean recomputation pays:
+atom sort, neighbour lists, forces) is timed a few times, and the exact
+path's per-step collective, ``rev.world.max(0.0)`` (one MPI_Allreduce), in
+blocks of a thousand calls.
+
+Cases (fcc unit cells, 4 atoms each): strong scaling of argon (LJ) and
+copper (EAM) at 108,000 atoms on 1 and 2 ranks; weak scaling of argon at
+54,000 atoms per rank (30x30x15 cells per rank, stacked along z); argon at
+4,000 to 256,000 atoms on one rank.  A case serving two of these is run
+once.
+"""
+
+from __future__ import annotations
+
+import common
+
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+WORKER = Path(__file__).resolve().parent / 'lammps_worker.py'
+TIMESTEP_PS = 0.001953125
+
+#: The goal this section checks: the exact path within this factor of
+#: ``fix nve``'s time per step from this many atoms up.
+GOAL_RATIO, GOAL_MIN_ATOMS = 1.10, 100_000
+
+#: (system, cells, ranks, steps per block, warm-up steps, what it serves).
+FULL_CASES = (
+    ('argon', (10, 10, 10), 1, 500, 200, ('size',)),
+    ('argon', (20, 20, 20), 1, 100, 50, ('size',)),
+    ('argon', (30, 30, 15), 1, 60, 40, ('weak',)),
+    ('argon', (30, 30, 30), 1, 100, 40, ('size', 'strong')),
+    ('argon', (30, 30, 30), 2, 100, 40, ('strong', 'weak')),
+    ('argon', (40, 40, 40), 1, 40, 20, ('size',)),
+    ('copper', (30, 30, 30), 1, 50, 30, ('strong',)),
+    ('copper', (30, 30, 30), 2, 50, 30, ('strong',)),
+)
+QUICK_CASES = (
+    ('argon', (10, 10, 10), 1, 20, 20, ('size', 'strong')),
+    ('argon', (10, 10, 10), 2, 20, 20, ('strong',)),
+    ('copper', (10, 10, 10), 1, 20, 20, ('strong',)),
+    ('copper', (10, 10, 10), 2, 20, 20, ('strong',)),
+)
+FULL = {'rounds': 5, 'setups': 5, 'reduce_blocks': 5, 'reduce_calls': 1000}
+QUICK = {'rounds': 3, 'setups': 3, 'reduce_blocks': 3, 'reduce_calls': 1000}
+
+LABELS = {'argon': 'Ar LJ', 'copper': 'Cu EAM'}
+
+
+def mpiexec() -> Path:
+    """The mpiexec installed beside this Python (the mpich wheel's)."""
+    return Path(sys.executable).parent / 'mpiexec'
+
+
+def run_case(case, log_dir) -> dict:
+    ranks = case['ranks']
+    started = time.perf_counter()
+    proc = subprocess.run(
+        [str(mpiexec()), '-n', str(ranks), sys.executable, str(WORKER),
+         json.dumps(case), str(log_dir)],
+        capture_output=True, text=True, cwd=common.ROOT, timeout=1800)
+    if proc.returncode != 0:
+        raise RuntimeError(f'lammps_worker.py {case} on {ranks} ranks '
+                           f'failed:\n' + proc.stderr[-3000:])
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    result['process_seconds'] = time.perf_counter() - started
+    return result
+
+
+def per_step_medians(blocks) -> dict:
+    """Medians over blocks of what a step costs, in ms, and the counts."""
+    def median(values):
+        return statistics.median(values)
+
+    sections = sorted({k for b in blocks for k in b['breakdown_seconds']})
+    steps = sum(b['steps'] for b in blocks)
+    return {
+        'ms_per_step': 1e3 * median([b['wall_seconds'] / b['steps']
+                                     for b in blocks]),
+        'loop_ms_per_step': 1e3 * median([b['loop_seconds'] / b['steps']
+                                          for b in blocks]),
+        'outside_loop_ms_per_step': 1e3 * median(
+            [(b['wall_seconds'] - b['loop_seconds']) / b['steps']
+             for b in blocks]),
+        'breakdown_ms_per_step': {
+            s: 1e3 * median([b['breakdown_seconds'].get(s, 0.0) / b['steps']
+                             for b in blocks]) for s in sections},
+        'spread': ((max(b['wall_seconds'] / b['steps'] for b in blocks)
+                    - min(b['wall_seconds'] / b['steps'] for b in blocks))
+                   / median([b['wall_seconds'] / b['steps']
+                             for b in blocks])),
+        'steps': steps,
+        'runs_per_block': median([b['runs'] for b in blocks]),
+        'clean_recomputations': sum(b['clean_recomputations']
+                                    for b in blocks),
+        'clean_per_step': sum(b['clean_recomputations'] for b in blocks)
+        / steps,
+        'sort_retries': sum(b['sort_retries'] for b in blocks),
+        'neighbor_builds_per_step': sum(b['neighbor_builds'] for b in blocks)
+        / steps,
+    }
+
+
+def run(quick):
+    settings = QUICK if quick else FULL
+    cases = []
+    with tempfile.TemporaryDirectory() as log_dir:
+        for system, cells, ranks, steps, warmup, uses in (
+                QUICK_CASES if quick else FULL_CASES):
+            case = {'system': system, 'cells': list(cells), 'ranks': ranks,
+                    'steps': steps, 'warmup_steps': warmup, **settings}
+            natoms = 4 * cells[0] * cells[1] * cells[2]
+            label = f'{LABELS[system]} {natoms}, {ranks} rank' + (
+                's' if ranks > 1 else '')
+            print(f'  {label}', flush=True)
+            measured = run_case(case, log_dir)
+            assert measured['natoms'] == natoms and measured['ranks'] == ranks
+            cases.append({
+                'label': label, 'uses': list(uses), **case, **measured,
+                'median': {name: per_step_medians(blocks) for name, blocks
+                           in measured['blocks'].items()}})
+    return {'cpu': common.cpu_model(),
+            'cores': common.command_output(['nproc']),
+            'timestep_ps': TIMESTEP_PS,
+            'goal_ratio': GOAL_RATIO, 'goal_min_atoms': GOAL_MIN_ATOMS,
+            'cases': cases}
+
+
+if __name__ == '__main__':
+    import run_all
+    sys.exit(run_all.main(['--only', 'lammps_cost'] + sys.argv[1:]))
