@@ -35,13 +35,23 @@ def goal_cases(results):
             if c['natoms'] >= results['goal_min_atoms']]
 
 
-def breakdown(instance):
-    """ms per step: LAMMPS's timer sections, the rest of its loop, and the
-    time outside the loop (each run's setup, the Python around it)."""
-    parts = instance['breakdown_ms_per_step']
-    shown = {s: parts.get(s, 0.0) for s in SHOWN_SECTIONS}
-    shown['other'] = instance['loop_ms_per_step'] - sum(shown.values())
-    shown['outside loop'] = instance['outside_loop_ms_per_step']
+def median_block(blocks):
+    """The block of median wall time per step (the lower one of two)."""
+    ordered = sorted(blocks, key=lambda b: b['wall_seconds'] / b['steps'])
+    return ordered[(len(ordered) - 1) // 2]
+
+
+def breakdown(case, name):
+    """ms per step of the median block of ``name``: LAMMPS's timer sections,
+    the rest of its loop, and the time outside the loop (each run's setup,
+    the Python around it); they add up to the block's wall time."""
+    block = median_block(case['blocks'][name])
+    per_step = 1e3 / block['steps']
+    parts = block['breakdown_seconds']
+    shown = {s: per_step * parts.get(s, 0.0) for s in SHOWN_SECTIONS}
+    shown['other'] = per_step * block['loop_seconds'] - sum(shown.values())
+    shown['outside loop'] = per_step * (block['wall_seconds']
+                                        - block['loop_seconds'])
     return shown
 
 
@@ -78,14 +88,15 @@ def plot(results, figures):
             x = 3 * i + j
             bottom = 0.0
             for colour, (part, value) in zip(
-                    colours, breakdown(c['median'][name]).items()):
+                    colours, breakdown(c, name).items()):
                 right.bar(x, value / unit, bottom=bottom, color=colour,
                           label=part if i == 0 and j == 0 else None,
                           edgecolor='k' if name == 'exact' else None,
                           linewidth=0.5)
                 bottom += value / unit
             top = max(top, bottom)
-        labels.append((3 * i + 0.5, c['label'].replace(', ', '\n')))
+        labels.append((3 * i + 0.5, c['label'].replace(', ', '\n')
+                       .replace(f" {c['natoms']}", f"\n{c['natoms']}")))
     right.set_xticks([x for x, _ in labels])
     right.set_xticklabels([t for _, t in labels], fontsize=6)
     right.set_ylabel("time per step / fix nve's")
@@ -109,19 +120,29 @@ def goal_sentence(results):
     cases = goal_cases(results)
     goal, n_min = results['goal_ratio'], results['goal_min_atoms']
     if not cases:
-        return (f'The goal (exact within {goal:g}x of fix nve per step at '
+        return (f'The goal (exact within {goal:.2f}x of fix nve per step at '
                 f'N ≥ {n_min:,}) was not measured here: no case has that '
                 'many atoms.')
     worst = max(cases, key=ratio)
     best = min(cases, key=ratio)
     met = all(ratio(c) <= goal for c in cases)
     return (f"**Goal {'met' if met else 'not met'}**: exact within "
-            f'{goal:g}x of fix nve per step at N ≥ {n_min:,}. Measured there: '
+            f'{goal:.2f}x of fix nve per step at N ≥ {n_min:,}. Measured '
+            'there: '
             f'from {ratio(best):.2f}x ({best["label"]}) to '
             f'{ratio(worst):.2f}x ({worst["label"]}) in wall time per step; '
             f'{min(loop_ratio(c) for c in cases):.2f}x to '
             f'{max(loop_ratio(c) for c in cases):.2f}x in LAMMPS\'s loop '
             'time, which leaves out the setup of each run.')
+
+
+def pair_sentence(cases):
+    excess = [c['median']['exact']['breakdown_ms_per_step']['Pair']
+              / c['median']['nve']['breakdown_ms_per_step']['Pair'] - 1
+              for c in cases]
+    return ("The exact instance's Pair time per step is "
+            f'{min(excess):.0%} to {max(excess):.0%} above that of fix nve '
+            'on the same system.')
 
 
 def markdown(results):
@@ -136,8 +157,9 @@ def markdown(results):
             f"{exact['clean_per_step']:.3f}"
             + (f" ({exact['sort_retries']} sort retries)"
                if exact['sort_retries'] else ''),
-            f"{nve['neighbor_builds_per_step']:.2f} / "
-            f"{exact['neighbor_builds_per_step']:.2f}",
+            ' / '.join(str(sum(b['neighbor_builds']
+                               for b in c['blocks'][name]))
+                       for name in ('nve', 'exact')),
             f"{max(nve['spread'], exact['spread']):.0%}"])
     lines = [
         'The same input in two LAMMPS instances of one process per rank, '
@@ -160,25 +182,28 @@ def markdown(results):
             ['case', 'atoms', 'ranks', 'M (steps per block)',
              'fix nve (ms/step)', 'exact (ms/step)', 'exact / nve',
              'exact / nve, loop time', 'clean recomputations per step',
-             'list builds per step in the loop: nve / exact',
+             'list builds in the loops: nve / exact',
              'block spread'], rows),
         '',
         '### Where a step goes',
         '',
-        "Milliseconds per step from LAMMPS's timer (average over ranks, "
-        'median over blocks); "outside loop" is wall time minus loop time: '
+        "Milliseconds per step from LAMMPS's timer (average over ranks) in "
+        'the block of median wall time; "outside loop" is wall time minus '
+        'loop time: '
         'the setup of each run (and of each clean recomputation) and the '
         "Python around it. The exact path's kick is a Python callback "
         '(`fix external`) and its drift a `fix move` of atom-style '
         'variables, both counted under Modify.',
         '',
         markdown_table(
-            ['case', 'integrator'] + list(breakdown(cases[0]['median']['nve']))
+            ['case', 'integrator'] + list(breakdown(cases[0], 'nve'))
             + ['total'],
             [[c['label'], name]
-             + [_ms(v) for v in breakdown(c['median'][name]).values()]
-             + [_ms(c['median'][name]['ms_per_step'])]
+             + [_ms(v) for v in breakdown(c, name).values()]
+             + [_ms(sum(breakdown(c, name).values()))]
              for c in cases for name in ('nve', 'exact')]),
+        '',
+        pair_sentence(cases),
     ]
     strong = {}
     for c in uses(results, 'strong'):
