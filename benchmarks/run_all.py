@@ -2,7 +2,7 @@
 
 Usage (from the repository root)::
 
-    python benchmarks/run_all.py                    # the default sections, ~65 min
+    python benchmarks/run_all.py                    # the default sections, ~75 min
     python benchmarks/run_all.py --quick            # small cases, a few minutes
     python benchmarks/run_all.py --only step_cost   # one section (any of SECTIONS)
     python benchmarks/render.py                     # only render the stored results
