@@ -92,8 +92,13 @@ def main(job, out, **options):
     steps = int(options.pop('steps', 300))
     files = Path(options.pop('files', '.'))
     settings = {key: float(value) for key, value in options.items()}
-    if job == 'reversal':
+    if job in ('reversal', 'frozen'):
         lmp = start(system)
+        if job == 'frozen':
+            # A force fix defined before the exact runs: it acts first.
+            lmp.command('group frozen id 1:50')
+            lmp.command('velocity frozen set 0.0 0.0 0.0')
+            lmp.command('fix freeze frozen setforce 0.0 0.0 0.0')
         rev = ReversibleLammps(lmp, **settings)
         rev.run(0)
         states = {'start': rev.gather()}

@@ -90,6 +90,17 @@ def test_out_and_back_bit_for_bit(case, ranks, tmp_path):
     assert_same_state(result, 'back', 'start')
 
 
+def test_force_fixes_defined_before_act_first(tmp_path):
+    # fix setforce on atoms 1 to 50 (at rest): they stay where they are,
+    # the others move, and the run comes back exactly.
+    result = job(2, 'frozen', tmp_path, system='argon', steps=300)
+    frozen = result['start_ids'] <= 50
+    assert np.array_equal(result['out_x'][frozen], result['start_x'][frozen])
+    assert not np.array_equal(result['out_x'][~frozen],
+                              result['start_x'][~frozen])
+    assert_same_state(result, 'back', 'start')
+
+
 def test_guarded_kicks_are_recomputed_and_stay_exact(tmp_path):
     # A fine grid and a coarse noise bound put increments within the guard
     # in about a quarter of the steps; one sort bin per rank makes the

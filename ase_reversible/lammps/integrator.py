@@ -63,7 +63,7 @@ _OUT_OF_RANGE = 4  # forces not finite, or kicks beyond the grid's range
 #: largest.
 FORCE_NOISE = 2.0**-44
 #: Fraction of steps meant to need a clean recomputation: each costs a
-#: LAMMPS setup, 3 to 4 steps' time (measured, 4,000 to 256,000 atoms).
+#: LAMMPS setup, 2.4 to 5 steps' time (measured, 4,000 to 256,000 atoms).
 CLEAN_RATE = 0.0025
 
 #: Unit styles whose force and distance scales the noise bound assumes
@@ -155,7 +155,7 @@ class ReversibleLammps:
         #: forces, and setups retried with finer sort bins.
         self.clean_recomputations = 0
         self.sort_retries = 0
-        #: Largest |F_run - F_clean| seen at a clean recomputation, and
+        #: Largest ``|F_run - F_clean|`` seen at a clean recomputation, and
         #: the bound the guard held it to (LAMMPS force units).
         self.max_observed_noise = 0.0
         self.noise_bound_at_max = 0.0
