@@ -92,63 +92,56 @@ def main(job, out, **options):
     steps = int(options.pop('steps', 300))
     files = Path(options.pop('files', '.'))
     settings = {key: float(value) for key, value in options.items()}
-    if job in ('reversal', 'frozen'):
+    refused = None
+    if job in ('restart-read', 'data-read'):
+        kind = job.split('-')[0]
+        lmp = start(system, **{kind: files / f'half.{kind}'})
+    else:
         lmp = start(system)
-        if job == 'frozen':
-            # A force fix defined before the exact runs: it acts first.
-            lmp.command('group frozen id 1:50')
-            lmp.command('velocity frozen set 0.0 0.0 0.0')
-            lmp.command('fix freeze frozen setforce 0.0 0.0 0.0')
-        rev = ReversibleLammps(lmp, **settings)
-        rev.run(0)
-        states = {'start': rev.gather()}
-        rev.run(steps)
-        states['out'] = rev.gather()
+    if job == 'frozen':
+        # A force fix defined before the exact runs: it acts first.
+        lmp.command('group frozen id 1:50')
+        lmp.command('velocity frozen set 0.0 0.0 0.0')
+        lmp.command('fix freeze frozen setforce 0.0 0.0 0.0')
+    rev = ReversibleLammps(lmp, **settings)
+    rev.run(0)
+    first = 'half' if job.endswith('-read') else 'start'
+    states = {first: rev.gather()}
+
+    def back(steps):
         lmp.command(f'timestep {-TIMESTEPS[system]!r}')
         rev.run(steps)
+
+    if job in ('reversal', 'frozen'):
+        rev.run(steps)
+        states['out'] = rev.gather()
+        back(steps)
         states['back'] = rev.gather()
     elif job == 'restart-write':
         # Out and on in one process, writing a restart and a data file
         # half-way: the reference a restart must continue bit for bit.
-        lmp = start(system)
-        rev = ReversibleLammps(lmp, **settings)
-        rev.run(0)
-        states = {'start': rev.gather()}
         rev.run(steps)
         lmp.command(f'write_restart {files / "half.restart"}')
         lmp.command(f'write_data {files / "half.data"}')
         states['half'] = rev.gather()
         rev.run(steps)
         states['end'] = rev.gather()
-    elif job in ('restart-read', 'data-read'):
-        kind = 'restart' if job == 'restart-read' else 'data'
-        lmp = start(system, **{kind: files / f'half.{kind}'})
-        rev = ReversibleLammps(lmp, **settings)
-        rev.run(0)
-        states = {'half': rev.gather()}
+    elif job.endswith('-read'):
         rev.run(steps)
         states['end'] = rev.gather()
-        lmp.command(f'timestep {-TIMESTEPS[system]!r}')
-        rev.run(2 * steps)
+        back(2 * steps)
         states['start'] = rev.gather()
     elif job == 'refused-timestep':
-        lmp = start(system)
-        rev = ReversibleLammps(lmp, **settings)
-        rev.run(0)
-        states = {'start': rev.gather()}
         rev.run(steps)
         lmp.command('timestep 0.0025')
         try:
             rev.run(10)
         except ValueError as error:
             refused = str(error)
-        lmp.command(f'timestep {-TIMESTEPS[system]!r}')
-        rev.run(steps)
+        back(steps)
         states['back'] = rev.gather()
     elif job == 'overlap':
         # An atom dropped 0.05 Å from another: forces beyond any grid.
-        lmp = start(system)
-        rev = ReversibleLammps(lmp, **settings)
         rev.run(steps)
         lmp.command('create_atoms 1 single 0.05 0.0 0.0 units box')
         lmp.command('velocity all create 240 4928459 loop geom')
@@ -167,7 +160,7 @@ def main(job, out, **options):
                 'max_observed_noise': rev.max_observed_noise,
                 'velocity_quantum': rev.velocity_quantum,
                 'ranks': rev.world.size}
-    if job in ('refused-timestep', 'overlap'):
+    if refused is not None:
         counters['refused'] = refused
     if rev.rank == 0:
         arrays = {f'{name}_{part}': value for name, state in states.items()
