@@ -133,6 +133,7 @@ class ReversibleLammps:
         #: Position grid, LAMMPS distance units: room for POSITION_ROOM
         #: times the box's extent.
         self.position_quantum = quantum_for(POSITION_ROOM * self.extent)
+        self._snap_box()  # first, so an anchor marked next is on it
         dt = self._timestep()
         self.natoms = int(lmp.get_natoms())
         masses = self._type_masses()
