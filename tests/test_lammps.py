@@ -166,6 +166,18 @@ def test_script_mistakes_get_clear_errors(lines, message, tmp_path):
     assert message in done.stderr
 
 
+def test_included_runs_are_exact_runs(tmp_path):
+    # LAMMPS reading the include itself would run it without an integrator
+    # (the atoms would not move and the check would pass).
+    (tmp_path / 'runs.in').write_text('run 50\n')
+    script = write_script(tmp_path, ['reversible nve', 'reversible anchor',
+                                     'include runs.in', 'reversible check'])
+    done = launch(1, '-m', 'ase_reversible.lammps', script, '-var', 'steps',
+                  '10', '-log', 'none', cwd=tmp_path)
+    assert done.returncode == 1
+    assert '864 atoms differ from the anchor' in done.stderr
+
+
 def test_refused_timestep_loses_nothing(tmp_path):
     # A time step that is not a power of two is refused before any step;
     # the run then goes back with a valid one and lands on its start.

@@ -113,7 +113,8 @@ class ReversibleLammps:
     The fixes it defines are ``{name}_k`` (property/atom: the pending
     half-kick), ``{name}_move`` (move: the drift), ``{name}_ext`` (external:
     the kicks) and ``{name}_halt`` (halt: stops a run for a clean
-    recomputation).  Fixes that change forces must be defined before it.
+    recomputation), at the start of every :meth:`run` and after every
+    other fix: fixes that add to or set forces act before the kick.
     """
 
     def __init__(self, lmp, *, velocity_quantum=None,

@@ -58,11 +58,11 @@ class ScriptRunner:
         path = Path(path)
         for number, line in _lines(path):
             try:
-                self.line(line, path.parent)
+                self.line(line)
             except ScriptError as error:
                 raise ScriptError(f'{path}:{number}: {error}') from None
 
-    def line(self, line, folder=Path('.')):
+    def line(self, line):
         """One logical line (continuations joined)."""
         words = line.split('#', 1)[0].split()
         if not words:
@@ -70,8 +70,8 @@ class ScriptRunner:
         command = words[0]
         if command == 'reversible':
             return self._reversible(words[1:])
-        if command == 'include':
-            return self.file(folder / words[1])
+        if command == 'include':  # relative to the working directory,
+            return self.file(words[1])  # as LAMMPS reads it
         if self.on and command in _FLOW:
             raise ScriptError(
                 f'{command} is not supported while exact runs are on: LAMMPS '
