@@ -127,8 +127,9 @@ def test_restart_continues_bit_for_bit_and_runs_back(kind, ranks, tmp_path):
 
 
 def test_input_script_runs_out_and_back(tmp_path):
-    done = launch(2, '-m', 'ase_reversible.lammps', EXAMPLE,
-                  '-var', 'steps', '300', '-log', 'none', cwd=tmp_path)
+    # As with lmp: -in INPUT among LAMMPS's own options.
+    done = launch(2, '-m', 'ase_reversible.lammps', '-var', 'steps', '300',
+                  '-in', EXAMPLE, '-log', 'none', cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert 'reversible check: all 864 atoms are at the anchor, bit for ' \
         'bit' in done.stdout

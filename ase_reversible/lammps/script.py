@@ -31,7 +31,7 @@ from .integrator import ReversibleLammps
 from .mpi import import_lammps
 
 USAGE = ('usage: mpiexec -n RANKS python -m ase_reversible.lammps INPUT '
-         '[-var NAME VALUE ...] [-log FILE] [-screen FILE]')
+         '[-var NAME VALUE ...] [-log FILE] [-screen FILE]  (or -in INPUT)')
 
 #: Commands that hand control flow to LAMMPS's own reader.
 _FLOW = ('jump', 'label', 'next', 'if')
@@ -163,14 +163,17 @@ def _lines(path):
 
 
 def main(argv=None):
-    """``python -m ase_reversible.lammps INPUT [LAMMPS options]``; returns
-    the exit status."""
+    """``python -m ase_reversible.lammps INPUT [LAMMPS options]`` (or
+    ``-in INPUT`` among them, as for ``lmp``); returns the exit status."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    if not argv or argv[0] in ('-h', '--help') or argv[0].startswith('-'):
+    if not argv or argv[0] in ('-h', '--help'):
         print(USAGE)
         print(__doc__.split('\n\n', 2)[2])
-        return 0 if argv and argv[0] in ('-h', '--help') else 2
-    path, lammps_args = Path(argv[0]), argv[1:]
+        return 0 if argv else 2
+    path, lammps_args = _input_and_options(argv)
+    if path is None:
+        print(USAGE, file=sys.stderr)
+        return 2
     if not path.exists():
         print(f'no such input script: {path}', file=sys.stderr)
         return 2
@@ -180,10 +183,21 @@ def main(argv=None):
     try:
         ScriptRunner(lmp).file(path)
     except Exception as error:  # LAMMPS raises plain Exception
-
         if rank == 0:
             print(f'ERROR: {error}', file=sys.stderr)
         lmp.close()
         return 1
     lmp.close()
     return 0
+
+
+def _input_and_options(argv):
+    """The input script (first argument, or after ``-in``/``-i``) and the
+    options left for LAMMPS."""
+    for flag in ('-in', '-i'):
+        if flag in argv[:-1]:
+            at = argv.index(flag)
+            return Path(argv[at + 1]), argv[:at] + argv[at + 2:]
+    if argv[0].startswith('-'):
+        return None, argv
+    return Path(argv[0]), argv[1:]
