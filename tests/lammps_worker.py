@@ -42,6 +42,18 @@ mass 1 63.546
 pair_style eam
 pair_coeff * * {potential}
 velocity all create 1200 87287 loop geom""",
+    # 177 argon atoms of a ball in a shrink-wrapped box, at 60 K.
+    'cluster': """units metal
+boundary s s s
+lattice fcc 5.26
+region box block -6 6 -6 6 -6 6
+create_box 1 box
+region ball sphere 0 0 0 2.2
+create_atoms 1 region ball
+mass 1 39.948
+pair_style lj/cut 8.5
+pair_coeff 1 1 0.0104 3.40
+velocity all create 60 4928459 loop geom""",
     # A binary Lennard-Jones mixture in reduced units, two masses.
     'lj-binary': """units lj
 boundary p p p
@@ -59,7 +71,7 @@ pair_coeff 1 2 1.2 0.95
 velocity all create 1.5 87287 loop geom""",
 }
 
-TIMESTEPS = {'argon': DT, 'copper': DT, 'lj-binary': 2.0**-8}
+TIMESTEPS = {'argon': DT, 'copper': DT, 'cluster': DT, 'lj-binary': 2.0**-8}
 
 
 def start(system, restart=None, data=None):

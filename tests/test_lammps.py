@@ -71,6 +71,7 @@ CASES = {
     'argon': (dict(system='argon', steps=600), 0.5),
     'copper eam': (dict(system='copper', steps=300), 0.2),
     'lj binary': (dict(system='lj-binary', steps=400), 0.2),
+    'argon ball, shrink-wrapped': (dict(system='cluster', steps=1000), 0.5),
 }
 
 

@@ -85,9 +85,9 @@ class ReversibleLammps:
     ----------
     lmp : lammps.lammps
         An instance on every rank (``mpiexec -n R python ...``), with the
-        atoms, masses and interactions defined, an orthogonal box that is
-        periodic or shrink-wrapped in each direction, and no
-        time-integration fix: this object defines its own.  The time step
+        atoms, masses and interactions defined, an orthogonal box (any
+        boundaries), and no time-integration fix: this object defines its
+        own.  The time step
         is LAMMPS's ``timestep``; it must be a power of two (in magnitude)
         in LAMMPS time units, such as 0.001953125 ps (2^-9) in metal units.
         A negative time step runs back.
@@ -461,13 +461,6 @@ class ReversibleLammps:
                              'orthogonal box')
         if lmp.get_natoms() == 0:
             raise ValueError('there are no atoms: define them first')
-        boundary = lmp.extract_global('boundary')
-        if boundary is not None and any(
-                code == 1 for pair in np.reshape(boundary, (-1,))
-                for code in [pair]):
-            raise ValueError(
-                'a boundary is fixed (f): atoms leaving through it are lost '
-                'and cannot come back; use p, s or m')
 
     def _box(self):
         lo, hi, *_ = self.lmp.extract_box()
