@@ -1,0 +1,129 @@
+"""The choice of a force provider for a calculator (``force_purity``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ImpureForcesError
+from .advice import _impurity_advice, _parallel_noise_advice
+from .introspection import (_declares_pure, _is_asap3,
+                            _is_ase_neighborlist_calculator,
+                            _is_plain_ase_neighborlist_calculator, _mixes,
+                            calculator_members)
+from .probe import measured_force_noise, probe_purity
+from .providers import (ColdStartForces, GuardedForces,
+                        SortedNeighborListForces, SpotCheck, TrustedForces)
+from .settings import DEFAULT_FORCE_NOISE, SUMMATION_NOISE_LIMIT
+
+
+def force_provider(atoms, mode: str = 'auto',
+                   force_noise: float | None = None):
+    """Choose how forces are made a pure function of positions.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        With its calculator attached.
+    mode : {'auto', 'sorted', 'guarded', 'cold-start', 'trust'}
+        ``'auto'`` looks at the calculator and, for a mixing calculator
+        (anything with members in ``.calcs``: SumCalculator,
+        LinearCombinationCalculator, MixedCalculator), at every member,
+        and takes the strictest handling any of them needs: ``'guarded'``
+        if one is an asap3 calculator; else ASE's LennardJones and EMT get
+        sorted neighbour lists (``'sorted'``); members that are neither
+        these nor declare ``forces_are_pure = True`` (a guarantee that
+        forces are a function of the positions alone) make it probe the
+        whole calculator with :func:`probe_purity`.  If its forces depend
+        on its history by more than summation order explains, it probes
+        again with every call started cold (:class:`ColdStartForces`) and
+        takes ``'cold-start'`` if that makes them pure; otherwise it
+        refuses the calculator.
+    force_noise : float, optional
+        Noise bound for ``'guarded'`` (eV/Å).
+
+    Returns
+    -------
+    TrustedForces, SortedNeighborListForces, GuardedForces or ColdStartForces
+        Raises :class:`ImpureForcesError` if ``'auto'`` probes the
+        calculator and sees history noise.
+    """
+    provider = _provider(atoms, mode, force_noise)
+    # Pure by construction (sorted lists in ASE's own calculators, or a
+    # declaration) needs no watching; a probe's verdict, a noise bound or
+    # a user's word gets a spot check during runs.
+    if not _pure_by_construction(atoms.calc):
+        provider.spot_check = SpotCheck()
+    return provider
+
+
+def _pure_by_construction(calc):
+    if _declares_pure(calc):
+        return True
+    members = calculator_members(calc)
+    leaves = [c for c in members if not _mixes(c)] or [calc]
+    return all(_declares_pure(c) or _is_plain_ase_neighborlist_calculator(c)
+               for c in leaves)
+
+
+def _provider(atoms, mode, force_noise):
+    calc = atoms.calc
+    modes = ('auto', 'sorted', 'guarded', 'cold-start', 'trust')
+    if mode not in modes:
+        raise ValueError(f'force_purity must be one of {modes}, got {mode!r}')
+    if force_noise is not None and mode not in ('auto', 'guarded'):
+        raise ValueError("force_noise only applies to force_purity='guarded'")
+    members = calculator_members(calc)
+    listed = [c for c in members if _is_ase_neighborlist_calculator(c)]
+    if mode == 'auto':
+        # A mixing calculator is as impure as its worst member: its own
+        # probe can pass while a member's history has not shown yet.
+        leaves = [c for c in members if not _mixes(c)] or [calc]
+        if _declares_pure(calc):
+            mode = 'trust'
+        elif force_noise is not None:
+            mode = 'guarded'
+        elif _is_asap3(calc):
+            return GuardedForces(measured_force_noise(atoms))
+        elif any(_is_asap3(c) for c in leaves):
+            # Mixed with others (by a user's wrapper: ASE's mixers do not
+            # take asap3) the probe would move atoms under calculators it
+            # knows nothing of: the fixed bound.
+            mode = 'guarded'
+        elif all(_declares_pure(c) or _is_plain_ase_neighborlist_calculator(c)
+                 for c in leaves):
+            mode = 'sorted' if listed else 'trust'
+        else:
+            provider = (SortedNeighborListForces(listed) if listed
+                        else TrustedForces())
+            if listed:  # sorted lists in place before the probe
+                provider.forces(atoms)
+            noise = probe_purity(atoms)
+            if not noise:
+                return provider
+            f_max = np.abs(provider.forces(atoms)).max(initial=0.0)
+            if not listed and noise > SUMMATION_NOISE_LIMIT * max(1.0, f_max):
+                # Noise this large is state carried between calls (an SCF
+                # started from its last solution): try starting cold.
+                cold = ColdStartForces()
+                left = probe_purity(atoms, forces=cold.forces)
+                if not left:
+                    return cold
+                if left <= SUMMATION_NOISE_LIMIT * max(1.0, f_max):
+                    raise ImpureForcesError(_parallel_noise_advice(
+                        calc, noise, left))
+            raise ImpureForcesError(_impurity_advice(
+                calc, noise, f_max, cold_start_tried=not listed))
+    if mode == 'sorted':
+        if not listed:
+            raise ValueError(
+                "force_purity='sorted' needs an ASE calculator that keeps "
+                "an ase.neighborlist.NeighborList in .nl (LennardJones, "
+                "EMT), or a mixing calculator with such members; "
+                f"{type(calc).__name__} is neither.")
+        return SortedNeighborListForces(listed)
+    if mode == 'guarded':
+        return GuardedForces(DEFAULT_FORCE_NOISE if force_noise is None
+                             else force_noise)
+    if mode == 'cold-start':
+        return ColdStartForces()
+    return TrustedForces()

@@ -1,0 +1,71 @@
+"""The probe: forces at the same positions after another history."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .introspection import discard_results
+from .settings import (DEFAULT_FORCE_NOISE, MEASURED_NOISE_FLOOR,
+                       MEASURED_NOISE_MARGIN, REBUILD_SHIFT, _extent_factor)
+
+
+def measured_force_noise(atoms) -> float:
+    """The guard's bound for these atoms' calculator, from a probe.
+
+    ``MEASURED_NOISE_MARGIN`` times the noise :func:`probe_purity` sees
+    (three trials), scaled back as ``force_noise`` is (to forces of 1 eV/Å
+    and coordinates within ``NOISE_REFERENCE_EXTENT``), rounded up to a
+    power of two, and kept between ``MEASURED_NOISE_FLOOR`` and
+    ``DEFAULT_FORCE_NOISE``.  asap3 on a free argon cluster shows noise a
+    ten-thousandth of the default bound; periodic copper under EMT shows
+    it near the default, which then stays.  The bound is checked during
+    the run: every clean recomputation and spot check compares it with
+    the noise it sees and stops the run if it was exceeded.
+    """
+    noise = probe_purity(atoms, trials=3)
+    x_nc = atoms.positions
+    extent = max(x_nc.max(initial=0.0), -x_nc.min(initial=0.0))
+    f_nc = atoms.get_forces(md=True)
+    f_max = max(f_nc.max(initial=0.0), -f_nc.min(initial=0.0))
+    scaled = noise / (_extent_factor(extent) * max(1.0, f_max))
+    wanted = max(MEASURED_NOISE_MARGIN * scaled, MEASURED_NOISE_FLOOR)
+    return min(2.0**math.ceil(math.log2(wanted)), DEFAULT_FORCE_NOISE)
+
+
+
+def probe_purity(atoms, trials: int = 2, displacement: float = 0.3,
+                 seed: int = 0, forces=None) -> float:
+    """Largest force difference (eV/Å) at identical positions.
+
+    ``atoms`` needs a calculator.  Costs ``1 + 3 * trials`` force calls.
+    Computes the forces, then, ``trials`` times: moves the atoms away (a
+    random displacement of ``displacement`` Å rms plus a shift of
+    ``REBUILD_SHIFT`` Å, so that neighbour lists are rebuilt), then close to
+    the start (0.05 Å rms: lists are rebuilt there, not at the start), then
+    back bit for bit, and computes again.  Zero means no history dependence
+    was seen, which is evidence, not proof, of purity.  The atoms are left
+    at their original positions.  ``forces(atoms)``, if given, is how the
+    forces are obtained (a provider's ``forces``, to probe its handling).
+    """
+    if forces is None:
+        def forces(atoms):
+            return atoms.get_forces(md=True)
+    rng = np.random.default_rng(seed)
+    x_nc = atoms.positions.copy()
+    discard_results(atoms.calc)
+    f0_nc = np.array(forces(atoms))
+    worst = 0.0
+    try:
+        for _ in range(trials):
+            atoms.positions = (x_nc + REBUILD_SHIFT
+                               + rng.normal(0.0, displacement, x_nc.shape))
+            forces(atoms)
+            atoms.positions = x_nc + rng.normal(0.0, 0.05, x_nc.shape)
+            forces(atoms)
+            atoms.positions = x_nc
+            worst = max(worst, float(np.abs(forces(atoms) - f0_nc).max()))
+    finally:
+        atoms.positions = x_nc
+    return worst

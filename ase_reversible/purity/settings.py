@@ -1,0 +1,53 @@
+"""The numbers force purity rests on: noise bounds, the probe's shift,
+the spot check's interval, and how bounds scale."""
+
+from __future__ import annotations
+
+import math
+
+#: Default bound on history noise in forces, eV/Å (scaled by max|F| above
+#: 1 eV/Å).  The largest noise measured, asap3 EMT on periodic copper, was
+#: 8.2e-14 eV/Å: this leaves a margin of 11.
+DEFAULT_FORCE_NOISE = 2.0**-40
+#: Fraction of force calls that may need a clean recomputation.
+TARGET_CLEAN_RATE = 0.01
+#: The bound ``'auto'`` sets is this many times the noise its probe saw.
+MEASURED_NOISE_MARGIN = 16
+#: ... and never below this (eV/Å, scaled as DEFAULT_FORCE_NOISE): the
+#: probe can see no noise at all where a run meets some.  Measured in runs
+#: of asap3 LennardJones on a 147-atom argon cluster (the forces of the
+#: run against those of a list built at the same positions, 18,081
+#: components): at most 4.2e-17 eV/Å; this floor is 21 times that.
+MEASURED_NOISE_FLOOR = 2.0**-50
+#: Coordinates (Å) up to which DEFAULT_FORCE_NOISE holds.  History noise
+#: comes from rounding coordinate differences, so it grows with the
+#: coordinates' magnitude (asap3 on periodic argon: 2e-15 eV/Å near the
+#: origin, 5e-14 at 600 Å, 2e-13 at 3000 Å); beyond this extent the bound
+#: grows in proportion.
+NOISE_REFERENCE_EXTENT = 32.0
+#: Distance (Å, per axis) the atoms are moved to force a neighbour-list
+#: rebuild: more than any skin, so the list is rebuilt on the way back.
+REBUILD_SHIFT = 8.0
+#: Force calls from one spot check of purity to the next (see
+#: :class:`SpotCheck`): one extra call in this many, and for asap3 two
+#: neighbour-list rebuilds, stays below 1% of a run's force calls.
+SPOT_CHECK_INTERVAL = 512
+
+#: Largest history noise, relative to max(1 eV/Å, max|F|), that comes from
+#: the order of floating-point sums (neighbour lists): such noise is a few
+#: ulps, 1e-16 to 1e-13 relative.  A self-consistent field that starts from
+#: its previous solution leaves noise near its convergence threshold
+#: (tblite GFN2-xTB: 1.9e-4 eV/Å), far above this.
+SUMMATION_NOISE_LIMIT = 1e-9
+
+
+def _extent_factor(extent):
+    return max(1.0, extent / NOISE_REFERENCE_EXTENT)
+
+
+
+def _round_up(value):
+    """``value`` rounded up to two significant digits."""
+    digits = math.floor(math.log10(value)) - 1
+    return math.ceil(value / 10.0**digits) * 10.0**digits
+
