@@ -5,12 +5,19 @@ integrator then does."""
 import numpy as np
 import pytest
 from ase import units
+from ase.build import molecule
 from ase.calculators.emt import EMT
 from ase.calculators.lj import LennardJones as AseLJ
+from ase.calculators.singlepoint import SinglePointCalculator
+from ase.calculators.tip3p import TIP3P
+from ase.constraints import FixBondLengths
 
-from ase_reversible import (LennardJones, ReversibleVerlet, check_calculator)
+from ase_reversible import (CoarseQuantumError, LennardJones,
+                            ReversibleVerlet, UnsupportedConstraintError,
+                            check_calculator)
 from ase_reversible.app.systems import (AR_EPSILON, AR_RC, AR_SIGMA,
-                                        argon_cluster, argon_lj, copper_bulk)
+                                        argon_cluster, argon_lj, copper_bulk,
+                                        thermalize)
 
 from conftest import needs_asap3
 from warm_start import WarmStart
@@ -81,3 +88,76 @@ def test_history_dependent_forces_are_refused_with_the_remedy():
 def test_no_calculator_is_an_error():
     with pytest.raises(RuntimeError, match='attach one'):
         check_calculator(argon_cluster(2, 50))
+
+
+def two_waters():
+    """Two TIP3P water molecules in vacuum, thermal (O, H, H each)."""
+    atoms = molecule('H2O')
+    other = atoms.copy()
+    other.translate([3.0, 0.2, 0.1])
+    atoms += other
+    atoms.center(vacuum=4.0)
+    thermalize(atoms, 300, 0)
+    atoms.calc = TIP3P(rc=4.0)
+    return atoms
+
+
+def assert_refused_as_the_integrator_refuses(atoms, error_class, **kwargs):
+    report = checked(atoms, **kwargs)
+    with pytest.raises(error_class) as raised:
+        ReversibleVerlet(atoms, kwargs.get('timestep', DT),
+                         force_noise=kwargs.get('force_noise'))
+    assert not report.exact and report.mode is None
+    assert report.refused_by == error_class.__name__
+    assert report.advice == str(raised.value)
+    assert error_class.__name__ in str(report)
+    return report
+
+
+def test_a_constraint_the_integrators_refuse_is_refused_here_too():
+    atoms = two_waters()
+    # Without the constraint, the verdict is the integrator's, and true.
+    report = checked(atoms)
+    assert report.exact and report.mode == 'trust'
+    assert run_back(atoms, steps=10).force_purity.mode == 'trust'
+    atoms.constraints = FixBondLengths(
+        [(3 * i + j, 3 * i + (j + 1) % 3) for i in range(2) for j in range(3)])
+    report = assert_refused_as_the_integrator_refuses(
+        atoms, UnsupportedConstraintError)
+    assert 'FixBondLengths' in report.advice
+
+
+def test_a_momentum_quantum_the_integrator_refuses_is_refused_here_too():
+    # A force_noise this large raises the momentum quantum past what the
+    # thermal momenta can bear; the refusal needs the time step.
+    atoms = argon_cluster(2, 50)
+    atoms.calc = argon_lj()
+    assert checked(atoms, force_noise=1e-3).mode == 'guarded'
+    assert_refused_as_the_integrator_refuses(
+        atoms, CoarseQuantumError, timestep=DT, force_noise=1e-3)
+
+
+def test_stored_results_are_refused_as_the_integrator_refuses_them():
+    atoms = argon_cluster(2, 50)
+    atoms.calc = SinglePointCalculator(atoms, energy=0.0,
+                                       forces=np.zeros((len(atoms), 3)))
+    assert_refused_as_the_integrator_refuses(atoms, RuntimeError)
+
+
+def test_tblite_on_two_threads_gets_the_same_verdict_every_call():
+    pytest.importorskip('tblite', reason='tblite is not installed (it is in '
+                        "the test extra: pip install '.[test]')")
+    from threadpoolctl import threadpool_limits
+    from tblite.ase import TBLite
+    atoms = molecule('CH3CH2OH')
+    atoms.center(vacuum=5.0)
+    thermalize(atoms, 300, 0)
+    atoms.calc = TBLite(method='GFN2-xTB', verbosity=0)
+    # Two OpenMP threads whatever the environment says: their sums vary
+    # from call to call unless the check holds them to one.
+    with threadpool_limits(limits=2, user_api='openmp'):
+        reports = [checked(atoms) for _ in range(3)]
+    for report in reports:
+        assert report.exact and report.mode == 'cold-start'
+        assert report.probe_noise == 0.0
+        assert 'one thread' in report.cost

@@ -1,6 +1,7 @@
 """Force purity: the problem is real, and each remedy removes it."""
 
 import re
+import sys
 
 import numpy as np
 import pytest
@@ -20,7 +21,7 @@ from ase_reversible.purity import (DEFAULT_FORCE_NOISE, MEASURED_NOISE_FLOOR,
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS, DT, argon_bulk,
                       argon_cluster, copper_bulk)
 from exactness import (assert_atoms_show_committed_state, assert_runs_back,
-                       assert_same_state, forward_and_back)
+                       assert_same_state, forward_and_back, snapshot)
 
 
 def forces_after_history(atoms, provider, seed):
@@ -368,3 +369,107 @@ def test_auto_keeps_the_fixed_bound_where_the_noise_is_near_it():
     atoms.calc = CALCULATORS['asap-emt']()
     noise = measured_force_noise(atoms)
     assert noise == DEFAULT_FORCE_NOISE
+
+
+class FarArrivalNoise(LennardJones):
+    """ASE's LennardJones with history noise of a known size: every force
+    component is ``eps`` eV/Å larger when the atoms arrived from more than
+    1 Å away (as they do for the guard's clean recomputation, which goes
+    8 Å away and back), and as computed after the small moves of a step."""
+
+    def __init__(self, eps, **kwargs):
+        super().__init__(**kwargs)
+        self.eps = eps
+        self._last_nc = None
+
+    def calculate(self, atoms=None, properties=('energy',),
+                  system_changes=all_changes):
+        super().calculate(atoms, properties, system_changes)
+        x_nc = self.atoms.positions
+        far = (self._last_nc is not None
+               and np.abs(x_nc - self._last_nc).max() > 1.0)
+        self._last_nc = x_nc.copy()
+        if far:
+            self.results['forces'] = self.results['forces'] + self.eps
+
+
+NOISE = 1e-10  # eV/Å, FarArrivalNoise's
+
+
+def suggested_force_noise(message, seen):
+    """The force_noise a message tells the user to pass, checked to be
+    sixteen times the noise ``seen`` rounded up (to two digits: at most
+    10% up) and big enough that the noise is no longer near it."""
+    value = float(re.search(r'force_noise=([0-9.e+-]+) \(eV/Å, sixteen',
+                            message).group(1))
+    assert 16 * seen <= value <= 1.1 * 16 * seen
+    return value
+
+
+def noisy_guarded_run(noise_per_bound):
+    """An argon cluster under FarArrivalNoise, guarded with a bound of
+    NOISE / noise_per_bound, on a momentum grid fine enough that most
+    kicks need a clean recomputation (which measures the noise).  Its
+    forces stay below 1 eV/Å and its coordinates below 32 Å, so the bound
+    is force_noise unscaled."""
+    atoms = argon_cluster(2, 100)
+    atoms.calc = FarArrivalNoise(NOISE, sigma=AR_SIGMA, epsilon=AR_EPSILON,
+                                 rc=AR_RC)
+    assert np.abs(atoms.positions).max() < 32
+    return ReversibleVerlet(atoms, DT, force_purity='guarded',
+                            force_noise=NOISE / noise_per_bound,
+                            momentum_quantum=2.0**-30)
+
+
+def test_noise_near_the_bound_warns_at_the_users_line_with_the_value_to_use():
+    dyn = noisy_guarded_run(noise_per_bound=1 / 1.5)
+    start = snapshot(dyn.atoms)
+    with pytest.warns(RuntimeWarning, match='force_noise=') as seen:
+        dyn.run(20)  # the line the warning must name
+    line = sys._getframe().f_lineno - 1
+    assert dyn.force_purity.clean_recomputations > 0
+    assert (NOISE / 2 < dyn.force_purity.max_observed_noise
+            <= dyn.force_purity.force_noise)
+    near = [w for w in seen if 'Force noise' in str(w.message)]
+    assert len(near) == 1  # once per integrator
+    assert near[0].filename == __file__ and near[0].lineno == line
+    suggested_force_noise(str(near[0].message),
+                          dyn.force_purity.max_observed_noise)
+    # Still exact: the noise stayed within the bound.
+    dyn.reverse()
+    dyn.run(20)
+    assert_same_state(dyn.atoms, start)
+
+
+def test_the_warning_names_the_users_line_from_irun_too():
+    dyn = noisy_guarded_run(noise_per_bound=1 / 1.5)
+    with pytest.warns(RuntimeWarning, match='force_noise=') as seen:
+        for _ in dyn.irun(20):  # the line the warning must name
+            line = sys._getframe().f_lineno - 1
+    near = [w for w in seen if 'Force noise' in str(w.message)]
+    assert near[0].filename == __file__ and near[0].lineno == line
+
+
+@pytest.mark.filterwarnings('error')
+def test_noise_far_below_the_bound_runs_back_under_warnings_as_errors():
+    # A quarter of the bound: the old threshold (an eighth) stopped this
+    # valid run under -W error; "near" is now within a factor of 2.
+    dyn = noisy_guarded_run(noise_per_bound=1 / 4)
+    start = snapshot(dyn.atoms)
+    dyn.run(20)
+    guard = dyn.force_purity
+    assert guard.clean_recomputations > 0
+    assert guard.force_noise / 8 < guard.max_observed_noise \
+        <= guard.force_noise / 2
+    dyn.reverse()
+    dyn.run(20)
+    assert_same_state(dyn.atoms, start)
+
+
+def test_noise_beyond_the_bound_stops_the_run_with_the_value_to_use():
+    dyn = noisy_guarded_run(noise_per_bound=2)
+    with pytest.raises(ImpureForcesError, match='force_noise=') as error:
+        dyn.run(20)
+    assert_atoms_show_committed_state(dyn)
+    suggested_force_noise(str(error.value),
+                          dyn.force_purity.max_observed_noise)

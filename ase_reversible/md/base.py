@@ -52,6 +52,49 @@ def encoded(atoms, position_quantum, momentum_quantum, project):
                                momentum_quantum, 'momentum')}
 
 
+def admit(atoms, force_purity, force_noise):
+    """What every reversible dynamics checks of the atoms it is
+    constructed on, and chooses from them: ``(masses_n, project,
+    purity)``, the masses ``[n_atoms]`` (amu), the constraint projection
+    and the force provider.  Raises as the constructors do, before
+    anything is changed; :func:`ase_reversible.check_calculator` runs it
+    too, so that its verdict is the integrators'."""
+    if not isinstance(atoms, Atoms):
+        raise TypeError(
+            f'The reversible integrators run ase.Atoms at a fixed cell, '
+            f'got {type(atoms).__name__}: filters that move the cell '
+            '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
+            'pass the Atoms themselves.')
+    check_calculator(atoms.calc, 'constructing the integrator')
+    masses_n = checked_masses(atoms)
+    for name in ('positions', 'momenta'):
+        values = atoms.arrays.get(name)
+        if values is not None and not np.all(np.isfinite(values)):
+            raise ValueError(f'The atoms have non-finite {name}.')
+    project = constraint_projection(atoms)
+    purity = force_provider(atoms, force_purity, force_noise)
+    return masses_n, project, purity
+
+
+def checked_grid(atoms, masses_n, project, purity, max_kick,
+                 position_quantum=None, momentum_quantum=None, record=None):
+    """The grid a dynamics runs the atoms on (the momentum quantum no finer
+    than ``purity`` needs for kicks of up to ``max_kick`` ASE time units),
+    refused (:class:`~ase_reversible.CoarseQuantumError`) if its momentum
+    quantum would visibly change the momenta."""
+    momenta = atoms.arrays.get('momenta', np.zeros((len(atoms), 3)))
+    grid, origin = choose_grid(
+        atoms.positions, atoms.cell, atoms.pbc, masses_n, momenta,
+        position_quantum=position_quantum,
+        momentum_quantum=momentum_quantum, record=record,
+        momentum_floor=purity.min_momentum_quantum(
+            len(atoms), max_kick,
+            extent=float(np.abs(atoms.positions).max(initial=0.0))))
+    refuse_coarse_momentum_quantum(
+        masses_n, projected_momenta(atoms, project), grid, origin, purity)
+    return grid
+
+
 class ReversibleDynamics(MolecularDynamics):
     """Base of the reversible integrators; see
     :class:`ase_reversible.md.verlet.ReversibleVerlet`.
@@ -530,20 +573,7 @@ class ReversibleDynamics(MolecularDynamics):
         """Check the atoms a dynamics is constructed on, and read what it
         needs from them: ``(masses_n, project, purity, record)``, the
         record None unless a restart record fits the atoms."""
-        if not isinstance(atoms, Atoms):
-            raise TypeError(
-                f'The reversible integrators run ase.Atoms at a fixed cell, '
-                f'got {type(atoms).__name__}: filters that move the cell '
-                '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
-                'pass the Atoms themselves.')
-        check_calculator(atoms.calc, 'constructing the integrator')
-        masses_n = checked_masses(atoms)
-        for name in ('positions', 'momenta'):
-            values = atoms.arrays.get(name)
-            if values is not None and not np.all(np.isfinite(values)):
-                raise ValueError(f'The atoms have non-finite {name}.')
-        project = constraint_projection(atoms)
-        purity = force_provider(atoms, force_purity, force_noise)
+        masses_n, project, purity = admit(atoms, force_purity, force_noise)
         return masses_n, project, purity, self._resumable_record(atoms)
 
     def _hamiltonian(self, atoms, max_kick, position_quantum,
@@ -559,16 +589,8 @@ class ReversibleDynamics(MolecularDynamics):
         """
         masses_n, project, purity, record = self._admit(
             atoms, force_purity, force_noise)
-        momenta = atoms.arrays.get('momenta', np.zeros((len(atoms), 3)))
-        grid, origin = choose_grid(
-            atoms.positions, atoms.cell, atoms.pbc, masses_n, momenta,
-            position_quantum=position_quantum,
-            momentum_quantum=momentum_quantum, record=record,
-            momentum_floor=purity.min_momentum_quantum(
-                len(atoms), max_kick,
-                extent=float(np.abs(atoms.positions).max(initial=0.0))))
-        refuse_coarse_momentum_quantum(
-            masses_n, projected_momenta(atoms, project), grid, origin, purity)
+        grid = checked_grid(atoms, masses_n, project, purity, max_kick,
+                            position_quantum, momentum_quantum, record)
         counts = encoded(atoms, grid.position_quantum, grid.momentum_quantum,
                          project)
         return system_class(atoms, grid, counts, masses_n, project,

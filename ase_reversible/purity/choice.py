@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from contextlib import nullcontext
+
 import numpy as np
 
 from ..errors import ImpureForcesError
@@ -14,6 +16,7 @@ from .probe import measured_force_noise, probe_purity
 from .providers import (ColdStartForces, GuardedForces,
                         SortedNeighborListForces, SpotCheck, TrustedForces)
 from .settings import DEFAULT_FORCE_NOISE, SUMMATION_NOISE_LIMIT
+from .threads import one_thread, uses_openmp
 
 
 def force_provider(atoms, mode: str = 'auto',
@@ -36,16 +39,21 @@ def force_provider(atoms, mode: str = 'auto',
         whole calculator with :func:`probe_purity`.  If its forces depend
         on its history by more than summation order explains, it probes
         again with every call started cold (:class:`ColdStartForces`) and
-        takes ``'cold-start'`` if that makes them pure; otherwise it
-        refuses the calculator.
+        takes ``'cold-start'`` if that makes them pure; noise left at the
+        level of rounding is probed once more with OpenMP and BLAS held to
+        one thread, which removes the noise of parallel sums; otherwise it
+        refuses the calculator.  In every mode, a calculator known to sum
+        in OpenMP threads (:data:`~.threads.OPENMP_CALCULATOR_PACKAGES`:
+        tblite) has every force call held to one thread.
     force_noise : float, optional
         Noise bound for ``'guarded'`` (eV/Å).
 
     Returns
     -------
     TrustedForces, SortedNeighborListForces, GuardedForces or ColdStartForces
-        Raises :class:`ImpureForcesError` if ``'auto'`` probes the
-        calculator and sees history noise.
+        Its ``one_thread`` is the thread hold, or None.  Raises
+        :class:`ImpureForcesError` if ``'auto'`` probes the calculator and
+        no handling removes the history noise it sees.
     """
     provider = _provider(atoms, mode, force_noise)
     # Pure by construction (sorted lists in ASE's own calculators, or a
@@ -66,6 +74,14 @@ def _pure_by_construction(calc):
 
 
 def _provider(atoms, mode, force_noise):
+    provider = _handling(atoms, mode, force_noise)
+    if provider.one_thread is None and any(
+            uses_openmp(c) for c in calculator_members(atoms.calc)):
+        provider.hold_to_one_thread(one_thread())
+    return provider
+
+
+def _handling(atoms, mode, force_noise):
     calc = atoms.calc
     modes = ('auto', 'sorted', 'guarded', 'cold-start', 'trust')
     if mode not in modes:
@@ -93,26 +109,7 @@ def _provider(atoms, mode, force_noise):
                  for c in leaves):
             mode = 'sorted' if listed else 'trust'
         else:
-            provider = (SortedNeighborListForces(listed) if listed
-                        else TrustedForces())
-            if listed:  # sorted lists in place before the probe
-                provider.forces(atoms)
-            noise = probe_purity(atoms)
-            if not noise:
-                return provider
-            f_max = np.abs(provider.forces(atoms)).max(initial=0.0)
-            if not listed and noise > SUMMATION_NOISE_LIMIT * max(1.0, f_max):
-                # Noise this large is state carried between calls (an SCF
-                # started from its last solution): try starting cold.
-                cold = ColdStartForces()
-                left = probe_purity(atoms, forces=cold.forces)
-                if not left:
-                    return cold
-                if left <= SUMMATION_NOISE_LIMIT * max(1.0, f_max):
-                    raise ImpureForcesError(_parallel_noise_advice(
-                        calc, noise, left))
-            raise ImpureForcesError(_impurity_advice(
-                calc, noise, f_max, cold_start_tried=not listed))
+            return _probed(atoms, listed)
     if mode == 'sorted':
         if not listed:
             raise ValueError(
@@ -127,3 +124,58 @@ def _provider(atoms, mode, force_noise):
     if mode == 'cold-start':
         return ColdStartForces()
     return TrustedForces()
+
+
+def _probed(atoms, listed):
+    """The provider ``'auto'`` takes for a calculator it does not know,
+    from probes; raises :class:`ImpureForcesError` if none makes the
+    forces pure.
+
+    A calculator known to sum in OpenMP threads is probed with its thread
+    pools held to one thread.  Any other that shows noise at the level of
+    rounding is probed again so held: the noise may be threads adding
+    their partial sums in a varying order, which one thread removes.
+    """
+    calc = atoms.calc
+    known = any(uses_openmp(c) for c in calculator_members(calc))
+    held = one_thread() if known else None
+    provider, refusal, rounding = _probe_choice(atoms, listed, held)
+    if provider is None and rounding and held is None:
+        held = one_thread()
+        provider, refusal, _ = _probe_choice(atoms, listed, held)
+    if provider is None:
+        raise ImpureForcesError(refusal)
+    if held is not None:
+        provider.hold_to_one_thread(held)
+    return provider
+
+
+def _probe_choice(atoms, listed, held):
+    """``(provider, None, False)`` if the probes find a handling that makes
+    the forces pure (under ``held``, a OneThread or None), else ``(None,
+    message, rounding)``, ``rounding`` True if the noise left was at the
+    level of rounding."""
+    calc = atoms.calc
+    with held() if held is not None else nullcontext():
+        provider = (SortedNeighborListForces(listed) if listed
+                    else TrustedForces())
+        if listed:  # sorted lists in place before the probe
+            provider.forces(atoms)
+        noise = probe_purity(atoms)
+        if not noise:
+            return provider, None, False
+        f_max = np.abs(provider.forces(atoms)).max(initial=0.0)
+        small = SUMMATION_NOISE_LIMIT * max(1.0, f_max)
+        if not listed and noise > small:
+            # Noise this large is state carried between calls (an SCF
+            # started from its last solution): try starting cold.
+            cold = ColdStartForces()
+            left = probe_purity(atoms, forces=cold.forces)
+            if not left:
+                return cold, None, False
+            if left <= small:
+                return (None, _parallel_noise_advice(
+                    calc, noise, left, held is not None), True)
+        return (None, _impurity_advice(
+            calc, noise, f_max, cold_start_tried=not listed,
+            one_thread_tried=held is not None), noise <= small)

@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 
 from ..core.codec import guard_band_crossed, round_odd
 from ..errors import ImpureForcesError
-from .advice import _spot_check_advice
+from .advice import _spot_check_advice, warn_at_user_line
 from .introspection import (_has_sorted_list, _install_sorted_list,
                             calculator_members, cold_start, discard_results)
-from .settings import (DEFAULT_FORCE_NOISE, REBUILD_SHIFT, SPOT_CHECK_INTERVAL,
-                       TARGET_CLEAN_RATE, _extent_factor)
+from .settings import (DEFAULT_FORCE_NOISE, NEAR_BOUND_FACTOR, REBUILD_SHIFT,
+                       SPOT_CHECK_INTERVAL, TARGET_CLEAN_RATE, _bound_for,
+                       _extent_factor, _near_bound)
 
 
 class SpotCheck:
@@ -71,12 +71,29 @@ class TrustedForces:
     """Forces used as the calculator returns them.
 
     ``spot_check`` (a :class:`SpotCheck`, or None) checks during runs that
-    the forces stay a function of the positions.
+    the forces stay a function of the positions; ``one_thread`` (a
+    :class:`~.threads.OneThread`, or None) is held around every force
+    call (see :meth:`hold_to_one_thread`).
     """
 
     mode = 'trust'
     force_noise = 0.0
     spot_check = None
+    one_thread = None
+    #: The methods that call the calculator.
+    _calculator_calls = ('forces',)
+
+    def hold_to_one_thread(self, one_thread):
+        """Run every force call of this provider with OpenMP and BLAS held
+        to one thread (``one_thread``, a :class:`~.threads.OneThread`).
+
+        The methods that call the calculator are wrapped on this instance,
+        so a provider without the hold pays nothing for it.
+        """
+        self.one_thread = one_thread
+        for name in self._calculator_calls:
+            setattr(self, name, _on_one_thread(getattr(self, name),
+                                               one_thread))
 
     def forces(self, atoms) -> np.ndarray:
         """Forces ``[n_atoms, 3]`` (eV/Å) at the atoms' current positions.
@@ -179,6 +196,7 @@ class GuardedForces(TrustedForces):
     """
 
     mode = 'guarded'
+    _calculator_calls = ('forces', 'clean_forces')
 
     def __init__(self, force_noise: float = DEFAULT_FORCE_NOISE):
         force_noise = float(force_noise)
@@ -255,23 +273,30 @@ class GuardedForces(TrustedForces):
     def _record_noise(self, atoms, noise, bound, calls=None):
         """Keep the largest noise seen; raise if it broke the bound (an
         earlier kick may then have been rounded from noisy forces), warn
-        once when it comes within a factor of 8.  ``calls``: how many
-        force calls apart the two forces were (a spot check), or None (a
-        clean recomputation)."""
+        once when it comes near it (within ``NEAR_BOUND_FACTOR``).
+        ``calls``: how many force calls apart the two forces were (a spot
+        check), or None (a clean recomputation)."""
         noise = float(noise)
         self.max_observed_noise = max(self.max_observed_noise, noise)
+        if not _near_bound(noise, bound):
+            return
+        # The bound is force_noise scaled by max|F| and the extent: the
+        # force_noise to pass is the noise scaled back the same way.
+        wanted = _bound_for(noise * self.force_noise / bound)
         if not noise <= bound:
             raise ImpureForcesError(_spot_check_advice(
-                atoms.calc, self.mode, noise, calls, bound))
-        if noise > bound / 8 and not self._warned:
+                atoms.calc, self.mode, noise, calls, bound, wanted))
+        if not self._warned:
             self._warned = True
-            warnings.warn(
-                f'Force noise of {noise:.3g} eV/Å was observed, close to the '
-                f'bound of {bound:.3g} eV/Å (force_noise='
-                f'{self.force_noise:.3g} eV/Å, scaled by the coordinates\' '
-                'extent and max|F|) that exact reversal relies on. Construct the '
-                'integrator with a larger force_noise.', RuntimeWarning,
-                stacklevel=4)
+            warn_at_user_line(
+                f'Force noise of {noise:.3g} eV/Å was observed, more than '
+                f'1/{NEAR_BOUND_FACTOR:g} of the bound of {bound:.3g} eV/Å '
+                f'(force_noise={self.force_noise:.3g} eV/Å, scaled by the '
+                "coordinates' extent and max|F|) that exact reversal relies "
+                'on: the run is still exact, but larger noise later would '
+                'stop it. Construct the integrator with '
+                f'force_noise={wanted:.2g} (eV/Å, sixteen times what was '
+                'seen).', RuntimeWarning)
 
     def min_momentum_quantum(self, n_atoms, max_kick_time, extent=0.0):
         # P(clean) per force call ~ 2 * 3N * noise * |c h| / q_p.
@@ -300,3 +325,12 @@ class ColdStartForces(TrustedForces):
     def evaluate(self, atoms):
         cold_start(atoms.calc)
         return atoms.get_forces(md=True)
+
+
+def _on_one_thread(method, one_thread):
+    """``method`` run inside ``one_thread()``."""
+    def held(*args, **kwargs):
+        with one_thread():
+            return method(*args, **kwargs)
+    held.__doc__ = method.__doc__
+    return held
