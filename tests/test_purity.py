@@ -473,3 +473,44 @@ def test_noise_beyond_the_bound_stops_the_run_with_the_value_to_use():
     assert_atoms_show_committed_state(dyn)
     suggested_force_noise(str(error.value),
                           dyn.force_purity.max_observed_noise)
+
+
+class BlasThreadNoise(LennardJones):
+    """ASE's LennardJones whose forces, while BLAS may run more than one
+    thread, differ from call to call in the last bits (every other call
+    scaled by 1 + 2**-50), as sums split over threads do."""
+
+    def __init__(self, **kwargs):
+        from threadpoolctl import ThreadpoolController
+        super().__init__(**kwargs)
+        self.calls = 0
+        self.threads_seen = set()
+        self._blas = ThreadpoolController().select(user_api='blas')
+
+    def calculate(self, atoms=None, properties=('energy',),
+                  system_changes=all_changes):
+        super().calculate(atoms, properties, system_changes)
+        self.calls += 1
+        threads = max(lib['num_threads'] for lib in self._blas.info())
+        self.threads_seen.add(threads)
+        if threads > 1 and self.calls % 2:
+            self.results['forces'] = self.results['forces'] * (1 + 2.0**-50)
+
+
+def test_noise_that_one_thread_removes_is_found_and_held_under_auto():
+    from threadpoolctl import threadpool_limits
+    atoms = argon_cluster(2, 100)
+    atoms.calc = BlasThreadNoise(sigma=AR_SIGMA, epsilon=AR_EPSILON,
+                                 rc=AR_RC)
+    with threadpool_limits(limits=2, user_api='blas'):
+        # Control: on two threads the noise is there for the probe to see.
+        assert 0 < probe_purity(atoms) < 1e-13
+        dyn = ReversibleVerlet(atoms, DT)
+        assert dyn.force_purity.mode == 'sorted'
+        assert dyn.force_purity.one_thread.libraries
+        atoms.calc.threads_seen.clear()
+        assert_runs_back(dyn, 30)
+        assert atoms.calc.threads_seen == {1}  # every force call held
+    # On one thread from the start there is nothing to hold.
+    with threadpool_limits(limits=1, user_api='blas'):
+        assert ReversibleVerlet(atoms, DT).force_purity.one_thread is None
