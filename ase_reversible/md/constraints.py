@@ -78,11 +78,19 @@ class FixedCentre:
         self.weights_nc = np.divide(mass_nc, total_c,
                                     out=np.zeros_like(mass_nc),
                                     where=total_c > 0)
-        self._largest_weight_c = self.weights_nc.max(axis=0)
-        # Per component: the free atoms, heaviest first, then by index.
+        self._largest_weight_c = self.weights_nc.max(axis=0).tolist()
+        self._ones_n = np.ones(len(masses_n))
+        self._weight_c = self.weights_nc.max(axis=0)
+        self._uniform = bool(free_nc.all()) and bool(np.all(
+            self.weights_nc == self._weight_c))
+        # Per component: the free atoms, heaviest first, then by index; a
+        # slice where that is the first atoms in order (the common case).
         self.order_c = [np.flatnonzero(free_nc[:, c])[
             np.argsort(-masses_n[free_nc[:, c]], kind='stable')]
             for c in range(3)]
+        self._first_c = [slice(None) if np.array_equal(
+            order, np.arange(len(order))) else order
+            for order in self.order_c]
         self.equal_masses = all(
             np.all(masses_n[free_nc[:, c]] == masses_n[self.order_c[c][0]])
             for c in range(3) if len(self.order_c[c]))
@@ -96,21 +104,33 @@ class FixedCentre:
     def balance(self, r_nc):
         """Make the integer-valued float array ``r_nc`` ``[n_atoms, 3]``
         sum to exactly zero in each component, in place."""
-        sum_c = r_nc.sum(axis=0)
-        if not sum_c.any():
+        # Sums of whole numbers below 2**53 are exact in any order, so a
+        # matrix-vector product (the fastest sum over axis 0 of [n, 3])
+        # gives the same bits on every machine.
+        sum_c = np.dot(self._ones_n, r_nc)
+        left_c = sum_c.tolist()
+        if not any(left_c):
             return
-        if np.all(np.abs(sum_c) * self._largest_weight_c <= 0.5):
-            # Every rint(w_i S) is 0: only the remainder, S itself, goes.
-            left_c = sum_c
-        else:
-            share_nc = self.weights_nc * sum_c
-            np.rint(share_nc, out=share_nc)
-            r_nc -= share_nc
-            left_c = sum_c - share_nc.sum(axis=0)
-        for c in range(3):
-            left = int(left_c[c])
+        if any(abs(total) * weight > 0.5 for total, weight in
+               zip(left_c, self._largest_weight_c)):
+            if self._uniform:
+                # Every w_i is the same number: one share per component.
+                share_c = np.rint(sum_c * self._weight_c)
+                r_nc -= share_c
+                left_c = (sum_c - len(r_nc) * share_c).tolist()
+            else:
+                share_nc = self.weights_nc * sum_c
+                np.rint(share_nc, out=share_nc)
+                r_nc -= share_nc
+                left_c = (sum_c - np.dot(self._ones_n, share_nc)).tolist()
+        # Otherwise every rint(w_i S) is 0: only the remainder, S, goes.
+        for c, left in enumerate(left_c):
             if left:
-                r_nc[self.order_c[c][:abs(left)], c] -= 1 if left > 0 else -1
+                first = self._first_c[c]
+                count = abs(int(left))
+                rows = first[:count] if isinstance(first, np.ndarray) \
+                    else slice(count)
+                r_nc[rows, c] -= 1.0 if left > 0 else -1.0
 
     def balanced_counts(self, counts_nc):
         """int64 counts ``[n_atoms, 3]`` with their sum removed by
