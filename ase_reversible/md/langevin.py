@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 from ase import units
-from ase.constraints import FixedLine, FixedPlane
+from ase.constraints import FixCom, FixedLine, FixedPlane
 
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
@@ -563,6 +563,7 @@ def _checked_seed(seed):
 
 
 def _refuse_projections(atoms):
+    centred = any(isinstance(c, FixCom) for c in atoms.constraints)
     for c in atoms.constraints:
         if isinstance(c, (FixedPlane, FixedLine)):
             raise UnsupportedConstraintError(
@@ -571,7 +572,10 @@ def _refuse_projections(atoms):
                 'noise projected onto it, which is not done yet. Use '
                 'FixCartesian where the constraint is along an axis, or '
                 'ReversibleNose (constant temperature) or ReversibleVerlet '
-                '(constant energy), which support it.')
+                '(constant energy), which support it'
+                + (' without FixCom (zero the net momentum once with '
+                   'ase.md.velocitydistribution.Stationary instead).'
+                   if centred else '.'))
 
 
 def _resumed_noise(record, timestep):
