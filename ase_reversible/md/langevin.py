@@ -93,6 +93,7 @@ class Friction(SubStep):
         self.step_of = step_of
         self.shape = system.p.ints.shape
         self.noise = StepNoise(math.prod(self.shape))
+        self._ones_n = np.ones(self.shape[0], dtype=np.int64)
         self.buffers = {}
         self.heat = self._saved_heat = 0.0
 
@@ -179,8 +180,10 @@ class Friction(SubStep):
                     'dt) from here.') from None
         if held is not None:
             new_nc = new_k.reshape(self.shape)
+            # One held coordinate per component: each total is read once.
+            total_c = np.dot(self._ones_n, new_nc)
             for i, c in held:
-                new_nc[i, c] -= new_nc[:, c].sum()
+                new_nc[i, c] -= total_c[c]
         r_k = (new_k - x_k).astype(np.float64)
         # The kinetic energy the step adds, sum (x'^2 - x^2) q^2 / 2m.
         both_k = (new_k + x_k).astype(np.float64)
