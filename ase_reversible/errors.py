@@ -49,8 +49,9 @@ class ImpureForcesError(ReversibilityError, RuntimeError):
 class UnsupportedConstraintError(ReversibilityError, ValueError):
     """A constraint that cannot be applied exactly in fixed point.
 
-    Raised by the constructor; FixAtoms, FixCartesian, FixedPlane and
-    FixedLine are supported.
+    Raised by the constructor; FixAtoms, FixCartesian, FixedPlane,
+    FixedLine and FixCom are supported (ReversibleLangevin: FixAtoms,
+    FixCartesian and FixCom).
     """
 
 

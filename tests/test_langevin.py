@@ -86,9 +86,24 @@ def test_a_plane_constraint_is_refused_and_nothing_changes():
     atoms.set_constraint(FixedPlane(0, (0, 0, 1)))
     before = snapshot(atoms)
     with pytest.raises(UnsupportedConstraintError,
-                       match='FixAtoms and FixCartesian'):
+                       match='FixAtoms, FixCartesian and FixCom.*'
+                       'ReversibleNose.*ReversibleVerlet'):
         langevin(atoms)
     assert_same_state(atoms, before)
+
+
+def test_a_plane_set_between_runs_is_refused_and_the_run_goes_on():
+    atoms = ar13()
+    dyn = langevin(atoms)
+    dyn.run(10)
+    here = snapshot(atoms)
+    atoms.set_constraint(FixedPlane(0, (0, 0, 1)))
+    with pytest.raises(UnsupportedConstraintError, match='FixedPlane'):
+        dyn.run(5)
+    assert_same_state(atoms, here)
+    del atoms.constraints
+    dyn.reverse().run(10)  # the run was not re-anchored: back to the start
+    assert dyn.engine.steps_since_anchor == 0
 
 
 def test_going_back_past_the_anchor_is_refused_at_a_valid_state():
@@ -151,6 +166,8 @@ def test_a_default_seed_is_drawn_kept_and_resumed_from_the_record():
     ({'temperature_K': 0}, ValueError, 'temperature_K must be positive'),
     ({'friction': -1.0}, ValueError, 'friction must be positive'),
     ({'friction': 100.0}, ValueError, 'at most'),
+    ({'friction': 1e-18}, ValueError, 'pass friction=0'),
+    ({'friction': 'none'}, TypeError, 'friction must be a number'),
     ({'seed': 1.5}, TypeError, 'seed must be an int'),
 ])
 def test_bad_arguments_are_refused_before_anything_changes(kwargs, error,
@@ -162,6 +179,43 @@ def test_bad_arguments_are_refused_before_anything_changes(kwargs, error,
     with pytest.raises(error, match=match):
         ReversibleLangevin(atoms, **arguments)
     assert_same_state(atoms, before)
+
+
+def test_zero_friction_is_constant_energy_with_an_empty_buffer():
+    atoms = ar13()
+    dyn = ReversibleLangevin(atoms, 5 * units.fs, 300, friction=0, seed=1)
+    assert dyn.friction == 0 and dyn.effective_friction == 0
+    energy = atoms.get_total_energy()
+    start = snapshot(atoms)
+    dyn.run(200)
+    # No thermostat: the energy stays put but for the time-step error
+    # (measured 2.4e-6 eV here; 0.50 eV with friction 0.02 / fs), and
+    # nothing is stored or added.
+    assert abs(atoms.get_total_energy() - energy) < 1e-3
+    assert not dyn.friction_step.buffers and dyn.buffer_bits == 0
+    assert dyn.heat == 0.0
+    dyn.reverse().run(200)
+    assert_same_state(atoms, start)
+    # Nothing to undo: it runs back past its start, and forward again.
+    dyn.run(20)
+    dyn.reverse().run(20)
+    assert_same_state(atoms, start)
+
+
+def test_friction_set_to_zero_and_back_mid_run():
+    atoms = ar13()
+    dyn = langevin(atoms)
+    dyn.run(20)
+    with pytest.warns(AnchorMovedWarning, match='friction'):
+        dyn.set_friction(0.0)
+    here = snapshot(atoms)
+    dyn.run(30)
+    dyn.reverse().run(30)
+    assert_same_state(atoms, here)
+    dyn.reverse()
+    dyn.set_friction(FRICTION)
+    dyn.run(10)
+    assert dyn.buffer_bits > 0
 
 
 def test_a_new_temperature_moves_the_anchor_and_reversal_leads_there():

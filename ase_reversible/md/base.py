@@ -46,10 +46,15 @@ def projected_momenta(atoms, project):
 
 def encoded(atoms, position_quantum, momentum_quantum, project):
     """The atoms' positions and projected momenta snapped to the grid, as
-    int64 counts by variable name."""
+    int64 counts by variable name; under FixCom the momentum counts sum to
+    zero (a net momentum removed in proportion to mass, as ASE does)."""
+    counts = encode(projected_momenta(atoms, project), momentum_quantum,
+                    'momentum')
+    centre = getattr(project, 'centre', None)
+    if centre is not None:
+        counts = centre.balanced_counts(counts)
     return {'position': encode(atoms.positions, position_quantum, 'position'),
-            'momentum': encode(projected_momenta(atoms, project),
-                               momentum_quantum, 'momentum')}
+            'momentum': counts}
 
 
 def admit(atoms, force_purity, force_noise):
@@ -462,6 +467,8 @@ class ReversibleDynamics(MolecularDynamics):
         finally:
             self._committed()
         ax_nc, ap_nc, thermostat = self._gradients_of(cotangents)
+        if self.system.centre is not None:
+            self.system.centre.pull_back(ap_nc)
         self.system.project(ap_nc)
         return Gradients(ax_nc, ap_nc, cotangents.grad_parameters,
                          cotangents.products, thermostat)

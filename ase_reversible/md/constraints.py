@@ -1,26 +1,34 @@
-"""Constraints applied exactly: linear projections of every increment.
+"""Constraints applied exactly: projections of every increment.
 
 A constraint keeps reversal exact when it acts on each sub-step's increment
-as a linear projection ``P`` with ``P(-y) == -P(y)`` bitwise: the drift then
-adds ``rint(P(h p / m))``, a function of the momenta only, and the kick adds
-``rint(P(h F(x)))``, a function of the positions only.  FixAtoms and
+as a map ``P`` with ``P(-y) == -P(y)`` bitwise: the drift then adds
+``P(rint(h p / m))``, a function of the momenta only, and the kick adds
+``P(rint(h F(x)))``, a function of the positions only.  FixAtoms and
 FixCartesian zero components, so constrained coordinates never change, not
 even by a quantum.  FixedPlane and FixedLine project onto a plane or line;
 as their directions are rarely grid-aligned, rounding lets atoms leave the
 plane or line by a few quanta (a random walk of ~1e-12 Å per step).
 
-Constraints that move atoms by a float correction (FixCom, FixBondLengths,
+FixCom is held on the integers, after rounding (:class:`FixedCentre`): the
+momentum counts of every increment are made to sum to exactly zero in each
+Cartesian component, so the total momentum is exactly zero at every step;
+with equal masses the position increments are balanced the same way, so
+the sum of the position counts -- the centre of mass -- never changes.
+
+Constraints that move atoms by a float correction (FixBondLengths,
 Hookean, ...) would add an increment that is not a function of the other
 variable, so they are refused.
 """
 
 from __future__ import annotations
 
-from ase.constraints import FixAtoms, FixCartesian, FixedLine, FixedPlane
+import numpy as np
+from ase.constraints import (FixAtoms, FixCartesian, FixCom, FixedLine,
+                             FixedPlane)
 
 from ..errors import UnsupportedConstraintError
 
-SUPPORTED = (FixAtoms, FixCartesian, FixedPlane, FixedLine)
+SUPPORTED = (FixAtoms, FixCartesian, FixedPlane, FixedLine, FixCom)
 
 
 def no_projection(y_nc):
@@ -28,28 +36,161 @@ def no_projection(y_nc):
     return None
 
 
+class FixedCentre:
+    """FixCom on the integer counts: a deterministic, odd balance.
+
+    :meth:`balance` removes the sum over atoms of an integer increment
+    ``r_nc`` in each Cartesian component: ``rint(w_i S)`` from atom ``i``
+    (``w_i = m_i / M`` over the atoms free in that component), and what
+    that rounding leaves, ``|R| <= n / 2``, as one count each from the
+    ``|R|`` first atoms in a fixed order (heaviest first, then by index).
+    The result sums to exactly zero, depends on ``r_nc`` alone (so a kick
+    stays a function of the positions, a drift of the momenta) and is odd:
+    ``balance(-r) == -balance(r)`` bitwise, so ``-h`` undoes it.
+
+    What is held exactly: the momentum counts of the free atoms sum to
+    zero in each component (every kick, every thermostat step; the
+    constructor removes a net momentum as ASE's FixCom does, on the
+    grid).  The drift moves atom ``i`` by ``rint(h p_i / m_i / q_x)``;
+    the mass-weighted sum of these is not an integer relation, so:
+
+    * equal masses (in a component, over its free atoms): the drift's
+      increments are balanced too, the position counts' sum never changes
+      and the centre of mass is exactly fixed;
+    * unequal masses: the exact increments ``h p_i / m_i`` have zero
+      mass-weighted sum (the total momentum is zero), so each drift moves
+      the centre of mass by its rounding only, at most half a position
+      quantum.
+
+    Parameters
+    ----------
+    masses_n : numpy.ndarray ``[n_atoms]``
+        amu.
+    free_nc : numpy.ndarray ``[n_atoms, 3]``
+        Nonzero where the other constraints leave a coordinate free.
+    """
+
+    def __init__(self, masses_n, free_nc):
+        free_nc = np.asarray(free_nc) != 0
+        mass_nc = masses_n[:, None] * free_nc
+        total_c = mass_nc.sum(axis=0)
+        self.free_nc = free_nc
+        self.weights_nc = np.divide(mass_nc, total_c,
+                                    out=np.zeros_like(mass_nc),
+                                    where=total_c > 0)
+        self._largest_weight_c = self.weights_nc.max(axis=0).tolist()
+        self._ones_n = np.ones(len(masses_n))
+        self._weight_c = self.weights_nc.max(axis=0)
+        self._uniform = bool(free_nc.all()) and bool(np.all(
+            self.weights_nc == self._weight_c))
+        # Per component: the free atoms, heaviest first, then by index; a
+        # slice where that is the first atoms in order (the common case).
+        self.order_c = [np.flatnonzero(free_nc[:, c])[
+            np.argsort(-masses_n[free_nc[:, c]], kind='stable')]
+            for c in range(3)]
+        self._first_c = [slice(None) if np.array_equal(
+            order, np.arange(len(order))) else order
+            for order in self.order_c]
+        self.equal_masses = all(
+            np.all(masses_n[free_nc[:, c]] == masses_n[self.order_c[c][0]])
+            for c in range(3) if len(self.order_c[c]))
+
+    @property
+    def components(self):
+        """The Cartesian components with a free coordinate (each removes
+        one degree of freedom)."""
+        return sum(1 for order in self.order_c if len(order))
+
+    def balance(self, r_nc):
+        """Make the integer-valued float array ``r_nc`` ``[n_atoms, 3]``
+        sum to exactly zero in each component, in place."""
+        # Sums of whole numbers below 2**53 are exact in any order, so a
+        # matrix-vector product (the fastest sum over axis 0 of [n, 3])
+        # gives the same bits on every machine.
+        sum_c = np.dot(self._ones_n, r_nc)
+        left_c = sum_c.tolist()
+        if not any(left_c):
+            return
+        if any(abs(total) * weight > 0.5 for total, weight in
+               zip(left_c, self._largest_weight_c)):
+            if self._uniform:
+                # Every w_i is the same number: one share per component.
+                share_c = np.rint(sum_c * self._weight_c)
+                r_nc -= share_c
+                left_c = (sum_c - len(r_nc) * share_c).tolist()
+            else:
+                share_nc = self.weights_nc * sum_c
+                np.rint(share_nc, out=share_nc)
+                r_nc -= share_nc
+                left_c = (sum_c - np.dot(self._ones_n, share_nc)).tolist()
+        # Otherwise every rint(w_i S) is 0: only the remainder, S, goes.
+        for c, left in enumerate(left_c):
+            if left:
+                first = self._first_c[c]
+                count = abs(int(left))
+                rows = first[:count] if isinstance(first, np.ndarray) \
+                    else slice(count)
+                r_nc[rows, c] -= 1.0 if left > 0 else -1.0
+
+    def balanced_counts(self, counts_nc):
+        """int64 counts ``[n_atoms, 3]`` with their sum removed by
+        :meth:`balance` (a new array): the grid's form of ASE's
+        ``FixCom.adjust_momenta``."""
+        r_nc = counts_nc.astype(np.float64)
+        self.balance(r_nc)
+        return r_nc.astype(np.int64)
+
+    def pull_back(self, a_nc):
+        """The adjoint of the kick's balance, in place: the balance is
+        ``f_i - w_i sum_j f_j`` up to rounding, whose transpose is
+        ``a_i - sum_j w_j a_j`` on the free coordinates."""
+        a_nc -= self.free_nc * np.einsum('nc,nc->c', self.weights_nc, a_nc)
+
+
+def _refuse(constraint, why):
+    names = ', '.join(cls.__name__ for cls in SUPPORTED)
+    raise UnsupportedConstraintError(
+        f'{type(constraint).__name__} {why}. Supported constraints: '
+        f'{names}. Remove it (del atoms.constraints) or use ASE\'s '
+        'VelocityVerlet (not reversible) for this system.')
+
+
 def constraint_projection(atoms):
     """In-place projection ``project(y_nc)`` for the atoms' constraints.
 
     Returns a callable that projects an increment ``y_nc`` ``[n_atoms, 3]``
-    (any unit) in place and returns None.  Raises
-    :class:`UnsupportedConstraintError` for constraints that are not linear
+    (any unit) in place and returns None; its attribute ``centre`` is the
+    :class:`FixedCentre` of a FixCom, or None.  Raises
+    :class:`UnsupportedConstraintError` for constraints that are not
     projections.
     """
     constraints = list(atoms.constraints)
     for c in constraints:
         if not isinstance(c, SUPPORTED):
-            names = ', '.join(cls.__name__ for cls in SUPPORTED)
-            raise UnsupportedConstraintError(
-                f'{type(c).__name__} cannot be applied exactly in fixed point '
-                'and would break exact reversal. Supported constraints: '
-                f'{names}. Remove it (del atoms.constraints) or use '
-                'VelocityVerlet for this system.')
-    if not constraints:
+            _refuse(c, 'cannot be applied exactly in fixed point and would '
+                    'break exact reversal')
+    centred = any(isinstance(c, FixCom) for c in constraints)
+    constraints = [c for c in constraints if not isinstance(c, FixCom)]
+    if centred:
+        for c in constraints:
+            if isinstance(c, (FixedPlane, FixedLine)):
+                _refuse(c, 'together with FixCom is not supported: the '
+                        'centre of mass is held per Cartesian component, '
+                        'which a plane or line off the axes mixes. Use '
+                        'FixCartesian if the plane or line is along the '
+                        'axes, or zero the total momentum once '
+                        '(ase.md.velocitydistribution.Stationary) instead '
+                        'of FixCom')
+    if not constraints and not centred:
         return no_projection
 
     def project(y_nc):
         for c in constraints:
             c.adjust_forces(atoms, y_nc)
 
+    project.centre = None
+    if centred:
+        free_nc = np.ones((len(atoms), 3))
+        project(free_nc)
+        project.centre = FixedCentre(atoms.get_masses(), free_nc)
     return project

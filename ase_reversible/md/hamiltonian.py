@@ -8,7 +8,8 @@ the odd rounding of a function of the variable it does not change (Stam,
 * drift: ``x += round_odd(c h P p / m / q_x)``
 * kick: ``p += round_odd(c h P F(x) / q_p)``
 
-with ``P`` the constraint projection.  Each brings its adjoint rule
+with ``P`` the constraint projection; a FixCom then balances the rounded
+increments (:class:`~.constraints.FixedCentre`).  Each brings its adjoint rule
 (:mod:`ase_reversible.adjoint`).
 """
 
@@ -68,6 +69,8 @@ class Hamiltonian:
         self._root_inverse_mass_k = np.repeat(1.0 / np.sqrt(masses_n), 3)
         self._v_k = np.empty(3 * len(masses_n))
         self.project = project
+        #: The FixCom balance of the rounded increments, or None.
+        self.centre = getattr(project, 'centre', None)
         self.purity = purity
 
     def show_positions(self):
@@ -174,6 +177,10 @@ class Drift(SubStep):
                 s.project(y_nc)
             round_odd(y_nc, out=y_nc)
             self._y_max = growth * s.p.bound + 1.0
+            if s.centre is not None and s.centre.equal_masses:
+                s.centre.balance(y_nc)
+                # The balance takes at most max|y| + 1 from an atom.
+                self._y_max = 2.0 * self._y_max + 1.0
             self._y_key = key
         s.x.add_integers(y_nc, self._y_max)
         s.show_positions()
@@ -233,6 +240,8 @@ class Kick(SubStep):
             f_used_nc = s.purity.rounded_kick(
                 s.atoms, self.forces(), scale, s.project, out=r_nc,
                 scratch=self._y_nc)
+            if s.centre is not None:
+                s.centre.balance(r_nc)
             self._f_cache = (s.x.label, f_used_nc)
             self._r_key = key
         try:
@@ -264,6 +273,8 @@ class Kick(SubStep):
         a_p`` at the atoms' current positions."""
         s = self.system
         w_nc = np.array(cotangents['momentum'])
+        if s.centre is not None:
+            s.centre.pull_back(w_nc)
         s.project(w_nc)
         if not w_nc.any():
             return  # H 0 = 0 (a loss on positions only starts this way)

@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 from ase import units
-from ase.constraints import FixAtoms, FixCartesian
+from ase.constraints import FixCom, FixedLine, FixedPlane
 
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
@@ -78,6 +78,13 @@ class Friction(SubStep):
         energy minus this is what the integrator conserves.
     buffers : dict of int to InformationBuffer
         One per friction ratio used since the anchor.
+
+    Under FixCom (``system.centre``) the total momentum stays exactly
+    zero: the noise has its sum removed in proportion to mass, and the
+    friction acts through the buffer on every free coordinate but one per
+    Cartesian component, whose momentum is then minus the others' sum --
+    still a bijection, since the others determine it both ways.  With no
+    friction the step does nothing.
     """
 
     def __init__(self, system, settings, step_of):
@@ -86,6 +93,7 @@ class Friction(SubStep):
         self.step_of = step_of
         self.shape = system.p.ints.shape
         self.noise = StepNoise(math.prod(self.shape))
+        self._ones_n = np.ones(self.shape[0], dtype=np.int64)
         self.buffers = {}
         self.heat = self._saved_heat = 0.0
 
@@ -118,6 +126,8 @@ class Friction(SubStep):
 
     def prepare(self, ch):
         friction, temperature_K, fixcm, seed = self.settings()
+        if friction == 0:
+            return None  # NVE: c = 1 and no noise, nothing to do or store
         s = self.system
         n, ratio = exact_ratio(friction, ch)
         buffer = self.buffers.get(n)
@@ -129,13 +139,27 @@ class Friction(SubStep):
         mass_k = np.repeat(s.m_n1[:, 0], 3)
         sigma_k = np.sqrt((1.0 - ratio**2) * mass_k * units.kB
                           * temperature_K) / s.p.quantum * free_k
-        zero_sum = _zero_sum_weights(s.m_n1, free_nc) if fixcm else None
+        centre = s.centre
+        zero_sum = _zero_sum_weights(s.m_n1, free_nc) \
+            if fixcm or centre is not None else None
+        held = None
+        if centre is not None:
+            # FixCom: friction acts on every free coordinate but one per
+            # component, whose momentum is then minus the others' sum.
+            # That keeps the total exactly zero and stays a bijection the
+            # buffer undoes (the others determine it both ways).
+            held = [(order[0], c) for c, order in enumerate(centre.order_c)
+                    if len(order)]
+            for i, c in held:
+                free_k[3 * i + c] = False
         return (ch > 0, buffer, None if free_k.all() else free_k, sigma_k,
-                step_key(seed, ch), zero_sum, 1.0 / mass_k)
+                step_key(seed, ch), zero_sum, 1.0 / mass_k, held)
 
     def apply(self, prepared):
-        forward, buffer, mask_k, sigma_k, key, zero_sum, inverse_mass_k = \
-            prepared
+        if prepared is None:
+            return
+        forward, buffer, mask_k, sigma_k, key, zero_sum, inverse_mass_k, \
+            held = prepared
         p = self.system.p
         x_k = p.ints.reshape(-1)
         noise_k = np.rint(sigma_k * self.noise.normals(key, self.step_of()))
@@ -154,6 +178,12 @@ class Friction(SubStep):
                     'friction would have to be undone that was never '
                     'applied. The step was not taken; run forward (positive '
                     'dt) from here.') from None
+        if held is not None:
+            new_nc = new_k.reshape(self.shape)
+            # One held coordinate per component: each total is read once.
+            total_c = np.dot(self._ones_n, new_nc)
+            for i, c in held:
+                new_nc[i, c] -= total_c[c]
         r_k = (new_k - x_k).astype(np.float64)
         # The kinetic energy the step adds, sum (x'^2 - x^2) q^2 / 2m.
         both_k = (new_k + x_k).astype(np.float64)
@@ -189,7 +219,10 @@ class Friction(SubStep):
 
 def exact_ratio(friction, ch):
     """``(n, n / 2**16)``: the exact friction factor of a step of ``ch``
-    (ASE time units, either sign) at ``friction`` (1 / ASE time unit)."""
+    (ASE time units, either sign) at ``friction`` (1 / ASE time unit);
+    ``(2**16, 1.0)`` for no friction."""
+    if friction == 0:
+        return 1 << DIGIT_BITS, 1.0
     n = friction_ratio(math.exp(-friction * abs(ch)))
     return n, n / 2**DIGIT_BITS
 
@@ -239,11 +272,17 @@ class ReversibleLangevin(ReversibleDynamics):
     friction : float
         Friction coefficient, 1 / ASE time unit (``0.01 / ase.units.fs``);
         ``friction * |timestep|`` may be at most 11 (``c >= 2**-16``).
+        0 turns the thermostat off: no friction, no noise, an empty
+        buffer (constant-energy dynamics that also runs back past its
+        start).
     fixcm : bool
         If True (default), the random kicks have exactly zero net
         momentum, so a system at rest stays at rest (the friction's
         rounding, below a hundred momentum quanta per atom and step, is
-        all that moves the centre of mass).
+        all that moves the centre of mass).  ASE 3.29 deprecates its
+        ``fixcm=True`` for ``fixcm=False`` with ``ase.constraints.FixCom``;
+        FixCom here holds the total momentum at exactly zero, friction
+        included (:class:`Friction`), whatever ``fixcm`` says.
     seed : int, optional
         Key of the noise, stored as :attr:`seed`.  Default: the seed in the
         atoms' restart record if it was written at this time step (a frame
@@ -273,10 +312,10 @@ class ReversibleLangevin(ReversibleDynamics):
     TypeError
         An ``rng`` argument (pass ``seed``), or bad argument types.
     ValueError
-        A non-positive temperature or friction, or ``friction * |timestep|``
-        beyond 11.
+        A non-positive temperature, a negative friction, or ``friction *
+        |timestep|`` beyond 11 or too small to change a momentum.
     UnsupportedConstraintError
-        A constraint other than FixAtoms and FixCartesian.
+        A constraint other than FixAtoms, FixCartesian and FixCom.
     """
 
     record_sections = ('langevin',)
@@ -367,6 +406,11 @@ class ReversibleLangevin(ReversibleDynamics):
     def _ready(self):
         self.system.kick.forces()
 
+    def _take_changes(self, changes):
+        # A plane or line set between runs is refused as at construction.
+        _refuse_projections(self.atoms)
+        return super()._take_changes(changes)
+
     def _install(self, counts):
         # Steps before the new anchor cannot be retraced: their digits go.
         self.friction_step.forget()
@@ -429,7 +473,7 @@ class ReversibleLangevin(ReversibleDynamics):
         ``-ln(n / 2**16) / |dt|`` for the exact ratio ``n / 2**16``
         nearest to ``exp(-friction |dt|)``."""
         return -math.log(exact_ratio(self._friction, self.dt)[1]) \
-            / abs(self.dt)
+            / abs(self.dt) if self._friction else 0.0
 
     @property
     def fixcm(self) -> bool:
@@ -488,8 +532,21 @@ def _checked_positive(value, name, unit):
 
 
 def _checked_friction(friction, timestep):
-    friction = _checked_positive(friction, 'friction', '1 / ASE time unit, '
-                                 'e.g. 0.01 / ase.units.fs')
+    unit = '1 / ASE time unit, e.g. 0.01 / ase.units.fs'
+    try:
+        friction = float(friction)
+    except (TypeError, ValueError):
+        raise TypeError(f'friction must be a number ({unit}), got '
+                        f'{friction!r}') from None
+    if friction == 0:
+        return 0.0  # NVE, as ASE's Langevin allows
+    friction = _checked_positive(friction, 'friction', f'{unit}; 0 for '
+                                 'no thermostat')
+    if math.exp(-friction * abs(timestep)) == 1.0:
+        raise ValueError(
+            f'friction * |timestep| is {friction * abs(timestep):.3g}, too '
+            'small to change a momentum (exp(-friction |timestep|) is 1 in '
+            'float64): pass friction=0 for no thermostat.')
     if friction * abs(timestep) > DIGIT_BITS * math.log(2):
         raise ValueError(
             f'friction * |timestep| is {friction * abs(timestep):.3g}; at '
@@ -509,14 +566,19 @@ def _checked_seed(seed):
 
 
 def _refuse_projections(atoms):
+    centred = any(isinstance(c, FixCom) for c in atoms.constraints)
     for c in atoms.constraints:
-        if not isinstance(c, (FixAtoms, FixCartesian)):
+        if isinstance(c, (FixedPlane, FixedLine)):
             raise UnsupportedConstraintError(
-                f'ReversibleLangevin supports FixAtoms and FixCartesian; '
-                f'{type(c).__name__} would need the friction and noise '
-                'projected onto it, which is not done yet. Use '
-                'ReversibleVerlet for this system, or FixCartesian where '
-                'the constraint is along an axis.')
+                f'ReversibleLangevin supports FixAtoms, FixCartesian and '
+                f'FixCom; {type(c).__name__} would need the friction and '
+                'noise projected onto it, which is not done yet. Use '
+                'FixCartesian where the constraint is along an axis, or '
+                'ReversibleNose (constant temperature) or ReversibleVerlet '
+                '(constant energy), which support it'
+                + (' without FixCom (zero the net momentum once with '
+                   'ase.md.velocitydistribution.Stationary instead).'
+                   if centred else '.'))
 
 
 def _resumed_noise(record, timestep):

@@ -33,7 +33,10 @@ updated during ``A`` (where ``s`` is fixed), so
 ``N_f`` counts the free momentum coordinates (the trace of the constraint
 projection), less 3 when there are no constraints: the forces then sum to
 zero and the total virtual momentum is conserved.  That count assumes the
-total momentum is zero (``ase.md.velocitydistribution.Stationary``).
+total momentum is zero (``ase.md.velocitydistribution.Stationary``).  With
+FixCom it is exactly zero (:class:`~.constraints.FixedCentre`: the virtual
+momentum counts sum to zero at every step) and ``N_f`` is the free
+coordinates less one per Cartesian component that has any.
 """
 
 from __future__ import annotations
@@ -106,7 +109,9 @@ def thermostat_mass(g, kT, tdamp):
 
 def degrees_of_freedom(n_atoms, project):
     """``N_f``: the free momentum coordinates, less 3 without constraints
-    (the total momentum is then conserved)."""
+    (the total momentum is then conserved), less one per Cartesian
+    component with a free coordinate under FixCom (its total momentum is
+    held at zero)."""
     if project is no_projection:
         return 3 * n_atoms - 3
     trace = 0.0
@@ -115,7 +120,9 @@ def degrees_of_freedom(n_atoms, project):
         unit_nc[:, c] = 1.0
         project(unit_nc)
         trace += float(unit_nc[:, c].sum())
-    return int(round(trace))
+    centre = getattr(project, 'centre', None)
+    held = 0 if centre is None else centre.components
+    return int(round(trace)) - held
 
 
 class NoseHamiltonian(Hamiltonian):
@@ -189,6 +196,9 @@ class NoseHamiltonian(Hamiltonian):
         """The virtual momentum counts ``rint(p s / q_p)`` of real momenta
         ``momenta_nc`` ``[n_atoms, 3]`` (projected) at ``s``."""
         y_nc = momenta_nc * (s_value / self.p.quantum)
+        if self.centre is not None:
+            # FixCom: zero total, as the drift and kick keep it.
+            self.centre.balance(round_odd(y_nc, out=y_nc))
         return round_odd(y_nc).astype(np.int64)
 
     # -- energies ---------------------------------------------------------
@@ -366,7 +376,7 @@ class ReversibleNose(ReversibleDynamics):
     ----------
     atoms : ase.Atoms
         With a calculator attached; best with zero total momentum (module
-        docstring).
+        docstring), which FixCom holds exactly.
     timestep : float
         ASE time units (``5 * ase.units.fs``), in virtual time.
     temperature_K : float

@@ -50,7 +50,11 @@ class ReversibleVerlet(ReversibleDynamics):
     Parameters
     ----------
     atoms : ase.Atoms
-        With a calculator attached.
+        With a calculator attached.  Its constraints are applied exactly
+        (:mod:`ase_reversible.md.constraints`); under FixCom the total
+        momentum is held at exactly zero (a net momentum is removed here,
+        as ASE's FixCom does) and, with equal masses, the centre of mass
+        exactly in place.
     timestep : float
         Time step in ASE time units (``5 * ase.units.fs``); may be
         negative to run backwards.
@@ -126,8 +130,8 @@ class ReversibleVerlet(ReversibleDynamics):
         The momentum quantum (given, or raised by ``force_noise``) would
         visibly change the momenta.
     UnsupportedConstraintError
-        A constraint other than FixAtoms, FixCartesian, FixedPlane and
-        FixedLine.
+        A constraint other than FixAtoms, FixCartesian, FixedPlane,
+        FixedLine and FixCom, or FixCom with FixedPlane or FixedLine.
     ImpureForcesError
         ``force_purity='auto'`` probed the calculator and its forces
         depended on its history.
