@@ -27,6 +27,7 @@ from ase_reversible.core.compositions import COMPOSITIONS, DEFAULT_FOR_ORDER
 
 from conftest import AR_EPSILON, AR_SIGMA, DT, asap_emt, thermalize
 from exactness import assert_same_state, snapshot
+from tiers import tiered
 from finite_differences import complex_forces
 
 #: Fine quanta: finite differences of whole runs see rounding as noise.
@@ -162,8 +163,8 @@ def test_gradients_match_complex_step_reference(scheme, order, fixed):
 
 # -- 2. central finite differences of whole, chaotic runs ---------------------
 
-@pytest.mark.parametrize('case', ['argon-lj-analytic', 'copper-emt-fd',
-                                  'argon-crystal-lj'])
+@pytest.mark.parametrize('case', tiered(['argon-lj-analytic', 'copper-emt-fd',
+                                         'argon-crystal-lj'], quick=[]))
 def test_gradients_match_whole_run_finite_differences(case):
     build, steps, h, tolerance, min_growth = {
         # Ar55 at 60 K, 2000 steps (10 ps): the gradients grow ~190 times;
@@ -227,7 +228,8 @@ def _fixed(atoms):
 
 @pytest.mark.parametrize('system', sorted(SYSTEMS))
 @pytest.mark.parametrize('scheme', ['velocity', 'position'])
-@pytest.mark.parametrize('order', sorted(DEFAULT_FOR_ORDER))
+@pytest.mark.parametrize('order', tiered(sorted(DEFAULT_FOR_ORDER),
+                                          quick=[2, 4]))
 def test_retrace_is_exact_for_every_scheme_and_order(system, scheme, order):
     atoms = SYSTEMS[system]()
     dyn = ReversibleVerlet(atoms, DT, scheme=scheme, order=order)

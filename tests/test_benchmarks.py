@@ -18,6 +18,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / 'benchmarks'))
 
 import render  # noqa: E402  (from benchmarks/)
+from tiers import SLOW
 
 
 @pytest.fixture(scope='module')
@@ -42,6 +43,7 @@ def quick_run(tmp_path_factory):
     return out
 
 
+@SLOW
 def test_quick_mode_stores_and_renders_every_section(quick_run):
     page = (quick_run / 'benchmarks.md').read_text()
     for name in render.SECTIONS:
@@ -51,6 +53,7 @@ def test_quick_mode_stores_and_renders_every_section(quick_run):
         assert stored['quick'] and stored['results']
 
 
+@SLOW
 def test_quick_mode_writes_the_plots_the_page_shows(quick_run):
     page = (quick_run / 'benchmarks.md').read_text()
     images = re.findall(r'!\[[^\]]*\]\(([^)]+)\)', page)

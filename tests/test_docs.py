@@ -23,6 +23,7 @@ import pytest
 
 import ase_reversible
 from ase_reversible import AnchorMovedWarning
+from tiers import tiered
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / 'docs'
@@ -133,7 +134,10 @@ def links(text):
 RUNNABLE = {'user-guide.md': 10, 'flipbook.md': 1, 'architecture.md': 1}
 
 
-@pytest.mark.parametrize('name', sorted(RUNNABLE))
+# The flipbook page renders pictures: the long tier.
+@pytest.mark.parametrize('name', tiered(sorted(RUNNABLE),
+                                        quick=['architecture.md',
+                                               'user-guide.md']))
 def test_page_examples_run_in_order(name, tmp_path, monkeypatch):
     page = DOCS / name
     blocks = [(line, code) for language, line, code

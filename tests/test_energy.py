@@ -16,6 +16,10 @@ from ase.md.verlet import VelocityVerlet
 from ase_reversible import ReversibleVerlet
 
 from conftest import CALCULATORS, DT, argon_cluster, copper_bulk
+from tiers import SLOW
+
+# Statistics over 20,000 steps and three seeds: the long tier only.
+pytestmark = SLOW
 
 SEEDS = (0, 1, 2)
 CASES = {

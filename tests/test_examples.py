@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from ase.io import read
 from PIL import Image
+from tiers import tiered
 
 EXAMPLES = Path(__file__).resolve().parent.parent / 'examples'
 
@@ -51,7 +52,7 @@ def check_pictures(paths, out_dir):
                 assert gif.n_frames > 10
 
 
-@pytest.mark.parametrize('name', OPTIMISATIONS)
+@pytest.mark.parametrize('name', tiered(OPTIMISATIONS, quick=[]))
 def test_optimisation_quick_mode(name, tmp_path):
     result = load(name).main(out_dir=tmp_path, quick=True)
     check_pictures([result['picture']], tmp_path)
@@ -61,7 +62,7 @@ def test_optimisation_quick_mode(name, tmp_path):
     assert result['loss_final'] < 0.1 * result['loss_initial']
 
 
-@pytest.mark.parametrize('name', SCENES)
+@pytest.mark.parametrize('name', tiered(SCENES, quick=[]))
 def test_scene_quick_mode(name, tmp_path):
     result = load(name).main(out_dir=tmp_path, quick=True)
     check_pictures(result['pictures'], tmp_path)
@@ -73,7 +74,8 @@ def test_scene_quick_mode(name, tmp_path):
         assert result['velocity_verlet_miss'] > 1e-3
 
 
-@pytest.mark.parametrize('name', USER_SCRIPTS)
+@pytest.mark.parametrize('name', tiered(USER_SCRIPTS,
+                                         quick=['copper_surface']))
 def test_user_script_quick_mode(name, tmp_path):
     result = load(name).main(out_dir=tmp_path, quick=True)
     trajectory = Path(result['trajectory'])

@@ -14,6 +14,7 @@ from ase_reversible.calculators import SoftenedGravity, make_ring
 from ase_reversible import INFO_KEY
 
 from calculator_conformance import CalculatorConformance
+from tiers import SLOW
 
 G, EPS, DT = 1.0, 0.3, 0.002  # eV Å/amu², Å, ASE time: as in the scene
 
@@ -88,8 +89,9 @@ def test_make_ring():
 
 # -- with ReversibleVerlet ------------------------------------------------
 
-@pytest.mark.parametrize('scheme, order', [('velocity', 2), ('position', 2),
-                                           ('velocity', 4)])
+@pytest.mark.parametrize('scheme, order', [
+    ('velocity', 2), ('position', 2),
+    pytest.param('velocity', 4, marks=SLOW)])
 def test_collapse_reverses_exactly(scheme, order):
     atoms = make_ring(40, radius=10.0, jitter=0.05)
     atoms.calc = SoftenedGravity(G=G, softening=EPS)

@@ -21,6 +21,7 @@ from ase_reversible import (AnchorMovedWarning, ReversibleNose,
 from conftest import (AR_EPSILON, AR_SIGMA, CALCULATORS, THERMOSTAT_CASES,
                       argon_bulk, argon_cluster)
 from exactness import assert_same_state, snapshot
+from tiers import SLOW
 
 TDAMP = 100 * units.fs
 
@@ -125,6 +126,7 @@ def test_extended_energy_is_conserved_while_the_atoms_heat_up():
     assert abs(drift) < 1e-2 * heated
 
 
+@SLOW
 def test_the_thermostat_holds_the_temperature():
     """Argon drawn at 160 K on its lattice (equipartition leaves about
     80 K), thermostatted at 80 K: the mean kinetic temperature over steps
@@ -359,6 +361,7 @@ def test_gradients_match_complex_step_through_a_float_nose_run():
     assert max(errors) < 1e-7, errors
 
 
+@SLOW
 def test_higher_orders_run_back_exactly_and_conserve_better():
     """Composed steps (order 4, 6) are exact too.  Measured on Ar13 over
     1 ps at 5 fs, the largest change of the extended energy: 2.2e-4 eV at

@@ -14,6 +14,7 @@ from ase_reversible.core.compositions import (COMPOSITIONS, DEFAULT_FOR_ORDER,
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS, DT, argon_bulk,
                       argon_cluster, copper_bulk)
 from exactness import assert_same_state, forward_and_back
+from tiers import SLOW, tiered
 from test_ase_contract import CountingLennardJones
 
 ORDERS = sorted(DEFAULT_FOR_ORDER)
@@ -108,7 +109,7 @@ CONVERGENCE_STEPS = {2: (20, 10), 4: (20, 10), 6: (80, 40), 8: (80, 40),
                      10: (80, 40)}
 
 
-@pytest.mark.parametrize('order', ORDERS)
+@pytest.mark.parametrize('order', tiered(ORDERS, quick=[2, 4]))
 def test_energy_error_converges_with_the_nominal_order(order):
     coarse, fine = CONVERGENCE_STEPS[order]
     observed = math.log2(energy_error(order, coarse)
@@ -116,6 +117,7 @@ def test_energy_error_converges_with_the_nominal_order(order):
     assert abs(observed - order) < 0.5 + 0.1 * order  # 0.7 at 2, 1.5 at 10
 
 
+@SLOW
 def test_position_scheme_order_four_converges_with_order_four():
     observed = math.log2(energy_error(4, 20, 'position')
                          / energy_error(4, 10, 'position'))

@@ -22,6 +22,7 @@ from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS, DT, argon_bulk,
                       argon_cluster, copper_bulk)
 from exactness import (assert_atoms_show_committed_state, assert_runs_back,
                        assert_same_state, forward_and_back, snapshot)
+from tiers import SLOW
 
 
 def forces_after_history(atoms, provider, seed):
@@ -106,6 +107,7 @@ class WarmStartedLJ(LennardJones):
         self.guess = self.results['forces'] = guess
 
 
+@SLOW
 def test_auto_mode_refuses_summation_noise_and_points_to_guarded():
     # The unsorted neighbour list inside makes the forces history dependent
     # by a few ulps, on atoms that sit on the cell faces.
@@ -168,6 +170,7 @@ class Summed(Calculator):
             'forces': sum(c.get_forces(atoms) for c in self.calcs)}
 
 
+@SLOW
 def test_a_mixture_is_handled_as_its_strictest_member():
     # Chosen from the members alone, before any force call: asap3 inside
     # means guarded rounding (asap3 calculators do not work inside ASE's
@@ -190,6 +193,7 @@ def test_auto_mode_trusts_an_unknown_pure_calculator():
     assert_runs_back(dyn, 300)
 
 
+@SLOW
 def test_without_purity_handling_asap3_reversal_fails():
     # The control for the guarded mode: the same run with forces trusted
     # and the spot check that would object (below) switched off.
@@ -236,6 +240,7 @@ class LateNoiseLJ(LennardJones):
             forces += rng.integers(-1, 2, forces.shape) * np.spacing(forces)
 
 
+@SLOW
 def test_call_to_call_noise_that_passed_the_probe_is_caught_during_the_run():
     atoms = argon_cluster(3, 50)
     atoms.calc = LateNoiseLJ(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC)
@@ -247,6 +252,7 @@ def test_call_to_call_noise_that_passed_the_probe_is_caught_during_the_run():
     assert_atoms_show_committed_state(dyn)
 
 
+@SLOW
 def test_a_pure_calculator_passes_its_spot_checks_and_runs_back():
     atoms = argon_cluster(2, 50)
     atoms.calc = MorsePotential(epsilon=0.0104, r0=3.8, rho0=6.0)
@@ -265,6 +271,7 @@ def test_guarded_noise_beyond_its_bound_is_caught_by_the_spot_check():
     assert_atoms_show_committed_state(dyn)
 
 
+@SLOW
 def test_guarded_mode_recomputes_rarely_and_sees_noise_below_its_bound():
     atoms = copper_bulk((5, 5, 5), 600)
     atoms.calc = CALCULATORS['asap-emt']()

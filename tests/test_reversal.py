@@ -15,6 +15,7 @@ from ase_reversible import ReversibleVerlet
 from conftest import (CALCULATORS, DT, argon_bulk, argon_cluster, copper_bulk,
                       copper_cluster)
 from exactness import assert_same_state, forward_and_back
+from tiers import SLOW, tiered
 
 SCHEMES = ['velocity', 'position']
 
@@ -43,7 +44,9 @@ CASES = {
 
 
 @pytest.mark.parametrize('scheme', SCHEMES)
-@pytest.mark.parametrize('case', list(CASES))
+@pytest.mark.parametrize('case', tiered(CASES, quick=[
+    'Ar13 cold ase-lj', 'Ar bulk ase-lj', 'Ar55 cold asap-lj',
+    'Cu55 cluster asap-emt']))
 def test_round_trip_is_exact(case, scheme):
     build, calc, steps = CASES[case]
     atoms = build()
@@ -55,7 +58,7 @@ def test_round_trip_is_exact(case, scheme):
     assert dyn.get_time() == 0.0
 
 
-@pytest.mark.slow
+@SLOW
 @pytest.mark.parametrize('scheme', SCHEMES)
 def test_hot_argon_147_for_20000_steps(scheme):
     # The headline case: a liquid 147-atom cluster, chaotic, evaporating.
@@ -150,7 +153,7 @@ def test_cartesian_and_plane_constraints_reverse_exactly():
     assert np.all(np.abs(off_plane) < 1e3 * dyn.grid.position_quantum)
 
 
-@pytest.mark.slow
+@SLOW
 def test_periodic_copper_500_ase_emt_200_steps():
     # With ASE's unsorted neighbour list (force_purity='trust'), this round
     # trip missed its start by 13 position quanta and 3565 momentum quanta

@@ -21,6 +21,7 @@ from conftest import (AR_RC, AR_SIGMA, CALCULATORS, DT, argon_cluster,
                       copper_bulk, thermalize)
 from exactness import (assert_atoms_show_committed_state, assert_same_state,
                        run_back, snapshot)
+from tiers import SLOW
 
 CU_BOND = 3.61 / np.sqrt(2)  # nearest-neighbour distance of ase.build's Cu
 
@@ -127,6 +128,7 @@ BLOW_UPS = {
 }
 
 
+@SLOW
 @pytest.mark.parametrize('case', sorted(BLOW_UPS))
 def test_a_blow_up_stops_within_two_steps_of_the_tolerance(case):
     make, dt_fs = BLOW_UPS[case]
@@ -150,6 +152,7 @@ def test_a_blow_up_stops_within_two_steps_of_the_tolerance(case):
     run_back(dyn, dyn.nsteps, start)
 
 
+@SLOW
 def test_a_run_that_ends_unstable_between_checks_still_runs_back():
     # 100 fs on cold Ar55: a run that ends at the first step beyond the
     # tolerance has not been checked there (a check comes before a step),
@@ -260,6 +263,7 @@ def test_close_contact_with_the_check_off_runs_back_exactly(contact):
     run_back(dyn, dyn.nsteps, start)
 
 
+@SLOW
 def test_a_blow_up_inside_the_ranges_is_stopped_by_the_energy_check():
     # A large step on a cold cluster: the energy grows for hundreds of
     # steps before any momentum leaves the fixed-point range.
