@@ -75,6 +75,19 @@ class RetraceLimitError(ReversibilityError, RuntimeError):
     """
 
 
+class NonFiniteStateError(ReversibilityError, ValueError):
+    """Positions or momenta that are NaN or infinite.
+
+    Raised by the constructor (the atoms are left as they were), and at
+    the next step, ``run`` or ``backpropagate`` when such values were set
+    on the atoms between runs.  A fixed-point state cannot hold them, and
+    the values they replaced are gone, so the integrator puts its last
+    exact state back on the atoms (positions and momenta) and says so:
+    ``reverse()`` and further runs then work as if the edit had not been
+    made.
+    """
+
+
 class AnchorMovedWarning(UserWarning):
     """A change made around the run was taken: reversal starts anew there.
 

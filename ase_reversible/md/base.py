@@ -20,11 +20,12 @@ from ase.md.md import MolecularDynamics
 
 from ..adjoint import Cotangents, Gradients, hvp_for
 from ..adjoint.cotangents import checked_gradient, checked_parameters
-from ..core.codec import encode
+from ..core.codec import LIMIT, encode
 from ..core.quanta import choose_grid
 from ..core.record import (INFO_KEY, RecordWriter, read_record,
                            record_mismatch)
-from ..errors import AnchorMovedWarning
+from ..errors import (AnchorMovedWarning, NonFiniteStateError,
+                      QuantumRangeError)
 from ..purity import calculator_members, discard_results, force_provider
 from .checks import (check_calculator, check_energy_watch, check_steps,
                      check_timestep, checked_masses, fixed,
@@ -32,7 +33,7 @@ from .checks import (check_calculator, check_energy_watch, check_steps,
 from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian
 from .state import FixedPointState
-from .watch import EQUAL_CALCULATOR, same_values
+from .watch import EQUAL_CALCULATOR, non_finite, same_values
 
 
 
@@ -449,7 +450,7 @@ class ReversibleDynamics(MolecularDynamics):
                 and momenta is not None
                 and same_values(momenta, self.system.shown_momenta())):
             return
-        self._install(self._encode(atoms, self.system.project))
+        self._install(self._edited_counts(atoms, self.system.project))
         warnings.warn(
             f'Positions or momenta were changed outside {type(self).__name__}. The '
             'change was taken and snapped to the grid; reversal now leads '
@@ -474,6 +475,9 @@ class ReversibleDynamics(MolecularDynamics):
         check_calculator(atoms.calc, 'running')
         project = constraint_projection(atoms)
         masses_n = checked_masses(atoms)
+        # Before the force provider is chosen: a probe would call the
+        # calculator at these positions.
+        counts = self._edited_counts(atoms, project)
         # Any change may alter how pure the forces are (a new calculator or
         # cut-off, atoms now near a periodic face): choose again.
         purity = force_provider(atoms, *self._purity_choice)
@@ -482,7 +486,6 @@ class ReversibleDynamics(MolecularDynamics):
             self._watch.take(atoms)
             self.system.kick.forget()
             return False
-        counts = self._encode(atoms, project)
         # ASE's Calculator.set keeps results (and ASE's LennardJones its
         # neighbour list) from before the change: the first kick after it
         # would use them.  reset() is ASE's way to drop all of that.
@@ -522,6 +525,44 @@ class ReversibleDynamics(MolecularDynamics):
                 f'{self.get_time() / units.fs:.6g} fs), not beyond.',
                 AnchorMovedWarning, stacklevel=3)
 
+    def _edited_counts(self, atoms, project):
+        """The counts of positions and momenta set on the atoms between
+        runs, or, if the grid cannot hold them (NaN, infinite, out of
+        range), the last exact state put back on the atoms and an error
+        that says so: the values the edit replaced are gone, and without
+        them neither the run nor its reversal could go on."""
+        problem, error = non_finite(atoms), NonFiniteStateError
+        advice = 'To change the state, set finite values.'
+        if problem is None:
+            error = QuantumRangeError
+            advice = ('To change the state, set values within the range of '
+                      'the grid (dyn.grid); a larger range needs a new '
+                      'integrator with a larger position_quantum or '
+                      'momentum_quantum.')
+            # A virtual momentum (ReversibleNose) is not range-checked
+            # when made: an out-of-range float casts to a count outside
+            # (-LIMIT, LIMIT), refused below.
+            with np.errstate(invalid='ignore'):
+                try:
+                    counts = self._encode(atoms, project)
+                except QuantumRangeError as refused:
+                    problem = 'the ' + str(refused).split(' Choose ')[0]
+                else:
+                    problem = next(
+                        (f'a {name} is outside the fixed-point range'
+                         for name, c in counts.items()
+                         if not ((c > -LIMIT) & (c < LIMIT)).all()), None)
+            if problem is None:
+                return counts
+        self.system.show()
+        raise error(
+            f'Refused an edit made outside {type(self).__name__} since the '
+            f'last step: {problem.rstrip(".")}. The fixed-point grid cannot '
+            'hold it, and the values it replaced are gone, so the atoms were '
+            'put back to the last exact state (positions and momenta at time '
+            f'{self.get_time() / units.fs:.6g} fs): reverse() and further '
+            f'runs go on from there as if the edit had not been made. {advice}')
+
     def _encode(self, atoms, project):
         return encoded(atoms, self.system.x.quantum, self.system.p.quantum,
                        project)
@@ -538,10 +579,12 @@ class ReversibleDynamics(MolecularDynamics):
                 'pass the Atoms themselves.')
         check_calculator(atoms.calc, 'constructing the integrator')
         masses_n = checked_masses(atoms)
-        for name in ('positions', 'momenta'):
-            values = atoms.arrays.get(name)
-            if values is not None and not np.all(np.isfinite(values)):
-                raise ValueError(f'The atoms have non-finite {name}.')
+        problem = non_finite(atoms)
+        if problem is not None:
+            name = 'positions' if 'position' in problem else 'momenta'
+            raise NonFiniteStateError(
+                f'The atoms have non-finite {name}: {problem}. Set finite '
+                'positions and momenta before constructing the integrator.')
         project = constraint_projection(atoms)
         purity = force_provider(atoms, force_purity, force_noise)
         return masses_n, project, purity, self._resumable_record(atoms)

@@ -148,6 +148,34 @@ class SystemWatch:
                 and _equal(dict(calc.parameters), old.values))
 
 
+def non_finite(atoms):
+    """What is wrong with the atoms' positions or momenta, or None.
+
+    A phrase such as ``'the position of atom 3 is NaN'``, naming the first
+    atom with a NaN or infinite position (else momentum) and how many
+    more have one; None if all are finite.  Not on the per-step path: it
+    runs only once an edit has been seen.
+    """
+    for name, what in (('positions', 'position'), ('momenta', 'momentum')):
+        values = atoms.arrays.get(name)
+        if values is None:
+            continue
+        finite = np.isfinite(values)
+        if finite.all():
+            continue
+        rows = np.flatnonzero(~finite.reshape(len(values), -1).all(axis=1))
+        atom = int(rows[0])
+        value = values[atom][~finite[atom]][0]
+        text = (f'the {what} of atom {atom} is '
+                f'{"NaN" if np.isnan(value) else "infinite"}')
+        if len(rows) > 1:
+            more = len(rows) - 1
+            text += (f' (and {more} more atom{"s" if more > 1 else ""} with '
+                     f'a non-finite {what})')
+        return text
+    return None
+
+
 def same_values(a, b) -> bool:
     """Whether two float arrays of one shape hold the same values.
 
