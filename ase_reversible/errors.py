@@ -100,4 +100,8 @@ class AnchorMovedWarning(UserWarning):
     (:attr:`~ase_reversible.md.base.ReversibleDynamics.anchor`), not
     beyond.  Also issued by the constructor when a restart record in
     ``atoms.info`` does not fit the atoms (new quanta are chosen).
+
+    Within one run a kind of change is warned once, when it first happens;
+    if it recurs (an observer that wraps the atoms at every step), one more
+    warning at the end of the run gives the number of further steps.
     """

@@ -382,6 +382,67 @@ def test_stored_results_attached_while_running_are_refused():
     run_back(dyn, 10, start)
 
 
+# An observer that changes the atoms at every step: every change is taken,
+# but warned once when it first happens and once, with the count, when the
+# run ends, not once per step.
+
+def wrap_into_the_cell(atoms):
+    atoms.wrap()
+
+
+def rescale_momenta(atoms):
+    atoms.set_momenta(1.0001 * atoms.get_momenta())
+
+
+@pytest.mark.parametrize('change', [wrap_into_the_cell, rescale_momenta])
+@pytest.mark.parametrize('loop', ['run', 'irun'])
+def test_an_observer_changing_the_atoms_every_step_warns_twice_per_run(
+        change, loop):
+    atoms = argon()
+    atoms.pbc = True  # wrap() round-trips through fractional coordinates
+    dyn = ReversibleVerlet(atoms, DT)
+    changed = []  # did each observer call change positions or momenta?
+
+    def observer():
+        before = snapshot(atoms)
+        change(atoms)
+        changed.append(not (np.array_equal(atoms.positions, before[0])
+                            and np.array_equal(atoms.get_momenta(),
+                                               before[1])))
+    dyn.attach(observer)
+    for run in range(2):
+        with warnings.catch_warnings(record=True) as record:
+            warnings.simplefilter('always')
+            if loop == 'run':
+                dyn.run(20)
+            else:
+                for _ in dyn.irun(20):
+                    pass
+        # The first run's observer calls 0..19 (its call 20 follows the
+        # last step) are taken by its steps 1..20; the next run's first
+        # check takes call 20, its steps take calls 21..39 (call 0 came
+        # before the first step, when nsteps was 0).
+        taken = sum(changed[:20]) if run == 0 else sum(changed[20:40])
+        assert taken >= 2, 'the observer did not change the atoms'
+        warned = moves(record)
+        assert len(warned) == 2, warned
+        assert warned[0].startswith('Positions or momenta were changed')
+        assert f'again at {taken - 1} more steps of this run' in warned[1]
+        assert f'last at time {dyn.get_time() / units.fs - 5:.6g} fs' \
+            in warned[1]
+    # Counted, not skipped: the last change is the anchor.
+    assert dyn.engine.steps_since_anchor == 1
+
+
+def test_each_run_warns_its_own_first_change_at_once():
+    atoms = argon()
+    dyn = ReversibleVerlet(atoms, DT)
+    for _ in range(3):
+        dyn.run(2)
+        atoms.positions[0, 0] += 0.01
+        assert len(take_pending(dyn)) == 1
+
+
 # -- 2. property: random sequences of runs, reversals and user actions -------
 #
 # A small model follows each example, independent of dyn.anchor:

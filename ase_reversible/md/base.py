@@ -33,7 +33,7 @@ from .checks import (check_calculator, check_energy_watch, check_steps,
 from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian
 from .state import FixedPointState
-from .watch import EQUAL_CALCULATOR, non_finite, same_values
+from .watch import EQUAL_CALCULATOR, AnchorMoves, non_finite, same_values
 
 
 
@@ -63,6 +63,8 @@ class ReversibleDynamics(MolecularDynamics):
     """
 
     engine = None
+    #: The running run's :class:`~.watch.AnchorMoves`, None between runs.
+    _moves = None
     #: Sections of the restart record a subclass writes and reads besides
     #: the quanta and the time (written by ``_record_sections``).
     record_sections = ()
@@ -110,14 +112,14 @@ class ReversibleDynamics(MolecularDynamics):
             self.engine.invariant.arm_for_retrace()
         if taken:
             old, new = abs(old), abs(value)
-            warnings.warn(
+            self._anchor_moved(
+                'the size of the time step changed',
                 f'The time step changed from {old / units.fs:g} fs to '
                 f'{new / units.fs:g} fs after {abs(taken)} steps. The new '
                 'step is used from here; reversal with it leads back to '
                 f'this point (time {self.get_time() / units.fs:.6g} fs), not '
                 'beyond. To retrace the earlier steps exactly, set dt back '
-                f'to {old / units.fs:g} fs (negated) here.',
-                AnchorMovedWarning, stacklevel=2)
+                f'to {old / units.fs:g} fs (negated) here.', stacklevel=2)
 
     def reverse(self):
         """Flip the direction of time: further steps retrace the path.
@@ -166,22 +168,31 @@ class ReversibleDynamics(MolecularDynamics):
     def _loop(self, steps, alone):
         """``irun``'s generator; ``alone``: the caller runs no code of its
         own between the steps (``run``)."""
-        self._sync()
-        self.max_steps = self.nsteps + steps
-        if self.nsteps == 0:
-            self._ready()
-            self.log()
-            self.call_observers()
-        yield self.nsteps == self.max_steps
-        if alone and not self.observers and self._plain_hooks():
-            yield from self._unwatched_steps()
-            return
-        while self.nsteps < self.max_steps:
-            self.step()
-            self.nsteps += 1
-            self.log()
-            self.call_observers()
+        # A run that starts while another is open (an irun left unfinished,
+        # a run inside an observer) takes over the collapsing: the other
+        # warns each change from then on rather than losing any.
+        moves = self._moves = AnchorMoves(type(self).__name__)
+        try:
+            self._sync()
+            self.max_steps = self.nsteps + steps
+            if self.nsteps == 0:
+                self._ready()
+                self.log()
+                self.call_observers()
             yield self.nsteps == self.max_steps
+            if alone and not self.observers and self._plain_hooks():
+                yield from self._unwatched_steps()
+                return
+            while self.nsteps < self.max_steps:
+                self.step()
+                self.nsteps += 1
+                self.log()
+                self.call_observers()
+                yield self.nsteps == self.max_steps
+        finally:
+            if self._moves is moves:
+                self._moves = None
+            moves.summarise(stacklevel=3 if alone else 2)
 
     def _plain_hooks(self):
         cls = type(self)
@@ -451,11 +462,25 @@ class ReversibleDynamics(MolecularDynamics):
                 and same_values(momenta, self.system.shown_momenta())):
             return
         self._install(self._edited_counts(atoms, self.system.project))
-        warnings.warn(
-            f'Positions or momenta were changed outside {type(self).__name__}. The '
-            'change was taken and snapped to the grid; reversal now leads '
-            f'back to this point (time {self.get_time() / units.fs:.6g} fs), '
-            'not beyond.', AnchorMovedWarning, stacklevel=3)
+        name = type(self).__name__
+        self._anchor_moved(
+            f'positions or momenta changed outside {name}',
+            f'Positions or momenta were changed outside {name}. The change '
+            'was taken and snapped to the grid; reversal now leads back to '
+            'this point (time '
+            f'{self.get_time() / units.fs:.6g} fs), not beyond.',
+            stacklevel=3)
+
+    def _anchor_moved(self, kind, message, stacklevel):
+        """Warn that the anchor moved (:class:`AnchorMovedWarning`); within
+        a run, a ``kind`` already warned is counted for the run's summary
+        instead (:class:`~.watch.AnchorMoves`)."""
+        if self._moves is None:
+            warnings.warn(message, AnchorMovedWarning,
+                          stacklevel=stacklevel + 1)
+        else:
+            self._moves.warn(kind, message, stacklevel + 1,
+                             self.get_time() / units.fs)
 
     def _take_changes(self, changes):
         """Take a change of the dynamics, or refuse it leaving all as was.
@@ -499,14 +524,16 @@ class ReversibleDynamics(MolecularDynamics):
         self._watch.take(atoms)
         self.engine.set_dt(self.engine.dt)  # coefficients use the masses
         self._install(counts)
-        warnings.warn(
-            f'Changed outside {type(self).__name__} since the last step: '
-            f'{", ".join(changes)}. The change was taken (positions and '
+        name, changed = type(self).__name__, ", ".join(changes)
+        self._anchor_moved(
+            f'{changed} changed outside {name}',
+            f'Changed outside {name} since the last step: {changed}. The '
+            'change was taken (positions and '
             'momenta snapped to the grid, momenta projected onto the '
             'constraints); reversal now leads back to this point (time '
             f'{self.get_time() / units.fs:.6g} fs), not beyond. To retrace '
             'further back exactly, undo the change when you get here.',
-            AnchorMovedWarning, stacklevel=4)
+            stacklevel=4)
         return True
 
     def _change_setting(self, what, assign):
@@ -519,11 +546,12 @@ class ReversibleDynamics(MolecularDynamics):
         self.engine.set_dt(self.engine.dt)  # prepare with the new setting
         self._install(self.engine.snapshot())
         if taken:
-            warnings.warn(
-                f'The {what} of {type(self).__name__} changed after {taken} '
-                'steps; reversal now leads back to this point (time '
+            changed = f'{what} of {type(self).__name__} changed'
+            self._anchor_moved(
+                f'the {changed}', f'The {changed} after {taken} steps; '
+                'reversal now leads back to this point (time '
                 f'{self.get_time() / units.fs:.6g} fs), not beyond.',
-                AnchorMovedWarning, stacklevel=3)
+                stacklevel=3)
 
     def _edited_counts(self, atoms, project):
         """The counts of positions and momenta set on the atoms between

@@ -31,9 +31,11 @@ from __future__ import annotations
 import copy
 import functools
 import operator
+import warnings
 
 import numpy as np
 
+from ..errors import AnchorMovedWarning
 from ..purity import calculator_members, mixture
 
 #: The change reported for a calculator replaced by an equal one: same
@@ -146,6 +148,54 @@ class SystemWatch:
                 and isinstance(calc, Calculator)
                 and mixture(calc) is None
                 and _equal(dict(calc.parameters), old.values))
+
+
+class AnchorMoves:
+    """The anchor-moved warnings of one run, collapsed.
+
+    An observer that wraps the atoms or rescales the momenta changes them
+    at every step, and every step's change is taken: one warning per step
+    would bury the output, and Python's warning filter cannot collapse
+    them (each text names another time).  So the first change of a kind
+    is warned at once, and repeats are counted and summed up in one
+    warning when the run ends (or fails, or its ``irun`` is closed).
+    """
+
+    def __init__(self, name):
+        self.name = name
+        #: kind -> [repeats, time of the first, time of the last (fs)]
+        self._seen = {}
+
+    def warn(self, kind, message, stacklevel, time):
+        """Issue ``message`` if no change of ``kind`` (a phrase such as
+        ``'the cell changed outside ReversibleVerlet'``) was warned in this
+        run, else count it; ``time`` (fs) is where the anchor now is."""
+        seen = self._seen.get(kind)
+        if seen is None:
+            self._seen[kind] = [0, time, time]
+            warnings.warn(message, AnchorMovedWarning,
+                          stacklevel=stacklevel + 1)
+        else:
+            seen[0] += 1
+            seen[2] = time
+
+    def summarise(self, stacklevel):
+        """One warning per kind of change that recurred in the run."""
+        for kind, (repeats, first, last) in self._seen.items():
+            if repeats:
+                warnings.warn(
+                    f'The change warned at time {first:.6g} fs ({kind}) was '
+                    f'made again at {repeats} more '
+                    f'step{"s" if repeats > 1 else ""} of this run and taken '
+                    'each time: the anchor of reversal moved at every one, '
+                    f'last at time {last:.6g} fs; reversal now leads back '
+                    'there, not beyond. Code run between the steps (an '
+                    'observer that wraps the atoms or rescales the momenta) '
+                    'makes such changes: to analyse the atoms without '
+                    f'changing the run of {self.name}, work on a copy '
+                    '(atoms.copy()).',
+                    AnchorMovedWarning, stacklevel=stacklevel + 1)
+        self._seen.clear()
 
 
 def non_finite(atoms):
