@@ -382,6 +382,21 @@ def test_stored_results_attached_while_running_are_refused():
     run_back(dyn, 10, start)
 
 
+def test_backpropagate_over_more_steps_than_the_anchor_allows_is_refused():
+    atoms = argon()
+    dyn = ReversibleVerlet(atoms, DT)
+    start = snapshot(atoms)
+    dyn.run(10)
+    after_run = snapshot(atoms)
+    gradient = np.ones((len(atoms), 3))
+    with pytest.raises(ValueError, match='only 10 were taken'):
+        dyn.backpropagate(11, gradient)
+    assert_same_state(atoms, after_run)
+    assert dyn.dt > 0
+    dyn.backpropagate(10, gradient)
+    assert_same_state(atoms, start)
+
+
 # An observer that changes the atoms at every step: every change is taken,
 # but warned once when it first happens and once, with the count, when the
 # run ends, not once per step.
