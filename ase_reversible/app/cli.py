@@ -1,5 +1,5 @@
-"""The command line: ``python -m ase_reversible COMMAND`` and the
-``ase-reversible`` console script.
+"""The command line: the ``ase-reversible`` console script and
+``python -m ase_reversible``, both ``COMMAND [options]``.
 
 ``demo`` runs :mod:`ase_reversible.app.demo`; ``flipbook`` opens a
 :class:`~ase_reversible.Flipbook` on a scene of
@@ -29,25 +29,30 @@ COMMANDS = {
 }
 
 
-def main(argv=None):
+#: How the console script is called; ``python -m ase_reversible`` passes
+#: its own name, so that usage lines show the command that was typed.
+PROG = 'ase-reversible'
+
+
+def main(argv=None, prog=PROG):
     """Dispatch ``argv`` (default ``sys.argv[1:]``) to its command; returns
-    the exit status."""
+    the exit status.  ``prog``: the command as typed, for usage lines."""
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ('-h', '--help'):
-        print('usage: python -m ase_reversible COMMAND [options]\n')
+        print(f'usage: {prog} COMMAND [options]\n')
         for name, what in COMMANDS.items():
             print(f'  {name:9} {what}')
-        print('\npython -m ase_reversible COMMAND --help for its options')
+        print(f'\n{prog} COMMAND --help for its options')
         return 0 if argv else 2
     if argv[0] == 'demo':
-        return demo.main(argv[1:])
+        return demo.main(argv[1:], prog=f'{prog} demo')
     if argv[0] == 'flipbook':
-        return flipbook(argv[1:])
+        return flipbook(argv[1:], prog=f'{prog} flipbook')
     if argv[0] == 'lammps':
         from ..lammps.script import main as lammps_script
-        return lammps_script(argv[1:])
-    print(f'unknown command {argv[0]!r}; try: python -m ase_reversible '
-          f'{" or ".join(COMMANDS)}', file=sys.stderr)
+        return lammps_script(argv[1:], prog=f'{prog} lammps')
+    print(f'unknown command {argv[0]!r}; the commands are '
+          f'{", ".join(COMMANDS)} ({prog} --help)', file=sys.stderr)
     return 2
 
 
@@ -61,13 +66,13 @@ CALCULATORS = {
 }
 
 
-def flipbook(argv=None):
-    """``python -m ase_reversible flipbook``: see ``--help``.
+def flipbook(argv=None, prog=f'{PROG} flipbook'):
+    """``ase-reversible flipbook``: see ``--help``.
 
     Returns the exit status.
     """
     parser = argparse.ArgumentParser(
-        prog='python -m ase_reversible flipbook',
+        prog=prog,
         description='Step a simulation forward and backward on demand, '
                     'without storing frames.  Keys: right/left one frame, '
                     'up/down ten, PageUp/PageDown a hundred, Home frame 0.')
