@@ -8,6 +8,7 @@ window would send them.
 import matplotlib
 import numpy as np
 import pytest
+from ase import units
 from ase.calculators.lj import LennardJones as AseLennardJones
 from ase.io import Trajectory
 from ase.md.verlet import VelocityVerlet
@@ -243,6 +244,39 @@ def test_command_line_from_a_trajectory(tmp_path):
     assert cli.flipbook([str(path), '--index', '2', '--calculator',
                          'lj-argon', '--png', '3', '--out', str(png)]) == 0
     assert png.exists()
+
+
+def test_a_flipbook_on_a_trajectory_frame_shows_the_frames_own_time(
+        tmp_path, monkeypatch):
+    atoms = argon_cluster(2, 60.0)
+    atoms.calc = AseLennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON,
+                                 rc=AR_RC)
+    path = tmp_path / 'md.traj'
+    run = ReversibleVerlet(atoms, DT, trajectory=str(path))
+    written = []  # the run's clock at each frame, in the order written
+    run.attach(lambda: written.append(run.get_time()))
+    run.run(4)
+    assert written[2] > 0
+
+    # What the command line does with --index 2: the clock goes on from
+    # the frame's restart record, and every picture's title shows it.
+    captions = []
+
+    class Recording(Flipbook):
+        def draw(self, ax=None, title=True):
+            captions.append((self.frame, self.time, self.caption()))
+            return super().draw(ax, title)
+    monkeypatch.setattr(cli, 'Flipbook', Recording)
+    assert cli.flipbook([str(path), '--index', '2', '--calculator',
+                         'lj-argon', '--gif', '2', '--out',
+                         str(tmp_path / 'frames.gif')]) == 0
+    seen = {frame: (time, caption) for frame, time, caption in captions}
+    assert sorted(seen) == [0, 1, 2]
+    for frame, (time, caption) in seen.items():
+        expected = written[2] + frame * DT
+        assert time == pytest.approx(expected, rel=1e-12)
+        assert f't = {expected / units.fs:.6g} fs' in caption
+    assert seen[0][0] == written[2]  # frame 0 is the frame's own time
 
 
 @pytest.mark.parametrize('argv, message', [
