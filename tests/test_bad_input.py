@@ -73,6 +73,14 @@ def with_entry(name, value):
     return spoil
 
 
+def with_cell_entry(value):
+    def spoil(atoms):
+        good = atoms.cell.copy()
+        atoms.cell.array[1, 1] = value
+        return lambda: atoms.set_cell(good)
+    return spoil
+
+
 def with_constraint(make):
     def spoil(atoms):
         atoms.set_constraint(make())
@@ -115,6 +123,8 @@ BAD_CONSTRUCTIONS = [
                  'non-finite momenta', id='momenta-nan'),
     pytest.param(with_entry('momenta', -np.inf), {}, ValueError,
                  'non-finite momenta', id='momenta-inf'),
+    pytest.param(with_cell_entry(np.nan), {}, ValueError,
+                 'The cell has non-finite entries', id='cell-nan'),
     pytest.param(with_constraint(FixCom), {}, UnsupportedConstraintError,
                  '^FixCom cannot be applied exactly', id='FixCom'),
     pytest.param(with_constraint(lambda: FixBondLengths([[0, 1], [2, 3]])),

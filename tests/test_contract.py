@@ -238,6 +238,22 @@ def test_cell_change_between_runs_anchors_reversal_at_the_change():
     assert_state_is_anchor(dyn)
 
 
+@pytest.mark.parametrize('value', [np.nan, np.inf])
+def test_non_finite_cell_is_refused_until_set_back(value):
+    atoms = copper()
+    dyn = ReversibleVerlet(atoms, DT)
+    start = snapshot(atoms)
+    dyn.run(10)
+    before, cell = snapshot(atoms), atoms.cell.copy()
+    atoms.cell.array[2, 2] = value
+    with pytest.raises(ValueError, match='cell has non-finite entries'):
+        dyn.run(5)
+    assert dyn.nsteps == 10
+    assert_same_state(atoms, before)
+    atoms.set_cell(cell)  # undone: the anchor is still the constructor's
+    run_back(dyn, 10, start)
+
+
 # 6. calc.set(epsilon=...) between the way out and the way back
 def test_calc_parameter_change_between_out_and_back_anchors_there():
     atoms = argon()

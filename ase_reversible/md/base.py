@@ -33,7 +33,8 @@ from .checks import (check_calculator, check_energy_watch, check_steps,
 from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian
 from .state import FixedPointState
-from .watch import EQUAL_CALCULATOR, AnchorMoves, non_finite, same_values
+from .watch import (EQUAL_CALCULATOR, AnchorMoves, check_finite_cell,
+                    non_finite, same_values)
 
 
 
@@ -498,6 +499,8 @@ class ReversibleDynamics(MolecularDynamics):
             raise RuntimeError('The atoms lost their calculator; attach one '
                                '(atoms.calc = ...) before running.')
         check_calculator(atoms.calc, 'running')
+        check_finite_cell(atoms, 'Set it back (atoms.set_cell) to go on: '
+                          'nothing was changed.')
         project = constraint_projection(atoms)
         masses_n = checked_masses(atoms)
         # Before the force provider is chosen: a probe would call the
@@ -606,6 +609,7 @@ class ReversibleDynamics(MolecularDynamics):
                 '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
                 'pass the Atoms themselves.')
         check_calculator(atoms.calc, 'constructing the integrator')
+        check_finite_cell(atoms, 'Set a finite cell (atoms.set_cell).')
         masses_n = checked_masses(atoms)
         problem = non_finite(atoms)
         if problem is not None:

@@ -198,6 +198,17 @@ class AnchorMoves:
         self._seen.clear()
 
 
+def check_finite_cell(atoms, advice):
+    """Raise ``ValueError`` (with ``advice``) if the cell holds a NaN or an
+    infinity: otherwise the change would be taken and the first force call
+    would fail with a message that does not name the cell."""
+    cell = atoms.cell.array
+    if not np.isfinite(cell).all():
+        raise ValueError(
+            f'The cell has non-finite entries (NaN or infinite): '
+            f'{cell.tolist()}. {advice}')
+
+
 def non_finite(atoms):
     """What is wrong with the atoms' positions or momenta, or None.
 
