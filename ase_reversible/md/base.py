@@ -577,7 +577,8 @@ class ReversibleDynamics(MolecularDynamics):
                 try:
                     counts = self._encode(atoms, project)
                 except QuantumRangeError as refused:
-                    problem = 'the ' + str(refused).split(' Choose ')[0]
+                    problem = 'the ' + str(refused).removesuffix(
+                        ' Choose a larger quantum.')
                 else:
                     problem = next(
                         (f'a {name} is outside the fixed-point range'

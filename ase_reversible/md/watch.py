@@ -19,6 +19,10 @@ step for 144 atoms under asap3 EMT and 67 µs for 32,000, timed inside the
 steps, at most 1% of a step; with and without it the step times were
 within the noise of the rounds in all 13 cases.
 
+Also here: what an edit may not set (NaN or infinite positions, momenta
+or cell entries), and :class:`AnchorMoves`, which collapses the warnings
+of a change repeated at every step of a run into two.
+
 What it cannot see, and the user guide says so: a constraint object
 modified in place (set the constraints again instead), and calculator
 settings changed other than through ``calc.parameters`` (``calc.set``
