@@ -66,7 +66,7 @@ CALCULATORS = {
 }
 
 
-def flipbook(argv=None, prog=f'{PROG} flipbook'):
+def flipbook(argv=None, prog='ase-reversible flipbook'):
     """``ase-reversible flipbook``: see ``--help``.
 
     Returns the exit status.
