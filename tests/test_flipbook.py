@@ -279,6 +279,37 @@ def test_a_flipbook_on_a_trajectory_frame_shows_the_frames_own_time(
     assert seen[0][0] == written[2]  # frame 0 is the frame's own time
 
 
+def test_a_flipbook_on_a_trajectory_frame_retraces_the_files_frames(
+        tmp_path, monkeypatch, capsys):
+    # Another time step, order and stride than the command line's defaults
+    # (5 fs, order 2, 1): they come from the trajectory's header.  The calculator is
+    # the one --calculator lj-argon attaches.
+    from ase_reversible import LennardJones
+    atoms = argon_cluster(2, 60.0)
+    atoms.calc = LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC)
+    path = tmp_path / 'md.traj'
+    ReversibleVerlet(atoms, 2 * units.fs, trajectory=str(path),
+                     loginterval=3, order=4).run(15)
+    books = []
+    monkeypatch.setattr(cli, 'Flipbook',
+                        lambda dyn, **kw: books.append(Flipbook(dyn, **kw))
+                        or books[-1])
+    assert cli.flipbook([str(path), '--index', '1', '--calculator',
+                         'lj-argon', '--png', '3', '--out',
+                         str(tmp_path / 'frame.png')]) == 0
+    assert 'time step 2 fs, scheme velocity, order 4' in \
+        capsys.readouterr().out
+    assert books[0].stride == 3
+    book, = books
+    with Trajectory(str(path)) as frames:
+        for frame in (3, 0, 2):
+            book.goto(frame)
+            assert np.array_equal(book.atoms.positions,
+                                  frames[1 + frame].positions)
+            assert np.array_equal(book.atoms.get_momenta(),
+                                  frames[1 + frame].get_momenta())
+
+
 @pytest.mark.parametrize('argv, message', [
     (['nowhere.traj', '--calculator', 'emt', '--png', '1', '--out', 'x.png'],
      'neither a scene'),

@@ -84,8 +84,11 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
     parser.add_argument('--calculator', choices=sorted(CALCULATORS),
                         help='calculator for a trajectory file')
     parser.add_argument('--timestep', type=float,
-                        help='fs (default: the scene\'s; 5 for files)')
-    parser.add_argument('--stride', type=int, help='steps per frame')
+                        help='fs (default: the scene\'s; for a file, its '
+                             'trajectory header\'s, else 5)')
+    parser.add_argument('--stride', type=int,
+                        help='steps per frame (default: the scene\'s; for '
+                             'a file, the steps between its frames, else 1)')
     parser.add_argument('--plane', choices=sorted(PLANES),
                         help='axes shown (default: the scene\'s; xy)')
     parser.add_argument('--png', type=int, metavar='FRAME',
@@ -104,6 +107,7 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
                   file=sys.stderr)
             return 2
 
+    dynamics = {}
     if args.source in SCENES:
         scene = SCENES[args.source]()
         atoms, timestep, stride, view = (scene.atoms, scene.timestep,
@@ -124,7 +128,14 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
         except ImportError:
             parser.error(f'--calculator {args.calculator} needs {module}, '
                          'which is not installed')
-        timestep, stride, view = 5 * units.fs, 1, AtomsView()
+        dynamics = recorded_dynamics(path)
+        timestep, stride, view = (dynamics.pop('timestep', 5 * units.fs),
+                                  dynamics.pop('stride', 1), AtomsView())
+        if dynamics:
+            print(f'from the trajectory header: time step '
+                  f'{timestep / units.fs:g} fs, scheme {dynamics["scheme"]}, '
+                  f'order {dynamics["order"]} ({dynamics["composition"]}), '
+                  f'{stride} steps per frame')
     if args.timestep is not None:
         timestep = args.timestep * units.fs
     if args.stride is not None:
@@ -134,8 +145,8 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
     if (args.png is not None or args.gif is not None) and not args.out:
         parser.error('--png and --gif need --out FILE')
 
-    book = Flipbook(ReversibleVerlet(atoms, timestep), stride=stride,
-                    view=view)
+    book = Flipbook(ReversibleVerlet(atoms, timestep, **dynamics),
+                    stride=stride, view=view)
     if args.png is not None:
         print('wrote', book.render(args.png, args.out))
         return 0
@@ -147,3 +158,31 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
         return 0
     book.show()
     return 0
+
+
+def recorded_dynamics(path):
+    """What a ``.traj`` file's header records of the ReversibleVerlet run
+    that wrote it: ``timestep`` (ASE time units), ``scheme``, ``order``,
+    ``composition`` and, as ``stride``, the steps between its frames;
+    empty for any other file or dynamics.
+
+    Without these a frame would be browsed with other dynamics than the
+    run's, still exactly reversible but not retracing the file's frames.
+    """
+    if Path(path).suffix != '.traj':
+        return {}
+    from ase.io.trajectory import Trajectory
+    try:
+        with Trajectory(str(path)) as trajectory:
+            header = trajectory.description
+    except Exception:  # not a trajectory ASE can open: no header
+        return {}
+    keys = ('timestep', 'scheme', 'order', 'composition')
+    if header.get('md-type') != 'ReversibleVerlet' or \
+            not all(key in header for key in keys):
+        return {}
+    # The sign says which way the run went when the file was opened.
+    return {'timestep': abs(float(header['timestep'])),
+            'scheme': header['scheme'], 'order': int(header['order']),
+            'composition': header['composition'],
+            'stride': max(1, int(header.get('interval', 1)))}
