@@ -37,7 +37,8 @@ from ase.io import read
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from ase_reversible import (AnchorMovedWarning, CoarseQuantumError,
-                            ReversibleVerlet, UnsupportedConstraintError)
+                            NonFiniteStateError, ReversibleVerlet,
+                            UnsupportedConstraintError)
 from conftest import DT, argon_cluster, ase_lj, copper_bulk, thermalize
 from exactness import (assert_atoms_show_committed_state, assert_same_state,
                        run_back, snapshot)
@@ -670,6 +671,24 @@ class Example:
         self.atoms.info.pop('reversible', None)
         return SILENT
 
+    def unholdable_value(self, name, atom, value):
+        # The overwritten values are gone: the integrator puts its last
+        # exact state back itself, the anchor stays.
+        before, anchor = snapshot(self.atoms), self.dyn.anchor
+        self.atoms.arrays[name][atom, 1] = value
+        with pytest.raises(NonFiniteStateError, match='put back'):
+            self.dyn.run(0)
+        assert_same_state(self.atoms, before)
+        assert same_fixed_point_state(self.dyn.anchor, anchor)
+        return SILENT
+
+    def non_finite_cell(self):
+        accepted = self.atoms.cell.copy()
+        self.atoms.cell.array[0, 0] = np.nan
+        self.refused(ValueError, 'cell has non-finite entries')
+        self.atoms.set_cell(accepted)
+        return SILENT
+
     def refused(self, error, match):
         """``run(0)`` raises ``error`` and changes neither state nor anchor."""
         before, anchor = snapshot(self.atoms), self.dyn.anchor
@@ -748,6 +767,10 @@ common_actions = [
     st.tuples(st.just('remove_calc'), st.booleans()),
     st.just(('edit_info',)),
     st.just(('wrap',)),
+    st.tuples(st.just('unholdable_value'),
+              st.sampled_from(['positions', 'momenta']), atom_index,
+              st.sampled_from([np.nan, np.inf, -np.inf])),
+    st.just(('non_finite_cell',)),
 ]
 ACTIONS = {
     'argon': st.one_of(
