@@ -34,7 +34,7 @@ from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian
 from .state import FixedPointState
 from .watch import (EQUAL_CALCULATOR, AnchorMoves, check_finite_cell,
-                    non_finite, same_values)
+                    non_finite, refuse_unholdable_values, same_values)
 
 
 
@@ -610,14 +610,11 @@ class ReversibleDynamics(MolecularDynamics):
                 '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
                 'pass the Atoms themselves.')
         check_calculator(atoms.calc, 'constructing the integrator')
-        check_finite_cell(atoms, 'Set a finite cell (atoms.set_cell).')
         masses_n = checked_masses(atoms)
-        problem = non_finite(atoms)
-        if problem is not None:
-            name = 'positions' if 'position' in problem else 'momenta'
-            raise NonFiniteStateError(
-                f'The atoms have non-finite {name}: {problem}. Set finite '
-                'positions and momenta before constructing the integrator.')
+        for name in ('positions', 'momenta'):
+            values = atoms.arrays.get(name)
+            if values is not None and not np.all(np.isfinite(values)):
+                raise ValueError(f'The atoms have non-finite {name}.')
         project = constraint_projection(atoms)
         purity = force_provider(atoms, force_purity, force_noise)
         return masses_n, project, purity, self._resumable_record(atoms)
@@ -633,6 +630,7 @@ class ReversibleDynamics(MolecularDynamics):
         to ``max_kick`` ASE time units) and refuses a quantum that would
         visibly change the momenta, all before anything is changed.
         """
+        refuse_unholdable_values(atoms)
         masses_n, project, purity, record = self._admit(
             atoms, force_purity, force_noise)
         momenta = atoms.arrays.get('momenta', np.zeros((len(atoms), 3)))

@@ -38,8 +38,9 @@ import operator
 import warnings
 
 import numpy as np
+from ase import Atoms
 
-from ..errors import AnchorMovedWarning
+from ..errors import AnchorMovedWarning, NonFiniteStateError
 from ..purity import calculator_members, mixture
 
 #: The change reported for a calculator replaced by an equal one: same
@@ -211,6 +212,21 @@ def check_finite_cell(atoms, advice):
         raise ValueError(
             f'The cell has non-finite entries (NaN or infinite): '
             f'{cell.tolist()}. {advice}')
+
+
+def refuse_unholdable_values(atoms):
+    """Refuse atoms with a NaN or infinite position, momentum or cell entry
+    (:class:`~ase_reversible.NonFiniteStateError`, ``ValueError``), naming
+    the atom, before a constructor changes anything."""
+    if not isinstance(atoms, Atoms):
+        return  # refused with advice by the admission
+    check_finite_cell(atoms, 'Set a finite cell (atoms.set_cell).')
+    problem = non_finite(atoms)
+    if problem is not None:
+        name = 'positions' if 'position' in problem else 'momenta'
+        raise NonFiniteStateError(
+            f'The atoms have non-finite {name}: {problem}. Set finite '
+            'positions and momenta before constructing the integrator.')
 
 
 def non_finite(atoms):
