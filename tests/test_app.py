@@ -133,7 +133,7 @@ def test_usage_lines_name_the_command_as_typed(command, capsys):
         return next(line for line in capsys.readouterr().out.splitlines()
                     if line.startswith('usage:'))
 
-    typed = 'ase-reversible' if command is None else f'ase-reversible {command}'
+    typed = ' '.join(['ase-reversible'] + ([command] if command else []))
     assert f' {typed} ' in usage()
     typed = typed.replace('ase-reversible', 'python -m ase_reversible')
     assert f' {typed} ' in usage(prog='python -m ase_reversible')

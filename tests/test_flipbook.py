@@ -282,8 +282,8 @@ def test_a_flipbook_on_a_trajectory_frame_shows_the_frames_own_time(
 def test_a_flipbook_on_a_trajectory_frame_retraces_the_files_frames(
         tmp_path, monkeypatch, capsys):
     # Another time step, order and stride than the command line's defaults
-    # (5 fs, order 2, 1): they come from the trajectory's header.  The calculator is
-    # the one --calculator lj-argon attaches.
+    # (5 fs, order 2, 1): they come from the trajectory's header.  The
+    # calculator is the one --calculator lj-argon attaches.
     from ase_reversible import LennardJones
     atoms = argon_cluster(2, 60.0)
     atoms.calc = LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC)

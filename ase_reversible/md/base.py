@@ -593,7 +593,8 @@ class ReversibleDynamics(MolecularDynamics):
             'hold it, and the values it replaced are gone, so the atoms were '
             'put back to the last exact state (positions and momenta at time '
             f'{self.get_time() / units.fs:.6g} fs): reverse() and further '
-            f'runs go on from there as if the edit had not been made. {advice}')
+            'runs go on from there as if the edit had not been made. '
+            + advice)
 
     def _encode(self, atoms, project):
         return encoded(atoms, self.system.x.quantum, self.system.p.quantum,
