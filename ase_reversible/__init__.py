@@ -15,6 +15,7 @@ integrators), :mod:`.purity` (forces as a pure function of positions),
 
 from .errors import (AnchorMovedWarning, CoarseQuantumError,
                      ImpureForcesError, NonFiniteForcesError,
+                     NonFiniteStateError,
                      QuantumRangeError, RetraceLimitError,
                      ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
@@ -35,5 +36,6 @@ __all__ = ['ReversibleVerlet', 'ReversibleLangevin', 'ReversibleNose',
            'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',
            'Flipbook', 'AnalyticHVP', 'FiniteDifferenceHVP',
            'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
-           'NonFiniteForcesError', 'RetraceLimitError', 'ImpureForcesError', 'CoarseQuantumError',
+           'NonFiniteForcesError', 'NonFiniteStateError',
+           'RetraceLimitError', 'ImpureForcesError', 'CoarseQuantumError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

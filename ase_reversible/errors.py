@@ -76,6 +76,19 @@ class RetraceLimitError(ReversibilityError, RuntimeError):
     """
 
 
+class NonFiniteStateError(ReversibilityError, ValueError):
+    """Positions or momenta that are NaN or infinite.
+
+    Raised by the constructor (the atoms are left as they were), and at
+    the next step, ``run`` or ``backpropagate`` when such values were set
+    on the atoms between runs.  A fixed-point state cannot hold them, and
+    the values they replaced are gone, so the integrator puts its last
+    exact state back on the atoms (positions and momenta) and says so:
+    ``reverse()`` and further runs then work as if the edit had not been
+    made.
+    """
+
+
 class AnchorMovedWarning(UserWarning):
     """A change made around the run was taken: reversal starts anew there.
 
@@ -88,4 +101,8 @@ class AnchorMovedWarning(UserWarning):
     (:attr:`~ase_reversible.md.base.ReversibleDynamics.anchor`), not
     beyond.  Also issued by the constructor when a restart record in
     ``atoms.info`` does not fit the atoms (new quanta are chosen).
+
+    Within one run a kind of change is warned once, when it first happens;
+    if it recurs (an observer that wraps the atoms at every step), one more
+    warning at the end of the run gives the number of further steps.
     """

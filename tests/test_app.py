@@ -120,6 +120,34 @@ def test_python_dash_m_runs_the_command_line():
     assert 'python -m ase_reversible demo' in done.stdout
 
 
+# The console script calls cli.main() with no arguments (pyproject.toml,
+# checked below): its usage lines must name it, not ``python -m``.
+@pytest.mark.parametrize('command', [None, 'demo', 'flipbook', 'lammps'])
+def test_usage_lines_name_the_command_as_typed(command, capsys):
+    def usage(**prog):
+        argv = ['--help'] if command is None else [command, '--help']
+        try:
+            assert cli.main(argv, **prog) == 0
+        except SystemExit as done:  # argparse's --help
+            assert done.code == 0
+        return next(line for line in capsys.readouterr().out.splitlines()
+                    if line.startswith('usage:'))
+
+    typed = ' '.join(['ase-reversible'] + ([command] if command else []))
+    assert f' {typed} ' in usage()
+    typed = typed.replace('ase-reversible', 'python -m ase_reversible')
+    assert f' {typed} ' in usage(prog='python -m ase_reversible')
+
+
+def test_python_dash_m_names_itself_in_the_usage_line():
+    done = subprocess.run([sys.executable, '-m', 'ase_reversible', '--help'],
+                          capture_output=True, text=True,
+                          cwd=PACKAGE.parent, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith('usage: python -m ase_reversible COMMAND')
+    assert 'python -m ase_reversible COMMAND --help' in done.stdout
+
+
 def test_console_script_points_at_the_command_line():
     pyproject = (PACKAGE.parent / 'pyproject.toml').read_text()
     assert 'ase-reversible = "ase_reversible.app.cli:main"' in pyproject

@@ -12,9 +12,11 @@ from ase import Atoms
 from ase.calculators.lj import LennardJones
 from ase.constraints import (FixAtoms, FixBondLengths, FixCartesian, FixCom,
                              FixedLine, FixedPlane, Hookean)
+from ase.md.velocitydistribution import Stationary
 
 from ase_reversible import (AnchorMovedWarning, NonFiniteForcesError,
-                            QuantumRangeError, ReversibleVerlet,
+                            NonFiniteStateError, QuantumRangeError,
+                            ReversibleNose, ReversibleVerlet,
                             UnsupportedConstraintError)
 from conftest import AR_RC, AR_SIGMA, DT, argon_cluster, asap_lj, ase_lj
 from exactness import (assert_atoms_show_committed_state, assert_same_state,
@@ -71,6 +73,14 @@ def with_entry(name, value):
     return spoil
 
 
+def with_cell_entry(value):
+    def spoil(atoms):
+        good = atoms.cell.copy()
+        atoms.cell.array[1, 1] = value
+        return lambda: atoms.set_cell(good)
+    return spoil
+
+
 def with_constraint(make):
     def spoil(atoms):
         atoms.set_constraint(make())
@@ -118,6 +128,8 @@ BAD_CONSTRUCTIONS = [
         UnsupportedConstraintError,
         '^FixedPlane together with FixCom is not supported.*FixCartesian',
         id='FixCom-with-FixedPlane'),
+    pytest.param(with_cell_entry(np.nan), {}, ValueError,
+                 'The cell has non-finite entries', id='cell-nan'),
     pytest.param(with_constraint(lambda: FixBondLengths([[0, 1], [2, 3]])),
                  {}, UnsupportedConstraintError,
                  '^FixBondLengths cannot be applied exactly',
@@ -434,6 +446,78 @@ def test_edit_between_runs_becomes_the_new_reversal_anchor(edit):
     # Back to the edit, not past it to the constructor state.
     run_back(dyn, 10, edited)
     assert dyn.get_time() == 10 * DT
+
+
+# -- values the grid cannot hold, set between runs ---------------------------
+#
+# The values they overwrote are gone: the integrator puts its last exact
+# state back on the atoms, says so, and reversal still reaches the anchor.
+
+UNHOLDABLE = [
+    ('positions', np.nan, NonFiniteStateError, 'position of atom 2 is NaN'),
+    ('positions', -np.inf, NonFiniteStateError,
+     'position of atom 2 is infinite'),
+    ('momenta', np.nan, NonFiniteStateError, 'momentum of atom 2 is NaN'),
+    ('momenta', np.inf, NonFiniteStateError, 'momentum of atom 2 is infinite'),
+    ('positions', 1e9, QuantumRangeError,
+     'position of atom 2 is outside the fixed-point range'),
+    ('momenta', -1e9, QuantumRangeError,
+     'momentum of atom 2 is outside the fixed-point range'),
+]
+
+
+def spoil_between_steps(atoms, name, value):
+    atoms.arrays[name][2, 1] = value
+    atoms.arrays[name][5, 0] = value
+
+
+@pytest.mark.parametrize('name, value, error, match', UNHOLDABLE,
+                         ids=[f'{n}-{v}' for n, v, _, _ in UNHOLDABLE])
+@pytest.mark.parametrize('loop', ['run', 'irun'])
+def test_unholdable_edit_between_runs_puts_the_last_exact_state_back(
+        loop, name, value, error, match):
+    atoms = argon()
+    dyn = ReversibleVerlet(atoms, DT)
+    start = snapshot(atoms)
+    if loop == 'run':
+        dyn.run(10)
+        spoil_between_steps(atoms, name, value)
+        last_exact = dyn.state
+        with pytest.raises(error, match=match) as refused:
+            dyn.run(5)
+    else:
+        with pytest.raises(error, match=match) as refused:
+            for _ in dyn.irun(15):
+                if dyn.nsteps == 10:
+                    last_exact = dyn.state
+                    spoil_between_steps(atoms, name, value)
+    # The message says what was done and that the way back works.
+    assert 'put back to the last exact state' in str(refused.value)
+    if error is NonFiniteStateError:
+        assert '1 more atom with' in str(refused.value)
+    assert dyn.nsteps == 10 and dyn.get_time() == 10 * DT
+    assert np.array_equal(dyn.state.ix_nc, last_exact.ix_nc)
+    assert np.array_equal(dyn.state.ip_nc, last_exact.ip_nc)
+    assert_atoms_show_committed_state(dyn)
+    run_back(dyn, 10, start)
+
+
+@pytest.mark.parametrize('name', ['positions', 'momenta'])
+def test_nan_set_on_a_nose_run_is_refused_and_runs_back(name):
+    atoms = argon()
+    Stationary(atoms)
+    dyn = ReversibleNose(atoms, DT, temperature_K=80, tdamp=100 * DT)
+    start = dyn.counts
+    dyn.run(6)
+    shown = snapshot(atoms)
+    spoil_between_steps(atoms, name, np.nan)
+    with pytest.raises(NonFiniteStateError, match='put back'):
+        dyn.run(4)
+    assert_same_state(atoms, shown)
+    dyn.reverse()
+    dyn.run(6)
+    for key, counts in dyn.counts.items():
+        assert np.array_equal(counts, start[key]), key
 
 
 @pytest.mark.parametrize('kwargs, message', [

@@ -37,10 +37,12 @@ from ase.io import read
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from ase_reversible import (AnchorMovedWarning, CoarseQuantumError,
-                            ReversibleVerlet, UnsupportedConstraintError)
+                            NonFiniteStateError, ReversibleVerlet,
+                            UnsupportedConstraintError)
 from conftest import DT, argon_cluster, ase_lj, copper_bulk, thermalize
 from exactness import (assert_atoms_show_committed_state, assert_same_state,
                        run_back, snapshot)
+from tiers import tiered
 
 
 # -- helpers --------------------------------------------------------------------
@@ -238,6 +240,22 @@ def test_cell_change_between_runs_anchors_reversal_at_the_change():
     assert_state_is_anchor(dyn)
 
 
+@pytest.mark.parametrize('value', [np.nan, np.inf])
+def test_non_finite_cell_is_refused_until_set_back(value):
+    atoms = copper()
+    dyn = ReversibleVerlet(atoms, DT)
+    start = snapshot(atoms)
+    dyn.run(10)
+    before, cell = snapshot(atoms), atoms.cell.copy()
+    atoms.cell.array[2, 2] = value
+    with pytest.raises(ValueError, match='cell has non-finite entries'):
+        dyn.run(5)
+    assert dyn.nsteps == 10
+    assert_same_state(atoms, before)
+    atoms.set_cell(cell)  # undone: the anchor is still the constructor's
+    run_back(dyn, 10, start)
+
+
 # 6. calc.set(epsilon=...) between the way out and the way back
 def test_calc_parameter_change_between_out_and_back_anchors_there():
     atoms = argon()
@@ -380,6 +398,82 @@ def test_stored_results_attached_while_running_are_refused():
     assert_same_state(atoms, before)
     atoms.calc = calc  # undone: the anchor is still the constructor's
     run_back(dyn, 10, start)
+
+
+def test_backpropagate_over_more_steps_than_the_anchor_allows_is_refused():
+    atoms = argon()
+    dyn = ReversibleVerlet(atoms, DT)
+    start = snapshot(atoms)
+    dyn.run(10)
+    after_run = snapshot(atoms)
+    gradient = np.ones((len(atoms), 3))
+    with pytest.raises(ValueError, match='only 10 were taken'):
+        dyn.backpropagate(11, gradient)
+    assert_same_state(atoms, after_run)
+    assert dyn.dt > 0
+    dyn.backpropagate(10, gradient)
+    assert_same_state(atoms, start)
+
+
+# An observer that changes the atoms at every step: every change is taken,
+# but warned once when it first happens and once, with the count, when the
+# run ends, not once per step.
+
+def wrap_into_the_cell(atoms):
+    atoms.wrap()
+
+
+def rescale_momenta(atoms):
+    atoms.set_momenta(1.0001 * atoms.get_momenta())
+
+
+@pytest.mark.parametrize('change', [wrap_into_the_cell, rescale_momenta])
+@pytest.mark.parametrize('loop', ['run', 'irun'])
+def test_an_observer_changing_the_atoms_every_step_warns_twice_per_run(
+        change, loop):
+    atoms = argon()
+    atoms.pbc = True  # wrap() round-trips through fractional coordinates
+    dyn = ReversibleVerlet(atoms, DT)
+    changed = []  # did each observer call change positions or momenta?
+
+    def observer():
+        before = snapshot(atoms)
+        change(atoms)
+        changed.append(not (np.array_equal(atoms.positions, before[0])
+                            and np.array_equal(atoms.get_momenta(),
+                                               before[1])))
+    dyn.attach(observer)
+    for run in range(2):
+        with warnings.catch_warnings(record=True) as record:
+            warnings.simplefilter('always')
+            if loop == 'run':
+                dyn.run(20)
+            else:
+                for _ in dyn.irun(20):
+                    pass
+        # The first run's observer calls 0..19 (its call 20 follows the
+        # last step) are taken by its steps 1..20; the next run's first
+        # check takes call 20, its steps take calls 21..39 (call 0 came
+        # before the first step, when nsteps was 0).
+        taken = sum(changed[:20]) if run == 0 else sum(changed[20:40])
+        assert taken >= 2, 'the observer did not change the atoms'
+        warned = moves(record)
+        assert len(warned) == 2, warned
+        assert warned[0].startswith('Positions or momenta were changed')
+        assert f'again at {taken - 1} more steps of this run' in warned[1]
+        assert f'last at time {dyn.get_time() / units.fs - 5:.6g} fs' \
+            in warned[1]
+    # Counted, not skipped: the last change is the anchor.
+    assert dyn.engine.steps_since_anchor == 1
+
+
+def test_each_run_warns_its_own_first_change_at_once():
+    atoms = argon()
+    dyn = ReversibleVerlet(atoms, DT)
+    for _ in range(3):
+        dyn.run(2)
+        atoms.positions[0, 0] += 0.01
+        assert len(take_pending(dyn)) == 1
 
 
 # -- 2. property: random sequences of runs, reversals and user actions -------
@@ -578,6 +672,24 @@ class Example:
         self.atoms.info.pop('reversible', None)
         return SILENT
 
+    def unholdable_value(self, name, atom, value):
+        # The overwritten values are gone: the integrator puts its last
+        # exact state back itself, the anchor stays.
+        before, anchor = snapshot(self.atoms), self.dyn.anchor
+        self.atoms.arrays[name][atom, 1] = value
+        with pytest.raises(NonFiniteStateError, match='put back'):
+            self.dyn.run(0)
+        assert_same_state(self.atoms, before)
+        assert same_fixed_point_state(self.dyn.anchor, anchor)
+        return SILENT
+
+    def non_finite_cell(self):
+        accepted = self.atoms.cell.copy()
+        self.atoms.cell.array[0, 0] = np.nan
+        self.refused(ValueError, 'cell has non-finite entries')
+        self.atoms.set_cell(accepted)
+        return SILENT
+
     def refused(self, error, match):
         """``run(0)`` raises ``error`` and changes neither state nor anchor."""
         before, anchor = snapshot(self.atoms), self.dyn.anchor
@@ -656,6 +768,10 @@ common_actions = [
     st.tuples(st.just('remove_calc'), st.booleans()),
     st.just(('edit_info',)),
     st.just(('wrap',)),
+    st.tuples(st.just('unholdable_value'),
+              st.sampled_from(['positions', 'momenta']), atom_index,
+              st.sampled_from([np.nan, np.inf, -np.inf])),
+    st.just(('non_finite_cell',)),
 ]
 ACTIONS = {
     'argon': st.one_of(
@@ -677,7 +793,8 @@ def action_sequences(system):
                                      for step in (('run', steps), action)])
 
 
-@pytest.mark.parametrize('system', ['argon', 'copper'])
+@pytest.mark.parametrize('system', tiered(['argon', 'copper'],
+                                          quick=['argon']))
 @settings(max_examples=40, deadline=None, derandomize=True, database=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture,
                                  HealthCheck.too_slow])

@@ -8,6 +8,7 @@ window would send them.
 import matplotlib
 import numpy as np
 import pytest
+from ase import units
 from ase.calculators.lj import LennardJones as AseLennardJones
 from ase.io import Trajectory
 from ase.md.verlet import VelocityVerlet
@@ -243,6 +244,70 @@ def test_command_line_from_a_trajectory(tmp_path):
     assert cli.flipbook([str(path), '--index', '2', '--calculator',
                          'lj-argon', '--png', '3', '--out', str(png)]) == 0
     assert png.exists()
+
+
+def test_a_flipbook_on_a_trajectory_frame_shows_the_frames_own_time(
+        tmp_path, monkeypatch):
+    atoms = argon_cluster(2, 60.0)
+    atoms.calc = AseLennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON,
+                                 rc=AR_RC)
+    path = tmp_path / 'md.traj'
+    run = ReversibleVerlet(atoms, DT, trajectory=str(path))
+    written = []  # the run's clock at each frame, in the order written
+    run.attach(lambda: written.append(run.get_time()))
+    run.run(4)
+    assert written[2] > 0
+
+    # What the command line does with --index 2: the clock goes on from
+    # the frame's restart record, and every picture's title shows it.
+    captions = []
+
+    class Recording(Flipbook):
+        def draw(self, ax=None, title=True):
+            captions.append((self.frame, self.time, self.caption()))
+            return super().draw(ax, title)
+    monkeypatch.setattr(cli, 'Flipbook', Recording)
+    assert cli.flipbook([str(path), '--index', '2', '--calculator',
+                         'lj-argon', '--gif', '2', '--out',
+                         str(tmp_path / 'frames.gif')]) == 0
+    seen = {frame: (time, caption) for frame, time, caption in captions}
+    assert sorted(seen) == [0, 1, 2]
+    for frame, (time, caption) in seen.items():
+        expected = written[2] + frame * DT
+        assert time == pytest.approx(expected, rel=1e-12)
+        assert f't = {expected / units.fs:.6g} fs' in caption
+    assert seen[0][0] == written[2]  # frame 0 is the frame's own time
+
+
+def test_a_flipbook_on_a_trajectory_frame_retraces_the_files_frames(
+        tmp_path, monkeypatch, capsys):
+    # Another time step, order and stride than the command line's defaults
+    # (5 fs, order 2, 1): they come from the trajectory's header.  The
+    # calculator is the one --calculator lj-argon attaches.
+    from ase_reversible import LennardJones
+    atoms = argon_cluster(2, 60.0)
+    atoms.calc = LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC)
+    path = tmp_path / 'md.traj'
+    ReversibleVerlet(atoms, 2 * units.fs, trajectory=str(path),
+                     loginterval=3, order=4).run(15)
+    books = []
+    monkeypatch.setattr(cli, 'Flipbook',
+                        lambda dyn, **kw: books.append(Flipbook(dyn, **kw))
+                        or books[-1])
+    assert cli.flipbook([str(path), '--index', '1', '--calculator',
+                         'lj-argon', '--png', '3', '--out',
+                         str(tmp_path / 'frame.png')]) == 0
+    assert 'time step 2 fs, scheme velocity, order 4' in \
+        capsys.readouterr().out
+    assert books[0].stride == 3
+    book, = books
+    with Trajectory(str(path)) as frames:
+        for frame in (3, 0, 2):
+            book.goto(frame)
+            assert np.array_equal(book.atoms.positions,
+                                  frames[1 + frame].positions)
+            assert np.array_equal(book.atoms.get_momenta(),
+                                  frames[1 + frame].get_momenta())
 
 
 @pytest.mark.parametrize('argv, message', [

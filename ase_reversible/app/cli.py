@@ -1,5 +1,5 @@
-"""The command line: ``python -m ase_reversible COMMAND`` and the
-``ase-reversible`` console script.
+"""The command line: the ``ase-reversible`` console script and
+``python -m ase_reversible``, both ``COMMAND [options]``.
 
 ``demo`` runs :mod:`ase_reversible.app.demo`; ``flipbook`` opens a
 :class:`~ase_reversible.Flipbook` on a scene of
@@ -29,25 +29,30 @@ COMMANDS = {
 }
 
 
-def main(argv=None):
+#: How the console script is called; ``python -m ase_reversible`` passes
+#: its own name, so that usage lines show the command that was typed.
+PROG = 'ase-reversible'
+
+
+def main(argv=None, prog=PROG):
     """Dispatch ``argv`` (default ``sys.argv[1:]``) to its command; returns
-    the exit status."""
+    the exit status.  ``prog``: the command as typed, for usage lines."""
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ('-h', '--help'):
-        print('usage: python -m ase_reversible COMMAND [options]\n')
+        print(f'usage: {prog} COMMAND [options]\n')
         for name, what in COMMANDS.items():
             print(f'  {name:9} {what}')
-        print('\npython -m ase_reversible COMMAND --help for its options')
+        print(f'\n{prog} COMMAND --help for its options')
         return 0 if argv else 2
     if argv[0] == 'demo':
-        return demo.main(argv[1:])
+        return demo.main(argv[1:], prog=f'{prog} demo')
     if argv[0] == 'flipbook':
-        return flipbook(argv[1:])
+        return flipbook(argv[1:], prog=f'{prog} flipbook')
     if argv[0] == 'lammps':
         from ..lammps.script import main as lammps_script
-        return lammps_script(argv[1:])
-    print(f'unknown command {argv[0]!r}; try: python -m ase_reversible '
-          f'{" or ".join(COMMANDS)}', file=sys.stderr)
+        return lammps_script(argv[1:], prog=f'{prog} lammps')
+    print(f'unknown command {argv[0]!r}; the commands are '
+          f'{", ".join(COMMANDS)} ({prog} --help)', file=sys.stderr)
     return 2
 
 
@@ -61,13 +66,13 @@ CALCULATORS = {
 }
 
 
-def flipbook(argv=None):
-    """``python -m ase_reversible flipbook``: see ``--help``.
+def flipbook(argv=None, prog='ase-reversible flipbook'):
+    """``ase-reversible flipbook``: see ``--help``.
 
     Returns the exit status.
     """
     parser = argparse.ArgumentParser(
-        prog='python -m ase_reversible flipbook',
+        prog=prog,
         description='Step a simulation forward and backward on demand, '
                     'without storing frames.  Keys: right/left one frame, '
                     'up/down ten, PageUp/PageDown a hundred, Home frame 0.')
@@ -79,8 +84,11 @@ def flipbook(argv=None):
     parser.add_argument('--calculator', choices=sorted(CALCULATORS),
                         help='calculator for a trajectory file')
     parser.add_argument('--timestep', type=float,
-                        help='fs (default: the scene\'s; 5 for files)')
-    parser.add_argument('--stride', type=int, help='steps per frame')
+                        help='fs (default: the scene\'s; for a file, its '
+                             'trajectory header\'s, else 5)')
+    parser.add_argument('--stride', type=int,
+                        help='steps per frame (default: the scene\'s; for '
+                             'a file, the steps between its frames, else 1)')
     parser.add_argument('--plane', choices=sorted(PLANES),
                         help='axes shown (default: the scene\'s; xy)')
     parser.add_argument('--png', type=int, metavar='FRAME',
@@ -99,6 +107,7 @@ def flipbook(argv=None):
                   file=sys.stderr)
             return 2
 
+    dynamics = {}
     if args.source in SCENES:
         scene = SCENES[args.source]()
         atoms, timestep, stride, view = (scene.atoms, scene.timestep,
@@ -119,7 +128,14 @@ def flipbook(argv=None):
         except ImportError:
             parser.error(f'--calculator {args.calculator} needs {module}, '
                          'which is not installed')
-        timestep, stride, view = 5 * units.fs, 1, AtomsView()
+        dynamics = recorded_dynamics(path)
+        timestep, stride, view = (dynamics.pop('timestep', 5 * units.fs),
+                                  dynamics.pop('stride', 1), AtomsView())
+        if dynamics:
+            print(f'from the trajectory header: time step '
+                  f'{timestep / units.fs:g} fs, scheme {dynamics["scheme"]}, '
+                  f'order {dynamics["order"]} ({dynamics["composition"]}), '
+                  f'{stride} steps per frame')
     if args.timestep is not None:
         timestep = args.timestep * units.fs
     if args.stride is not None:
@@ -129,8 +145,8 @@ def flipbook(argv=None):
     if (args.png is not None or args.gif is not None) and not args.out:
         parser.error('--png and --gif need --out FILE')
 
-    book = Flipbook(ReversibleVerlet(atoms, timestep), stride=stride,
-                    view=view)
+    book = Flipbook(ReversibleVerlet(atoms, timestep, **dynamics),
+                    stride=stride, view=view)
     if args.png is not None:
         print('wrote', book.render(args.png, args.out))
         return 0
@@ -142,3 +158,31 @@ def flipbook(argv=None):
         return 0
     book.show()
     return 0
+
+
+def recorded_dynamics(path):
+    """What a ``.traj`` file's header records of the ReversibleVerlet run
+    that wrote it: ``timestep`` (ASE time units), ``scheme``, ``order``,
+    ``composition`` and, as ``stride``, the steps between its frames;
+    empty for any other file or dynamics.
+
+    Without these a frame would be browsed with other dynamics than the
+    run's, still exactly reversible but not retracing the file's frames.
+    """
+    if Path(path).suffix != '.traj':
+        return {}
+    from ase.io.trajectory import Trajectory
+    try:
+        with Trajectory(str(path)) as trajectory:
+            header = trajectory.description
+    except Exception:  # not a trajectory ASE can open: no header
+        return {}
+    keys = ('timestep', 'scheme', 'order', 'composition')
+    if header.get('md-type') != 'ReversibleVerlet' or \
+            not all(key in header for key in keys):
+        return {}
+    # The sign says which way the run went when the file was opened.
+    return {'timestep': abs(float(header['timestep'])),
+            'scheme': header['scheme'], 'order': int(header['order']),
+            'composition': header['composition'],
+            'stride': max(1, int(header.get('interval', 1)))}

@@ -67,9 +67,9 @@ def exponent(q):
     return math.frexp(q)[1] - 1
 
 
-def main(argv=None):
+def main(argv=None, prog='ase-reversible demo'):
     parser = argparse.ArgumentParser(
-        prog='python -m ase_reversible demo',
+        prog=prog,
         description='Reverse a hot argon cluster bit for bit.')
     parser.add_argument('--atoms', type=int, default=147,
                         choices=sorted(ICOSAHEDRON_SHELLS))

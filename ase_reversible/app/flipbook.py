@@ -89,9 +89,12 @@ class Flipbook:
         self.view = AtomsView() if view is None else view
         self.first, self.last = first, last
         self.figsize = figsize
-        #: Step count and time of the dynamics at frame 0.
+        #: Step count of the dynamics at frame 0.
         self._origin = dyn.step_index
-        self._time0 = dyn.get_time()
+        #: Simulated time at frame 0, ASE time units: the dynamics' clock,
+        #: which a run resumed from a trajectory frame continues from the
+        #: frame's restart record, not 0.
+        self.time0 = dyn.get_time()
         self.limits = self._default_limits() if limits is None else limits
         self._figure = None
         self._message = ''
@@ -120,9 +123,11 @@ class Flipbook:
 
     @property
     def time(self) -> float:
-        """Simulated time since frame 0, ASE time units (real time: for
+        """Simulated time of the current state, ASE time units: the
+        dynamics' ``get_time()``, continued from the restart record of a
+        frame the run resumed (:attr:`time0` at frame 0; real time, for
         ReversibleNose not a multiple of the time step)."""
-        return self.dyn.get_time() - self._time0
+        return self.dyn.get_time()
 
     # -- moving ----------------------------------------------------------
 
@@ -198,12 +203,13 @@ class Flipbook:
 
     def caption(self):
         """``frame k  step s  t = ... fs  (forward)``: where the flipbook
-        is and which way it last moved, plus the last error if any."""
+        is (frame and step from frame 0, the simulated time), which way it
+        last moved, and the last error if any."""
         frame = self.frame
         frame = f'{frame:d}' if isinstance(frame, int) else f'{frame:.3g}'
         from ase import units
         text = (f'frame {frame}   step {self.steps}   '
-                f't = {self.time / units.fs:.4g} fs')
+                f't = {self.time / units.fs:.6g} fs')
         if self._heading:
             text += f'   ({self._heading})'
         return f'{text}\n{self._message}' if self._message else text

@@ -162,17 +162,19 @@ def _lines(path):
         yield start, pending
 
 
-def main(argv=None):
+def main(argv=None, prog='python -m ase_reversible.lammps'):
     """``python -m ase_reversible.lammps INPUT [LAMMPS options]`` (or
-    ``-in INPUT`` among them, as for ``lmp``); returns the exit status."""
+    ``-in INPUT`` among them, as for ``lmp``); returns the exit status.
+    ``prog``: the command as typed, for the usage line."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    usage = USAGE.replace('python -m ase_reversible.lammps', prog)
     if not argv or argv[0] in ('-h', '--help'):
-        print(USAGE)
+        print(usage)
         print(__doc__.split('\n\n', 2)[2])
         return 0 if argv else 2
     path, lammps_args = _input_and_options(argv)
     if path is None:
-        print(USAGE, file=sys.stderr)
+        print(usage, file=sys.stderr)
         return 2
     if not path.exists():
         print(f'no such input script: {path}', file=sys.stderr)

@@ -20,11 +20,12 @@ from ase.md.md import MolecularDynamics
 
 from ..adjoint import Cotangents, Gradients, hvp_for
 from ..adjoint.cotangents import checked_gradient, checked_parameters
-from ..core.codec import encode
+from ..core.codec import LIMIT, encode
 from ..core.quanta import choose_grid
 from ..core.record import (INFO_KEY, RecordWriter, read_record,
                            record_mismatch)
-from ..errors import AnchorMovedWarning
+from ..errors import (AnchorMovedWarning, NonFiniteStateError,
+                      QuantumRangeError)
 from ..purity import calculator_members, discard_results, force_provider
 from .checks import (check_calculator, check_energy_watch, check_steps,
                      check_timestep, checked_masses, fixed,
@@ -32,7 +33,8 @@ from .checks import (check_calculator, check_energy_watch, check_steps,
 from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian
 from .state import FixedPointState
-from .watch import EQUAL_CALCULATOR, same_values
+from .watch import (EQUAL_CALCULATOR, AnchorMoves, check_finite_cell,
+                    non_finite, refuse_unholdable_values, same_values)
 
 
 
@@ -110,6 +112,8 @@ class ReversibleDynamics(MolecularDynamics):
     """
 
     engine = None
+    #: The running run's :class:`~.watch.AnchorMoves`, None between runs.
+    _moves = None
     #: Sections of the restart record a subclass writes and reads besides
     #: the quanta and the time (written by ``_record_sections``).
     record_sections = ()
@@ -157,14 +161,14 @@ class ReversibleDynamics(MolecularDynamics):
             self.engine.invariant.arm_for_retrace()
         if taken:
             old, new = abs(old), abs(value)
-            warnings.warn(
+            self._anchor_moved(
+                'the size of the time step changed',
                 f'The time step changed from {old / units.fs:g} fs to '
                 f'{new / units.fs:g} fs after {abs(taken)} steps. The new '
                 'step is used from here; reversal with it leads back to '
                 f'this point (time {self.get_time() / units.fs:.6g} fs), not '
                 'beyond. To retrace the earlier steps exactly, set dt back '
-                f'to {old / units.fs:g} fs (negated) here.',
-                AnchorMovedWarning, stacklevel=2)
+                f'to {old / units.fs:g} fs (negated) here.', stacklevel=2)
 
     def reverse(self):
         """Flip the direction of time: further steps retrace the path.
@@ -213,22 +217,31 @@ class ReversibleDynamics(MolecularDynamics):
     def _loop(self, steps, alone):
         """``irun``'s generator; ``alone``: the caller runs no code of its
         own between the steps (``run``)."""
-        self._sync()
-        self.max_steps = self.nsteps + steps
-        if self.nsteps == 0:
-            self._ready()
-            self.log()
-            self.call_observers()
-        yield self.nsteps == self.max_steps
-        if alone and not self.observers and self._plain_hooks():
-            yield from self._unwatched_steps()
-            return
-        while self.nsteps < self.max_steps:
-            self.step()
-            self.nsteps += 1
-            self.log()
-            self.call_observers()
+        # A run that starts while another is open (an irun left unfinished,
+        # a run inside an observer) takes over the collapsing: the other
+        # warns each change from then on rather than losing any.
+        moves = self._moves = AnchorMoves(type(self).__name__)
+        try:
+            self._sync()
+            self.max_steps = self.nsteps + steps
+            if self.nsteps == 0:
+                self._ready()
+                self.log()
+                self.call_observers()
             yield self.nsteps == self.max_steps
+            if alone and not self.observers and self._plain_hooks():
+                yield from self._unwatched_steps()
+                return
+            while self.nsteps < self.max_steps:
+                self.step()
+                self.nsteps += 1
+                self.log()
+                self.call_observers()
+                yield self.nsteps == self.max_steps
+        finally:
+            if self._moves is moves:
+                self._moves = None
+            moves.summarise(stacklevel=3 if alone else 2)
 
     def _plain_hooks(self):
         cls = type(self)
@@ -499,12 +512,26 @@ class ReversibleDynamics(MolecularDynamics):
                 and momenta is not None
                 and same_values(momenta, self.system.shown_momenta())):
             return
-        self._install(self._encode(atoms, self.system.project))
-        warnings.warn(
-            f'Positions or momenta were changed outside {type(self).__name__}. The '
-            'change was taken and snapped to the grid; reversal now leads '
-            f'back to this point (time {self.get_time() / units.fs:.6g} fs), '
-            'not beyond.', AnchorMovedWarning, stacklevel=3)
+        self._install(self._edited_counts(atoms, self.system.project))
+        name = type(self).__name__
+        self._anchor_moved(
+            f'positions or momenta changed outside {name}',
+            f'Positions or momenta were changed outside {name}. The change '
+            'was taken and snapped to the grid; reversal now leads back to '
+            'this point (time '
+            f'{self.get_time() / units.fs:.6g} fs), not beyond.',
+            stacklevel=3)
+
+    def _anchor_moved(self, kind, message, stacklevel):
+        """Warn that the anchor moved (:class:`AnchorMovedWarning`); within
+        a run, a ``kind`` already warned is counted for the run's summary
+        instead (:class:`~.watch.AnchorMoves`)."""
+        if self._moves is None:
+            warnings.warn(message, AnchorMovedWarning,
+                          stacklevel=stacklevel + 1)
+        else:
+            self._moves.warn(kind, message, stacklevel + 1,
+                             self.get_time() / units.fs)
 
     def _take_changes(self, changes):
         """Take a change of the dynamics, or refuse it leaving all as was.
@@ -522,8 +549,13 @@ class ReversibleDynamics(MolecularDynamics):
             raise RuntimeError('The atoms lost their calculator; attach one '
                                '(atoms.calc = ...) before running.')
         check_calculator(atoms.calc, 'running')
+        check_finite_cell(atoms, 'Set it back (atoms.set_cell) to go on: '
+                          'nothing was changed.')
         project = constraint_projection(atoms)
         masses_n = checked_masses(atoms)
+        # Before the force provider is chosen: a probe would call the
+        # calculator at these positions.
+        counts = self._edited_counts(atoms, project)
         # Any change may alter how pure the forces are (a new calculator or
         # cut-off, atoms now near a periodic face): choose again.
         purity = force_provider(atoms, *self._purity_choice)
@@ -532,7 +564,6 @@ class ReversibleDynamics(MolecularDynamics):
             self._watch.take(atoms)
             self.system.kick.forget()
             return False
-        counts = self._encode(atoms, project)
         # ASE's Calculator.set keeps results (and ASE's LennardJones its
         # neighbour list) from before the change: the first kick after it
         # would use them.  reset() is ASE's way to drop all of that.
@@ -546,14 +577,16 @@ class ReversibleDynamics(MolecularDynamics):
         self._watch.take(atoms)
         self.engine.set_dt(self.engine.dt)  # coefficients use the masses
         self._install(counts)
-        warnings.warn(
-            f'Changed outside {type(self).__name__} since the last step: '
-            f'{", ".join(changes)}. The change was taken (positions and '
+        name, changed = type(self).__name__, ", ".join(changes)
+        self._anchor_moved(
+            f'{changed} changed outside {name}',
+            f'Changed outside {name} since the last step: {changed}. The '
+            'change was taken (positions and '
             'momenta snapped to the grid, momenta projected onto the '
             'constraints); reversal now leads back to this point (time '
             f'{self.get_time() / units.fs:.6g} fs), not beyond. To retrace '
             'further back exactly, undo the change when you get here.',
-            AnchorMovedWarning, stacklevel=4)
+            stacklevel=4)
         return True
 
     def _change_setting(self, what, assign):
@@ -566,11 +599,52 @@ class ReversibleDynamics(MolecularDynamics):
         self.engine.set_dt(self.engine.dt)  # prepare with the new setting
         self._install(self.engine.snapshot())
         if taken:
-            warnings.warn(
-                f'The {what} of {type(self).__name__} changed after {taken} '
-                'steps; reversal now leads back to this point (time '
+            changed = f'{what} of {type(self).__name__} changed'
+            self._anchor_moved(
+                f'the {changed}', f'The {changed} after {taken} steps; '
+                'reversal now leads back to this point (time '
                 f'{self.get_time() / units.fs:.6g} fs), not beyond.',
-                AnchorMovedWarning, stacklevel=3)
+                stacklevel=3)
+
+    def _edited_counts(self, atoms, project):
+        """The counts of positions and momenta set on the atoms between
+        runs, or, if the grid cannot hold them (NaN, infinite, out of
+        range), the last exact state put back on the atoms and an error
+        that says so: the values the edit replaced are gone, and without
+        them neither the run nor its reversal could go on."""
+        problem, error = non_finite(atoms), NonFiniteStateError
+        advice = 'To change the state, set finite values.'
+        if problem is None:
+            error = QuantumRangeError
+            advice = ('To change the state, set values within the range of '
+                      'the grid (dyn.grid); a larger range needs a new '
+                      'integrator with a larger position_quantum or '
+                      'momentum_quantum.')
+            # A virtual momentum (ReversibleNose) is not range-checked
+            # when made: an out-of-range float casts to a count outside
+            # (-LIMIT, LIMIT), refused below.
+            with np.errstate(invalid='ignore'):
+                try:
+                    counts = self._encode(atoms, project)
+                except QuantumRangeError as refused:
+                    problem = 'the ' + str(refused).removesuffix(
+                        ' Choose a larger quantum.')
+                else:
+                    problem = next(
+                        (f'a {name} is outside the fixed-point range'
+                         for name, c in counts.items()
+                         if not ((c > -LIMIT) & (c < LIMIT)).all()), None)
+            if problem is None:
+                return counts
+        self.system.show()
+        raise error(
+            f'Refused an edit made outside {type(self).__name__} since the '
+            f'last step: {problem.rstrip(".")}. The fixed-point grid cannot '
+            'hold it, and the values it replaced are gone, so the atoms were '
+            'put back to the last exact state (positions and momenta at time '
+            f'{self.get_time() / units.fs:.6g} fs): reverse() and further '
+            'runs go on from there as if the edit had not been made. '
+            + advice)
 
     def _encode(self, atoms, project):
         return encoded(atoms, self.system.x.quantum, self.system.p.quantum,
@@ -594,6 +668,7 @@ class ReversibleDynamics(MolecularDynamics):
         to ``max_kick`` ASE time units) and refuses a quantum that would
         visibly change the momenta, all before anything is changed.
         """
+        refuse_unholdable_values(atoms)
         masses_n, project, purity, record = self._admit(
             atoms, force_purity, force_noise)
         grid = checked_grid(atoms, masses_n, project, purity, max_kick,

@@ -19,6 +19,10 @@ step for 144 atoms under asap3 EMT and 67 µs for 32,000, timed inside the
 steps, at most 1% of a step; with and without it the step times were
 within the noise of the rounds in all 13 cases.
 
+Also here: what an edit may not set (NaN or infinite positions, momenta
+or cell entries), and :class:`AnchorMoves`, which collapses the warnings
+of a change repeated at every step of a run into two.
+
 What it cannot see, and the user guide says so: a constraint object
 modified in place (set the constraints again instead), and calculator
 settings changed other than through ``calc.parameters`` (``calc.set``
@@ -31,9 +35,12 @@ from __future__ import annotations
 import copy
 import functools
 import operator
+import warnings
 
 import numpy as np
+from ase import Atoms
 
+from ..errors import AnchorMovedWarning, NonFiniteStateError
 from ..purity import calculator_members, mixture
 
 #: The change reported for a calculator replaced by an equal one: same
@@ -146,6 +153,108 @@ class SystemWatch:
                 and isinstance(calc, Calculator)
                 and mixture(calc) is None
                 and _equal(dict(calc.parameters), old.values))
+
+
+class AnchorMoves:
+    """The anchor-moved warnings of one run, collapsed.
+
+    An observer that wraps the atoms or rescales the momenta changes them
+    at every step, and every step's change is taken: one warning per step
+    would bury the output, and Python's warning filter cannot collapse
+    them (each text names another time).  So the first change of a kind
+    is warned at once, and repeats are counted and summed up in one
+    warning when the run ends (or fails, or its ``irun`` is closed).
+    """
+
+    def __init__(self, name):
+        self.name = name
+        #: kind -> [repeats, time of the first, time of the last (fs)]
+        self._seen = {}
+
+    def warn(self, kind, message, stacklevel, time):
+        """Issue ``message`` if no change of ``kind`` (a phrase such as
+        ``'the cell changed outside ReversibleVerlet'``) was warned in this
+        run, else count it; ``time`` (fs) is where the anchor now is."""
+        seen = self._seen.get(kind)
+        if seen is None:
+            self._seen[kind] = [0, time, time]
+            warnings.warn(message, AnchorMovedWarning,
+                          stacklevel=stacklevel + 1)
+        else:
+            seen[0] += 1
+            seen[2] = time
+
+    def summarise(self, stacklevel):
+        """One warning per kind of change that recurred in the run."""
+        for kind, (repeats, first, last) in self._seen.items():
+            if repeats:
+                warnings.warn(
+                    f'The change warned at time {first:.6g} fs ({kind}) was '
+                    f'made again at {repeats} more '
+                    f'step{"s" if repeats > 1 else ""} of this run and taken '
+                    'each time: the anchor of reversal moved at every one, '
+                    f'last at time {last:.6g} fs; reversal now leads back '
+                    'there, not beyond. Code run between the steps (an '
+                    'observer that wraps the atoms or rescales the momenta) '
+                    'makes such changes: to analyse the atoms without '
+                    f'changing the run of {self.name}, work on a copy '
+                    '(atoms.copy()).',
+                    AnchorMovedWarning, stacklevel=stacklevel + 1)
+        self._seen.clear()
+
+
+def check_finite_cell(atoms, advice):
+    """Raise ``ValueError`` (with ``advice``) if the cell holds a NaN or an
+    infinity: otherwise the change would be taken and the first force call
+    would fail with a message that does not name the cell."""
+    cell = atoms.cell.array
+    if not np.isfinite(cell).all():
+        raise ValueError(
+            f'The cell has non-finite entries (NaN or infinite): '
+            f'{cell.tolist()}. {advice}')
+
+
+def refuse_unholdable_values(atoms):
+    """Refuse atoms with a NaN or infinite position, momentum or cell entry
+    (:class:`~ase_reversible.NonFiniteStateError`, ``ValueError``), naming
+    the atom, before a constructor changes anything."""
+    if not isinstance(atoms, Atoms):
+        return  # refused with advice by the admission
+    check_finite_cell(atoms, 'Set a finite cell (atoms.set_cell).')
+    problem = non_finite(atoms)
+    if problem is not None:
+        name = 'positions' if 'position' in problem else 'momenta'
+        raise NonFiniteStateError(
+            f'The atoms have non-finite {name}: {problem}. Set finite '
+            'positions and momenta before constructing the integrator.')
+
+
+def non_finite(atoms):
+    """What is wrong with the atoms' positions or momenta, or None.
+
+    A phrase such as ``'the position of atom 3 is NaN'``, naming the first
+    atom with a NaN or infinite position (else momentum) and how many
+    more have one; None if all are finite.  Not on the per-step path: it
+    runs only once an edit has been seen.
+    """
+    for name, what in (('positions', 'position'), ('momenta', 'momentum')):
+        values = atoms.arrays.get(name)
+        if values is None:
+            continue
+        finite = np.isfinite(values)
+        if finite.all():
+            continue
+        rows = np.flatnonzero(~finite.reshape(len(values), -1).all(axis=1))
+        atom = int(rows[0])
+        value = values[atom][~finite[atom]][0]
+        text = (f'the {what} of atom {atom} is '
+                f'{"NaN" if np.isnan(value) else "infinite"}')
+        if len(rows) > 1:
+            more = len(rows) - 1
+            text += (f' (and {more} more atom{"s" if more > 1 else ""} with '
+                     f'a non-finite {what})')
+        return text
+    return None
 
 
 def same_values(a, b) -> bool:
