@@ -14,7 +14,8 @@ integrators), :mod:`.purity` (forces as a pure function of positions),
 """
 
 from .errors import (AnchorMovedWarning, CoarseQuantumError,
-                     ImpureForcesError, NonFiniteForcesError,
+                     ImpureForcesError, MachineChangedWarning,
+                     NonFiniteForcesError,
                      QuantumRangeError, RetraceLimitError,
                      ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
@@ -34,6 +35,6 @@ __all__ = ['ReversibleVerlet', 'ReversibleLangevin', 'ReversibleNose',
            'check_calculator', 'CalculatorCheck',
            'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',
            'Flipbook', 'AnalyticHVP', 'FiniteDifferenceHVP',
-           'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
+           'AnchorMovedWarning', 'MachineChangedWarning', 'ReversibilityError', 'QuantumRangeError',
            'NonFiniteForcesError', 'RetraceLimitError', 'ImpureForcesError', 'CoarseQuantumError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

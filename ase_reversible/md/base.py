@@ -24,13 +24,15 @@ from ..core.codec import encode
 from ..core.quanta import choose_grid
 from ..core.record import (INFO_KEY, RecordWriter, read_record,
                            record_mismatch)
-from ..errors import AnchorMovedWarning
+from ..errors import AnchorMovedWarning, MachineChangedWarning
 from ..purity import calculator_members, discard_results, force_provider
 from .checks import (check_calculator, check_energy_watch, check_steps,
                      check_timestep, checked_masses, fixed,
                      refuse_coarse_momentum_quantum)
 from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian
+from .machine import SECTION as MACHINE, compare, describe, differences, \
+    frame_section, platform
 from .state import FixedPointState
 from .watch import EQUAL_CALCULATOR, same_values
 
@@ -62,6 +64,7 @@ class ReversibleDynamics(MolecularDynamics):
     """
 
     engine = None
+    _forces_match_record = None
     #: Sections of the restart record a subclass writes and reads besides
     #: the quanta and the time (written by ``_record_sections``).
     record_sections = ()
@@ -76,10 +79,13 @@ class ReversibleDynamics(MolecularDynamics):
             {name: v.quantum for name, v in engine.variables.items()})
 
     def _start(self, watch):
-        """After ASE's constructor: watch the atoms, show the exact state."""
+        """After ASE's constructor: watch the atoms, show the exact state,
+        and check that a resumed frame's forces are those of its record."""
         self._watch = watch
         self.masses = self.system.m_n1
         self._show_anchor()
+        self._forces_match_record = self._check_machine(
+            getattr(self, '_resumed_machine', None))
 
     # -- time -------------------------------------------------------------
 
@@ -222,8 +228,16 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _committed(self):
         self.system.show_momenta()
-        self._write_record(self.atoms.info, self.get_time(),
-                           self._record_sections())
+        self._write_frame_record()
+
+    def _write_frame_record(self):
+        """The restart record of the present state into ``atoms.info``: the
+        subclass's sections and the platform with the digest of the forces
+        the run holds here (:mod:`.machine`)."""
+        sections = self._record_sections() or {}
+        sections[MACHINE] = frame_section(self.system, self.atoms.calc,
+                                          self.system.purity.mode)
+        self._write_record(self.atoms.info, self.get_time(), sections)
 
     def _record_sections(self):
         """``{name: dict}`` for the sections in :attr:`record_sections`, or
@@ -309,7 +323,8 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _resumable_record(self, atoms):
         """The restart record in ``atoms.info`` if it fits the atoms."""
-        record = read_record(atoms.info, sections=self.record_sections)
+        record = read_record(atoms.info,
+                             sections=(*self.record_sections, MACHINE))
         if record is None:
             return None
         mismatch = record_mismatch(record, self._grid_values(atoms))
@@ -323,6 +338,71 @@ class ReversibleDynamics(MolecularDynamics):
             f'record (atoms.info.pop({INFO_KEY!r})).',
             AnchorMovedWarning, stacklevel=4)
         return None
+
+    @property
+    def forces_match_record(self):
+        """Whether the forces at the restart frame this integrator resumed
+        are bitwise those of the run that wrote it (the digest in its
+        record): True; False, after a
+        :class:`~ase_reversible.MachineChangedWarning` (running back past
+        the frame cannot be trusted to reach that run's earlier states);
+        None if the integrator did not resume a frame, or its record has no
+        digest or was written at other positions."""
+        return self._forces_match_record
+
+    def _check_machine(self, section):
+        """Compare the forces at a resumed frame with the digest its record
+        (``section``, the record's ``'machine'`` dict, or None) holds;
+        warn if they differ, or if there is no digest and the platform
+        differs.  Returns what :attr:`forces_match_record` reports."""
+        if not isinstance(section, dict):
+            return None
+        same = compare(section, self.system)
+        if same is None and 'positions' in section:
+            return None  # written at other positions: not this frame's
+        there, here = section.get('platform'), platform(self.atoms.calc)
+        if same is None and (there == here or not isinstance(there, dict)):
+            return None
+        if same:
+            self._write_frame_record()  # with this machine's digest
+            return True
+        dropped = self.engine.anchor_index != self.engine.step_index
+        if dropped:
+            # The steps behind the frame ran under other forces: what was
+            # kept to retrace them leads elsewhere here.
+            self._install(self.engine.snapshot())
+        else:
+            self._write_frame_record()
+        differ = differences(there, here)
+        why = (f' ({", ".join(differ)} differ)' if differ else
+               ' (the platforms look alike: then the calculator, its '
+               'settings or its thread count differ)')
+        what = ('The forces at this restart frame differ from those the run '
+                'that wrote it computed there' if same is False else
+                'The restart record has no digest of the forces at this '
+                'frame (the frame was written before a force call, or by a '
+                'scheme that does not end with a kick), and it was written '
+                'on another platform')
+        warnings.warn(
+            f'{what} (time {self.get_time() / units.fs:.6g} fs): this '
+            f'machine {"computes" if same is False else "may compute"} '
+            f'other forces than the one that wrote the frame{why}. '
+            f'Written on: {describe(there)}. Here: '
+            f'{describe(here)}. The run from this frame is exact and '
+            'reverses exactly to it, the anchor of reversal; running back '
+            'past it leaves the path of the run that wrote it as soon as '
+            'one rounded kick comes out otherwise, so it is not to be '
+            'trusted to reach that run\'s earlier states'
+            + ('; the way back the buffer file held was dropped, so a step '
+               'back past the frame raises RetraceLimitError' if dropped
+               else '')
+            + '. To run back past this frame, run on the machine and '
+            'software stack that wrote it (same CPU features, numpy, BLAS '
+            'and thread counts). Calculators whose forces use only '
+            'correctly rounded arithmetic give the same bits everywhere; '
+            "ASE's EMT and LennardJones (numpy's exp and powers, BLAS) do "
+            'not.', MachineChangedWarning, stacklevel=4)
+        return False if same is False else None
 
     # -- the adjoint ------------------------------------------------------
 
@@ -544,7 +624,10 @@ class ReversibleDynamics(MolecularDynamics):
                 raise ValueError(f'The atoms have non-finite {name}.')
         project = constraint_projection(atoms)
         purity = force_provider(atoms, force_purity, force_noise)
-        return masses_n, project, purity, self._resumable_record(atoms)
+        record = self._resumable_record(atoms)
+        # Compared with this machine's forces once the integrator stands.
+        self._resumed_machine = record.get(MACHINE) if record else None
+        return masses_n, project, purity, record
 
     def _hamiltonian(self, atoms, max_kick, position_quantum,
                      momentum_quantum, force_purity, force_noise,
@@ -581,7 +664,6 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _show_anchor(self):
         self.system.show()
-        self._write_record(self.atoms.info, self.get_time(),
-                           self._record_sections())
+        self._write_frame_record()
 
 

@@ -224,6 +224,18 @@ class Kick(SubStep):
         self._f_cache = (s.x.label, f_nc)
         return f_nc
 
+    def held(self):
+        """``(forces, kick)``: what the steps so far left for the present
+        positions, computing nothing.  ``forces`` ``[n_atoms, 3]`` (eV/Å)
+        are those the kicks use (or None); ``kick`` is ``(scale,
+        increments)`` of the last rounded kick here (or None)."""
+        label = self.system.x.label
+        f = self._f_cache
+        r = self._r_key
+        return (f[1] if f is not None and f[0] == label else None,
+                (r[1], self._r_nc) if r is not None and r[0] == label
+                else None)
+
     def apply(self, scale):
         s = self.system
         r_nc = self._r_nc
