@@ -31,8 +31,8 @@ from .checks import (check_calculator, check_energy_watch, check_steps,
                      refuse_coarse_momentum_quantum)
 from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian
-from .machine import SECTION as MACHINE, compare, describe, differences, \
-    frame_section, platform
+from .machine import SECTION as MACHINE, compare, explain, frame_section, \
+    platform
 from .state import FixedPointState
 from .watch import EQUAL_CALCULATOR, same_values
 
@@ -373,35 +373,9 @@ class ReversibleDynamics(MolecularDynamics):
             self._install(self.engine.snapshot())
         else:
             self._write_frame_record()
-        differ = differences(there, here)
-        why = (f' ({", ".join(differ)} differ)' if differ else
-               ' (the platforms look alike: then the calculator, its '
-               'settings or its thread count differ)')
-        what = ('The forces at this restart frame differ from those the run '
-                'that wrote it computed there' if same is False else
-                'The restart record has no digest of the forces at this '
-                'frame (the frame was written before a force call, or by a '
-                'scheme that does not end with a kick), and it was written '
-                'on another platform')
-        warnings.warn(
-            f'{what} (time {self.get_time() / units.fs:.6g} fs): this '
-            f'machine {"computes" if same is False else "may compute"} '
-            f'other forces than the one that wrote the frame{why}. '
-            f'Written on: {describe(there)}. Here: '
-            f'{describe(here)}. The run from this frame is exact and '
-            'reverses exactly to it, the anchor of reversal; running back '
-            'past it leaves the path of the run that wrote it as soon as '
-            'one rounded kick comes out otherwise, so it is not to be '
-            'trusted to reach that run\'s earlier states'
-            + ('; the way back the buffer file held was dropped, so a step '
-               'back past the frame raises RetraceLimitError' if dropped
-               else '')
-            + '. To run back past this frame, run on the machine and '
-            'software stack that wrote it (same CPU features, numpy, BLAS '
-            'and thread counts). Calculators whose forces use only '
-            'correctly rounded arithmetic give the same bits everywhere; '
-            "ASE's EMT and LennardJones (numpy's exp and powers, BLAS) do "
-            'not.', MachineChangedWarning, stacklevel=4)
+        warnings.warn(explain(same is False, there, here,
+                              self.get_time() / units.fs, dropped),
+                      MachineChangedWarning, stacklevel=4)
         return False if same is False else None
 
     # -- the adjoint ------------------------------------------------------

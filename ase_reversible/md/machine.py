@@ -181,3 +181,36 @@ def differences(there, here) -> list:
         return []
     return [_NAMES.get(k, k) for k in sorted(set(there) | set(here))
             if there.get(k) != here.get(k)]
+
+
+def explain(differ, there, here, time_fs, dropped) -> str:
+    """The :class:`~ase_reversible.MachineChangedWarning` message.
+
+    ``differ``: the forces differ (else the record had no digest and
+    another platform); ``there``, ``here``: the platforms; ``time_fs``:
+    the frame's time; ``dropped``: a Langevin buffer's way back was
+    dropped."""
+    names = differences(there, here)
+    why = (f' ({", ".join(names)} differ)' if names else
+           ' (the platforms look alike: then the calculator, its settings '
+           'or its thread count differ)')
+    when = f'(time {time_fs:.6g} fs)'
+    what = (f'The forces at this restart frame {when} differ from those the '
+            'run that wrote it computed there' if differ else
+            f'The restart record of this frame {when} was written on another '
+            'platform and has no digest of the forces at the frame (it was '
+            'written before a force call, or by a scheme that does not end '
+            'with a kick)')
+    return (
+        f'{what}: this machine {"computes" if differ else "may compute"} '
+        f'other forces than the one that wrote the frame{why}. Written on: '
+        f'{describe(there)}. Here: {describe(here)}. The run from this frame '
+        'is exact and reverses exactly to it, the anchor of reversal; '
+        'running back past it leaves the path of the run that wrote it as '
+        'soon as one rounded kick comes out otherwise, so it is not to be '
+        "trusted to reach that run's earlier states"
+        + ('; the way back the buffer file held was dropped, so a step back '
+           'past the frame raises RetraceLimitError' if dropped else '')
+        + '. To run back past this frame, run on the machine and software '
+        'stack that wrote it (same CPU features, numpy, BLAS and thread '
+        'counts); see the Machines page of the documentation.')
