@@ -56,8 +56,9 @@ def calculator(name):
     return asap3.EMT()
 
 def dynamics(atoms, kind, **kwargs):
-    if kind == 'verlet':
-        return ReversibleVerlet(atoms, {DT!r}, **kwargs)
+    if kind.startswith('verlet'):  # 'verlet' or 'verlet-position'
+        return ReversibleVerlet(atoms, {DT!r}, scheme=kind[7:] or 'velocity',
+                                **kwargs)
     return ReversibleLangevin(atoms, {DT!r}, 300, {FRICTION!r}, seed=7,
                               **kwargs)
 '''
@@ -161,6 +162,17 @@ def test_ase_calculators_on_another_machine(calc, system, steps, here,
     out = cross(tmp_path, calc, system, steps, 'native', here)
     assert_no_silent_miss(out)
     assert bool(out['warned']) == (not out['forces_equal'])
+
+
+@pytest.mark.slow
+def test_drift_kick_drift_on_another_machine(tmp_path):
+    out = cross(tmp_path, 'ase-emt', 'Cu32', 30, 'native', 'sse4',
+                kind='verlet-position')
+    assert_no_silent_miss(out)
+    # (The digest is of the last kick's forces, one drift back: leg 2's
+    # forces at the frame itself are no measure of it.)
+    if sse4_changes_numpy_dispatch():
+        assert out['warned'] and out['match'] is False
 
 
 @pytest.mark.slow
@@ -320,25 +332,44 @@ def test_guarded_rounding_digests_the_rounded_kick(tmp_path):
     assert_same_state(frame, snapshot(first))
 
 
-def test_a_record_without_digest_warns_only_for_another_platform(tmp_path):
-    # Drift-kick-drift ends a step with a drift: no forces at the frame.
-    first, frame = written(tmp_path, lambda: argon_cluster(2, 120), ase_lj,
-                           10, scheme='position')
+def test_drift_kick_drift_compares_where_the_last_kick_was(tmp_path):
+    # The step ends with a drift: the record digests the forces of the
+    # last kick, one drift back, and says how long that drift was.
+    first, frame = written(tmp_path, lambda: copper_bulk((2, 2, 2), 600),
+                           CALCULATORS['ase-emt'], 10, scheme='position')
     section = frame.info[INFO_KEY]['machine']
-    assert set(section) == {'platform'}
-    other = read(tmp_path / 'run.traj', -1)
-    frame.calc = ase_lj()
+    assert set(section) == {'platform', 'forces', 'drift', 'positions'}
+    state = snapshot(frame)
+    frame.calc = CALCULATORS['ase-emt']()
     with warnings.catch_warnings():
         warnings.simplefilter('error', AnchorMovedWarning)
         dyn = ReversibleVerlet(frame, DT, scheme='position')
-    assert dyn.forces_match_record is None
+    assert dyn.forces_match_record is True
+    assert_same_state(frame, state)  # the drift back and forth is exact
+    assert set(frame.info[INFO_KEY]['machine']) == set(section)
     dyn.reverse().run(10)
     assert_same_state(frame, snapshot(first))
+    other = read(tmp_path / 'run.traj', -1)
+    other.calc = ase_lj()  # another calculator: other forces
+    with pytest.warns(MachineChangedWarning, match='differ'):
+        ReversibleVerlet(other, DT, scheme='position', force_purity='trust')
+
+
+def test_a_record_without_digest_warns_only_for_another_platform():
+    # The constructor writes a record before any force call: no digest.
+    atoms = argon_cluster(2, 120)
+    atoms.calc = ase_lj()
+    ReversibleVerlet(atoms, DT)
+    section = atoms.info[INFO_KEY]['machine']
+    assert set(section) == {'platform'}
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', AnchorMovedWarning)
+        dyn = ReversibleVerlet(atoms, DT)
+    assert dyn.forces_match_record is None
     # The same frame as another machine's numpy would have written it.
-    other.info[INFO_KEY]['machine']['platform']['simd'] = 'X86_V2'
-    other.calc = ase_lj()
+    atoms.info[INFO_KEY]['machine']['platform']['simd'] = 'X86_V2'
     with pytest.warns(MachineChangedWarning, match='no digest'):
-        dyn = ReversibleVerlet(other, DT, scheme='position')
+        dyn = ReversibleVerlet(atoms, DT)
     assert dyn.forces_match_record is None
 
 

@@ -138,6 +138,7 @@ class Drift(SubStep):
         # New masses or constraints come with new labels (the state is
         # installed again), so the key needs neither.
         self._y_key = self._y_max = None
+        self._moved = None  # (position labels before, after) the last drift
 
     def prepare(self, ch):
         # Applied to the momenta's exact float image p = ip * qp.  Spread
@@ -175,8 +176,20 @@ class Drift(SubStep):
             round_odd(y_nc, out=y_nc)
             self._y_max = growth * s.p.bound + 1.0
             self._y_key = key
+        before = s.x.label
         s.x.add_integers(y_nc, self._y_max)
+        self._moved = (before, s.x.label)
         s.show_positions()
+
+    def last_move(self):
+        """``(c h, positions label before)`` of the drift that brought the
+        positions where they are, with the present momenta; None if the
+        positions or momenta changed since."""
+        s, moved, key = self.system, self._moved, self._y_key
+        if moved is None or key is None or moved[1] != s.x.label \
+                or key[0] != s.p.label:
+            return None
+        return key[-1], moved[0]
 
     def rollback(self):
         self._y_key = None  # y_nc may hold a failed step's drift
@@ -224,12 +237,14 @@ class Kick(SubStep):
         self._f_cache = (s.x.label, f_nc)
         return f_nc
 
-    def held(self):
+    def held(self, label=None):
         """``(forces, kick)``: what the steps so far left for the present
-        positions, computing nothing.  ``forces`` ``[n_atoms, 3]`` (eV/Å)
-        are those the kicks use (or None); ``kick`` is ``(scale,
-        increments)`` of the last rounded kick here (or None)."""
-        label = self.system.x.label
+        positions (or those of position ``label``), computing nothing.
+        ``forces`` ``[n_atoms, 3]`` (eV/Å) are those the kicks use (or
+        None); ``kick`` is ``(scale, increments)`` of the last rounded kick
+        there (or None)."""
+        if label is None:
+            label = self.system.x.label
         f = self._f_cache
         r = self._r_key
         return (f[1] if f is not None and f[0] == label else None,

@@ -12,8 +12,9 @@ Every restart record carries, in its ``'machine'`` section, the platform
 that wrote it (:func:`platform`) and a digest of what decides the next
 kick at the frame: the forces' float64 bytes, or, under guarded rounding
 (which absorbs noise below its bound, so that raw forces would differ
-without consequence), the rounded kick in quanta and its scale; and a
-digest of the positions, which ties the two to the frame (a record left
+without consequence), the rounded kick in quanta and its scale -- where a
+step ends with a drift (drift-kick-drift), those of its last kick, one
+drift back, with that drift's ``c h``; and a digest of the positions, which ties the two to the frame (a record left
 in ``atoms.info`` while the positions were set elsewhere on the grid is
 no frame of that run).  A resumed integrator computes the same at the
 frame (the forces it needs for its first kick anyway) and compares
@@ -54,10 +55,18 @@ def frame_section(system, calc, mode) -> dict:
     """The record's ``'machine'`` section for the present positions of
     ``system`` (a :class:`~.hamiltonian.Hamiltonian`): the platform, and
     the digest the force provider's ``mode`` calls for, if the kick holds
-    what it is taken of (a step that does not end with a kick at the final
-    positions, such as drift-kick-drift, does not)."""
+    what it is taken of: at the present positions, or where the last drift
+    started (drift-kick-drift), whose ``c h`` (ASE time units) it then
+    records as ``'drift'``."""
     section = {'platform': platform(calc)}
     forces, kick = system.kick.held()
+    if forces is None and kick is None:
+        # Drift-kick-drift: the last kick was before the last drift.
+        move = system.drift.last_move()
+        if move is None:
+            return section
+        forces, kick = system.kick.held(move[1])
+        section['drift'] = float(move[0])
     if mode == 'guarded':
         if kick is None:
             return section
@@ -83,6 +92,30 @@ def compare(section, system) -> bool | None:
     if section.get('positions') != digest(system.atoms.positions,
                                           signed_zeros=True):
         return None
+    if 'drift' not in section:
+        return _compare_here(section, system)
+    # Where the last kick was: one drift back, and forward again as the
+    # run came (the momenta do not change, so the rounded increment is
+    # the same, negated: the positions return exactly, and the drift and
+    # kick hold what a record written now digests).
+    try:
+        ch = float(section['drift'])
+    except (TypeError, ValueError):
+        return None
+    x, drift = system.x, system.drift
+    x.checkpoint()
+    try:
+        drift.apply(drift.prepare(-ch))
+        same = _compare_here(section, system)
+        drift.apply(drift.prepare(ch))
+    except BaseException:
+        x.rollback()
+        drift.rollback()
+        raise
+    return same
+
+
+def _compare_here(section, system):
     if 'forces' in section:
         return digest(system.kick.forces()) == section['forces']
     if 'kick' in section:
@@ -199,8 +232,7 @@ def explain(differ, there, here, time_fs, dropped) -> str:
             'run that wrote it computed there' if differ else
             f'The restart record of this frame {when} was written on another '
             'platform and has no digest of the forces at the frame (it was '
-            'written before a force call, or by a scheme that does not end '
-            'with a kick)')
+            'written before the first force call)')
     return (
         f'{what}: this machine {"computes" if differ else "may compute"} '
         f'other forces than the one that wrote the frame{why}. Written on: '
