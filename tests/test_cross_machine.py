@@ -423,3 +423,21 @@ def test_nose_resume_compares_too(tmp_path):
     with pytest.warns(MachineChangedWarning):
         resumed = ReversibleNose(other, DT, 80, 100 * units.fs)
     assert resumed.forces_match_record is False
+
+
+def test_platforms_differ_by_what_decides_the_bits():
+    from ase_reversible.md.machine import differences, platform
+    here = platform(CALCULATORS['ase-emt']())
+    assert differences(here, here) == []
+    # Another OpenBLAS kernel, or numpy without its AVX-512 loops: differ.
+    libraries = here.get('libraries', '')
+    if libraries:
+        api, version = libraries.split('; ')[0].split()[:2]
+        there = {**here, 'libraries': f'{api} {version} Prescott 1 threads'}
+        assert differences(there, here) == ['BLAS/OpenMP']
+    assert differences({**here, 'simd': 'X86_V2'}, here) == [
+        "numpy's SIMD targets"]
+    # A library only one process had loaded when it wrote its first record
+    # (SciPy's OpenBLAS, say) is no difference of the machine.
+    extra = '; '.join([libraries, 'openblas 9.9.9 Haswell 2 threads'])
+    assert differences({**here, 'libraries': extra}, here) == []

@@ -31,8 +31,8 @@ from .checks import (check_calculator, check_energy_watch, check_steps,
                      refuse_coarse_momentum_quantum)
 from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian
-from .machine import SECTION as MACHINE, compare, explain, frame_section, \
-    platform
+from .machine import SECTION as MACHINE, compare, differences, explain, \
+    frame_section, platform
 from .state import FixedPointState
 from .watch import EQUAL_CALCULATOR, same_values
 
@@ -361,7 +361,7 @@ class ReversibleDynamics(MolecularDynamics):
         if same is None and 'positions' in section:
             return None  # written at other positions: not this frame's
         there, here = section.get('platform'), platform(self.atoms.calc)
-        if same is None and (there == here or not isinstance(there, dict)):
+        if same is None and not differences(there, here):
             return None
         if same:
             self._write_frame_record()  # with this machine's digest

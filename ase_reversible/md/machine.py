@@ -33,6 +33,7 @@ from __future__ import annotations
 import functools
 import platform as _platform
 import sys
+import warnings
 import zlib
 
 import numpy as np
@@ -176,7 +177,10 @@ def _libraries():
     up once per process (threadpoolctl: about 13 ms, measured)."""
     try:
         from threadpoolctl import threadpool_info
-        info = threadpool_info()
+        with warnings.catch_warnings():
+            # Its advice on mixed OpenMP runtimes is not ours to give here.
+            warnings.simplefilter('ignore')
+            info = threadpool_info()
     except Exception:  # not installed, or a library it cannot read
         return ''
     return '; '.join(
@@ -209,11 +213,24 @@ def describe(platform_dict) -> str:
 
 
 def differences(there, here) -> list:
-    """Names of the platform entries that differ."""
+    """Names of the platform entries that differ.  Libraries count as
+    differing only where one loaded by both runs differs (kernel,
+    threads): which ones a process has loaded depends on what it imported
+    before its first record."""
     if not isinstance(there, dict):
         return []
     return [_NAMES.get(k, k) for k in sorted(set(there) | set(here))
-            if there.get(k) != here.get(k)]
+            if (_libraries_differ(there.get(k), here.get(k))
+                if k == 'libraries' else there.get(k) != here.get(k))]
+
+
+def _libraries_differ(there, here) -> bool:
+    def by_library(text):
+        # 'openblas 0.3.31 SkylakeX 2 threads' -> {'openblas 0.3.31': ...}
+        entries = str(text or '').split('; ')
+        return {' '.join(e.split()[:2]): e for e in entries if e}
+    a, b = by_library(there), by_library(here)
+    return any(a[name] != b[name] for name in a.keys() & b.keys())
 
 
 def explain(differ, there, here, time_fs, dropped) -> str:
