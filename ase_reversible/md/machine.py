@@ -4,7 +4,7 @@ A run goes back exactly only if every force on the way back has the bits
 it had on the way out.  ASE's EMT and LennardJones call ``np.exp``,
 numpy powers and BLAS, whose last bits depend on the CPU features numpy
 dispatches to and on the BLAS kernels (docs/machines.md has the
-measurements); so a frame resumed on another machine runs back along
+measurements); so a frame resumed on another machine may run back along
 another path.  Nothing here can make those bits portable; it makes the
 difference loud.
 
@@ -14,11 +14,11 @@ kick at the frame: the forces' float64 bytes, or, under guarded rounding
 (which absorbs noise below its bound, so that raw forces would differ
 without consequence), the rounded kick in quanta and its scale -- where a
 step ends with a drift (drift-kick-drift), those of its last kick, one
-drift back, with that drift's ``c h``; and a digest of the positions, which ties the two to the frame (a record left
-in ``atoms.info`` while the positions were set elsewhere on the grid is
-no frame of that run).  A resumed integrator computes the same at the
-frame (the forces it needs for its first kick anyway) and compares
-(:func:`compare`).
+drift back, with that drift's ``c h``; and a digest of the positions,
+which ties the two to the frame (a record left in ``atoms.info`` while
+the positions were set elsewhere on the grid is no frame of that run).
+A resumed integrator computes the same at the frame (the forces it needs
+for its first kick anyway) and compares (:func:`compare`).
 
 The digests are CRC-32, not a cryptographic hash: they guard against
 accident, not intent.  Measured with ``zlib.crc32`` on the 24 kB of 1000
