@@ -14,8 +14,8 @@ integrators), :mod:`.purity` (forces as a pure function of positions),
 """
 
 from .errors import (AnchorMovedWarning, CoarseQuantumError,
-                     ImpureForcesError, NonFiniteForcesError,
-                     NonFiniteStateError,
+                     ImpureForcesError, MachineChangedWarning,
+                     NonFiniteForcesError, NonFiniteStateError,
                      QuantumRangeError, RetraceLimitError,
                      ReversibilityError,
                      UnstableIntegrationError, UnsupportedConstraintError)
@@ -35,7 +35,8 @@ __all__ = ['ReversibleVerlet', 'ReversibleLangevin', 'ReversibleNose',
            'check_calculator', 'CalculatorCheck',
            'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',
            'Flipbook', 'AnalyticHVP', 'FiniteDifferenceHVP',
-           'AnchorMovedWarning', 'ReversibilityError', 'QuantumRangeError',
+           'AnchorMovedWarning', 'MachineChangedWarning',
+           'ReversibilityError', 'QuantumRangeError',
            'NonFiniteForcesError', 'NonFiniteStateError',
            'RetraceLimitError', 'ImpureForcesError', 'CoarseQuantumError',
            'UnstableIntegrationError', 'UnsupportedConstraintError']

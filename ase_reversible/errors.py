@@ -106,3 +106,25 @@ class AnchorMovedWarning(UserWarning):
     if it recurs (an observer that wraps the atoms at every step), one more
     warning at the end of the run gives the number of further steps.
     """
+
+
+class MachineChangedWarning(AnchorMovedWarning):
+    """A restart frame's forces are not those of the run that wrote it.
+
+    Issued by the constructor of a reversible integrator resumed from a
+    frame (with or without a :class:`~ase_reversible.ReversibleLangevin`
+    buffer file) whose restart record holds a digest of the forces at the
+    frame, when the forces computed here differ: this machine or software
+    stack (CPU features, numpy, BLAS, thread counts, the calculator or its
+    settings) computes other last bits.  Also issued when the record has
+    no digest and was written on another platform.  The run from the
+    frame on is exact and reversible to the frame, which is the anchor;
+    running back past it leaves the path of the run that wrote it as soon
+    as one rounded kick comes out otherwise (for ASE's EMT within a few
+    steps; ASE's LennardJones was seen to come back all the same), so it
+    cannot be trusted to reach that run's earlier states.  A Langevin
+    buffer's way back is dropped: a step back past the frame raises
+    :class:`RetraceLimitError`.  The message names both platforms.  To
+    run back past the frame, run on the machine that wrote it (the
+    Machines page of the documentation).
+    """

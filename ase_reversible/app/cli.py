@@ -15,6 +15,7 @@ from pathlib import Path
 import ase.io
 from ase import units
 
+from ..core.record import INFO_KEY
 from ..md import ReversibleVerlet
 from . import demo
 from .flipbook import Flipbook
@@ -122,6 +123,12 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
             parser.error('a trajectory file needs --calculator '
                          f'({", ".join(sorted(CALCULATORS))})')
         atoms = ase.io.read(path, args.index)
+        # The flipbook starts a run of its own at the frame, with a
+        # calculator of the user's choosing: whether its forces are those
+        # of the run that wrote the frame is moot (no warning about it).
+        record = atoms.info.get(INFO_KEY)
+        if isinstance(record, dict):
+            record.pop('machine', None)
         module, name, kwargs = CALCULATORS[args.calculator]
         try:
             atoms.calc = getattr(import_module(module), name)(**kwargs)

@@ -9,6 +9,12 @@ simulated time.  Because quanta are powers of two and integers stay below
 2**53, the float64 values of the frame determine those integers exactly.
 A variable that the atoms do not show (a thermostat's, say) is stored in
 the record itself as its list of counts, keyed by its name.
+
+Sections (dicts by name) hold what else a resumed run reads: a
+thermostat's settings, and with every frame the ``'machine'`` section --
+the platform that wrote it and digests of the forces and positions at the
+frame -- by which a run resumed on another machine sees that its forces
+differ (:mod:`ase_reversible.md.machine`).
 """
 
 from __future__ import annotations

@@ -24,14 +24,16 @@ from ..core.codec import LIMIT, encode
 from ..core.quanta import choose_grid
 from ..core.record import (INFO_KEY, RecordWriter, read_record,
                            record_mismatch)
-from ..errors import (AnchorMovedWarning, NonFiniteStateError,
-                      QuantumRangeError)
+from ..errors import (AnchorMovedWarning, MachineChangedWarning,
+                      NonFiniteStateError, QuantumRangeError)
 from ..purity import calculator_members, discard_results, force_provider
 from .checks import (check_calculator, check_energy_watch, check_steps,
                      check_timestep, checked_masses, fixed,
                      refuse_coarse_momentum_quantum)
 from .constraints import constraint_projection
 from .hamiltonian import Hamiltonian
+from .machine import SECTION as MACHINE, compare, differences, explain, \
+    frame_section, platform
 from .state import FixedPointState
 from .watch import (EQUAL_CALCULATOR, AnchorMoves, check_finite_cell,
                     non_finite, refuse_unholdable_values, same_values)
@@ -114,6 +116,7 @@ class ReversibleDynamics(MolecularDynamics):
     engine = None
     #: The running run's :class:`~.watch.AnchorMoves`, None between runs.
     _moves = None
+    _forces_match_record = None
     #: Sections of the restart record a subclass writes and reads besides
     #: the quanta and the time (written by ``_record_sections``).
     record_sections = ()
@@ -128,10 +131,13 @@ class ReversibleDynamics(MolecularDynamics):
             {name: v.quantum for name, v in engine.variables.items()})
 
     def _start(self, watch):
-        """After ASE's constructor: watch the atoms, show the exact state."""
+        """After ASE's constructor: watch the atoms, show the exact state,
+        and check that a resumed frame's forces are those of its record."""
         self._watch = watch
         self.masses = self.system.m_n1
         self._show_anchor()
+        self._forces_match_record = self._check_machine(
+            getattr(self, '_resumed_machine', None))
 
     # -- time -------------------------------------------------------------
 
@@ -283,8 +289,16 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _committed(self):
         self.system.show_momenta()
-        self._write_record(self.atoms.info, self.get_time(),
-                           self._record_sections())
+        self._write_frame_record()
+
+    def _write_frame_record(self):
+        """The restart record of the present state into ``atoms.info``: the
+        subclass's sections and the platform with the digest of the forces
+        the run holds here (:mod:`.machine`)."""
+        sections = self._record_sections() or {}
+        sections[MACHINE] = frame_section(self.system, self.atoms.calc,
+                                          self.system.purity.mode)
+        self._write_record(self.atoms.info, self.get_time(), sections)
 
     def _record_sections(self):
         """``{name: dict}`` for the sections in :attr:`record_sections`, or
@@ -370,7 +384,8 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _resumable_record(self, atoms):
         """The restart record in ``atoms.info`` if it fits the atoms."""
-        record = read_record(atoms.info, sections=self.record_sections)
+        record = read_record(atoms.info,
+                             sections=(*self.record_sections, MACHINE))
         if record is None:
             return None
         mismatch = record_mismatch(record, self._grid_values(atoms))
@@ -384,6 +399,45 @@ class ReversibleDynamics(MolecularDynamics):
             f'record (atoms.info.pop({INFO_KEY!r})).',
             AnchorMovedWarning, stacklevel=4)
         return None
+
+    @property
+    def forces_match_record(self):
+        """Whether the forces at the restart frame this integrator resumed
+        are bitwise those of the run that wrote it (the digest in its
+        record): True; False, after a
+        :class:`~ase_reversible.MachineChangedWarning` (running back past
+        the frame cannot be trusted to reach that run's earlier states);
+        None if the integrator did not resume a frame, or its record has no
+        digest or was written at other positions."""
+        return self._forces_match_record
+
+    def _check_machine(self, section):
+        """Compare the forces at a resumed frame with the digest its record
+        (``section``, the record's ``'machine'`` dict, or None) holds;
+        warn if they differ, or if there is no digest and the platform
+        differs.  Returns what :attr:`forces_match_record` reports."""
+        if not isinstance(section, dict):
+            return None
+        same = compare(section, self.system)
+        if same is None and 'positions' in section:
+            return None  # written at other positions: not this frame's
+        there, here = section.get('platform'), platform(self.atoms.calc)
+        if same is None and not differences(there, here):
+            return None
+        if same:
+            self._write_frame_record()  # with this machine's digest
+            return True
+        dropped = self.engine.anchor_index != self.engine.step_index
+        if dropped:
+            # The steps behind the frame ran under other forces: what was
+            # kept to retrace them leads elsewhere here.
+            self._install(self.engine.snapshot())
+        else:
+            self._write_frame_record()
+        warnings.warn(explain(same is False, there, here,
+                              self.get_time() / units.fs, dropped),
+                      MachineChangedWarning, stacklevel=4)
+        return False if same is False else None
 
     # -- the adjoint ------------------------------------------------------
 
@@ -655,7 +709,10 @@ class ReversibleDynamics(MolecularDynamics):
         needs from them: ``(masses_n, project, purity, record)``, the
         record None unless a restart record fits the atoms."""
         masses_n, project, purity = admit(atoms, force_purity, force_noise)
-        return masses_n, project, purity, self._resumable_record(atoms)
+        record = self._resumable_record(atoms)
+        # Compared with this machine's forces once the integrator stands.
+        self._resumed_machine = record.get(MACHINE) if record else None
+        return masses_n, project, purity, record
 
     def _hamiltonian(self, atoms, max_kick, position_quantum,
                      momentum_quantum, force_purity, force_noise,
@@ -685,7 +742,6 @@ class ReversibleDynamics(MolecularDynamics):
 
     def _show_anchor(self):
         self.system.show()
-        self._write_record(self.atoms.info, self.get_time(),
-                           self._record_sections())
+        self._write_frame_record()
 
 

@@ -141,6 +141,7 @@ class Drift(SubStep):
         # New masses or constraints come with new labels (the state is
         # installed again), so the key needs neither.
         self._y_key = self._y_max = None
+        self._moved = None  # (position labels before, after) the last drift
 
     def prepare(self, ch):
         # Applied to the momenta's exact float image p = ip * qp.  Spread
@@ -182,8 +183,20 @@ class Drift(SubStep):
                 # The balance takes at most max|y| + 1 from an atom.
                 self._y_max = 2.0 * self._y_max + 1.0
             self._y_key = key
+        before = s.x.label
         s.x.add_integers(y_nc, self._y_max)
+        self._moved = (before, s.x.label)
         s.show_positions()
+
+    def last_move(self):
+        """``(c h, positions label before)`` of the drift that brought the
+        positions where they are, with the present momenta; None if the
+        positions or momenta changed since."""
+        s, moved, key = self.system, self._moved, self._y_key
+        if moved is None or key is None or moved[1] != s.x.label \
+                or key[0] != s.p.label:
+            return None
+        return key[-1], moved[0]
 
     def rollback(self):
         self._y_key = None  # y_nc may hold a failed step's drift
@@ -230,6 +243,20 @@ class Kick(SubStep):
         f_nc = s.purity.forces(s.atoms)
         self._f_cache = (s.x.label, f_nc)
         return f_nc
+
+    def held(self, label=None):
+        """``(forces, kick)``: what the steps so far left for the present
+        positions (or those of position ``label``), computing nothing.
+        ``forces`` ``[n_atoms, 3]`` (eV/Å) are those the kicks use (or
+        None); ``kick`` is ``(scale, increments)`` of the last rounded kick
+        there (or None)."""
+        if label is None:
+            label = self.system.x.label
+        f = self._f_cache
+        r = self._r_key
+        return (f[1] if f is not None and f[0] == label else None,
+                (r[1], self._r_nc) if r is not None and r[0] == label
+                else None)
 
     def apply(self, scale):
         s = self.system

@@ -27,6 +27,7 @@ within 2**-17 / h of the one asked for).
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 
 import numpy as np
@@ -44,6 +45,7 @@ from ..errors import RetraceLimitError, UnsupportedConstraintError
 from .base import ReversibleDynamics
 from .checks import check_energy_watch, check_timestep
 from .hamiltonian import largest_kick
+from .machine import frame_section
 from .watch import SystemWatch
 
 DRIFT, KICK, FRICTION = 'drift', 'kick', 'friction'
@@ -351,6 +353,11 @@ class ReversibleLangevin(ReversibleDynamics):
         step = resumed['step'] if resumed is not None else 0
         saved = None if buffer is None else _read_buffer(
             buffer, system, self._seed, timestep, step)
+        if saved is not None and self._resumed_machine is None \
+                and 'machine' in saved:
+            # A frame whose record lost its machine section: the file
+            # has the one written with it.
+            self._resumed_machine = json.loads(str(saved['machine']))
         friction_step = Friction(system, self._settings, self._step_of)
         substep = {KICK: system.kick, DRIFT: system.drift,
                    FRICTION: friction_step}
@@ -443,7 +450,8 @@ class ReversibleLangevin(ReversibleDynamics):
         buffers = self.friction_step.active_buffers()
         arrays = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
                   'step': step, 'anchor_step': engine.anchor_index,
-                  'digest': _digest(engine.snapshot())}
+                  'digest': _digest(engine.snapshot()),
+                  'machine': json.dumps(self._buffer_machine_section())}
         for name, counts in engine.anchor.items():
             arrays[f'anchor_{name}'] = counts
         for n, b in buffers.items():
@@ -453,6 +461,18 @@ class ReversibleLangevin(ReversibleDynamics):
             arrays[f'buffer_{n}_words'] = b.words_jk[:depth]
         with open(path, 'wb') as f:
             np.savez(f, **arrays)
+
+    def _buffer_machine_section(self):
+        """The record's machine section for the buffer file, with the
+        digest of the forces here (computed if no step left them)."""
+        section = frame_section(self.system, self.atoms.calc,
+                                self.system.purity.mode)
+        if 'forces' not in section and 'kick' not in section \
+                and self.system.purity.mode != 'guarded':
+            self.system.kick.forces()
+            section = frame_section(self.system, self.atoms.calc,
+                                    self.system.purity.mode)
+        return section
 
     # -- the thermostat's settings -----------------------------------------
 
