@@ -23,7 +23,10 @@ there once (``i < j``, or an image of one atom), and ``d_pc = x[j] - x[i]
 + image shift``.  Pair terms are summed onto atoms in pair order
 (:meth:`ExactCalculator.scatter_pairs
 <ase_reversible.calculators.base.ExactCalculator.scatter_pairs>`): with
-pairs in a canonical order, the sums are reproducible bit for bit.
+pairs in a canonical order, the sums are reproducible bit for bit.  Powers
+are products and dot products are summed in a fixed order
+(:mod:`ase_reversible.core.portable`), so every result is the same bits on
+every CPU, and a run can be continued or reversed on another machine.
 """
 
 from __future__ import annotations
