@@ -196,6 +196,8 @@ class NoseHamiltonian(Hamiltonian):
 
     def thermostat_energy(self) -> float:
         """``pi**2 / 2Q + g kT ln s``, eV."""
+        # libm's log may differ between CPUs in the last bit: harmless,
+        # only the energy check reads this, never a step.
         pi = float(self.pi.floats[0])
         return 0.5 * pi * pi / self.Q + self.g * self.kT * math.log(
             self.s_value())
