@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
+import os
 import statistics
 import time
 import warnings
@@ -247,6 +248,7 @@ def momentum_square_callers(n_atoms):
 def run(quick) -> dict:
     settings = QUICK if quick else FULL
     rounds, block = settings['rounds'], settings['block_seconds']
+    load_before = os.getloadavg()[0]
     forces, steps, kinetic = [], [], []
     step_done = {}
     for name, build, old, new, dt in cases(settings):
@@ -273,4 +275,5 @@ def run(quick) -> dict:
         kinetic.append({'n_atoms': n_atoms, 'old_seconds': times['old'],
                         'new_seconds': times['new']})
     return {'settings': settings, 'forces': forces, 'steps': steps,
-            'momentum_square': kinetic}
+            'momentum_square': kinetic,
+            'load_average': [load_before, os.getloadavg()[0]]}

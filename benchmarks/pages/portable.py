@@ -34,7 +34,11 @@ def markdown(results):
         'Their kernels before that change (numpy powers, `einsum` row sums, '
         'a BLAS dot) are kept in `benchmarks/portable.py` and timed against '
         "today's in one process, in interleaved blocks, the order rotating, "
-        f'median of {rounds} rounds per call.\n\n'
+        f'median of {rounds} rounds per call'
+        + (' (one-minute load average {:.1f} at the start, {:.1f} at the end, '
+           'on a machine shared with other work: ratios, not absolute '
+           'times, are the result)'.format(*results['load_average'])
+           if 'load_average' in results else '') + '.\n\n'
         '**Force call** (`get_forces`, positions alternating so that no '
         'cache answers):\n\n'
         + markdown_table(ms, _rows(results['forces'], 1e3))
