@@ -29,8 +29,9 @@ import decimal
 
 import numpy as np
 
-#: Enough decimal digits that a float64 rounded from a result is the
-#: correctly rounded one but in cases of 1e-17 relative.
+#: 34 digits: a float64 rounded from such a result is the correctly
+#: rounded value unless the exact one lies within 1e-34 (relative) of a
+#: midpoint between two floats; deterministic in any case.
 _CONTEXT = decimal.Context(prec=34)
 
 
