@@ -38,8 +38,14 @@ _CONTEXT = decimal.Context(prec=34)
 def rowdot(a_pc, b_pc):
     """``[p]``: ``a . b`` of each row of two ``[p, 3]`` arrays, summed
     ``(x + y) + z``."""
-    return a_pc[:, 0] * b_pc[:, 0] + a_pc[:, 1] * b_pc[:, 1] \
-        + a_pc[:, 2] * b_pc[:, 2]
+    # One pass of products, then the columns added in place: the same
+    # bits as three column products and 1.6x to 2.8x faster (1,500 to
+    # 8,000 rows); 2.4x to 5.5x faster than einsum, whose bits differ
+    # (best of 7 repeats, machine loaded at 3).
+    ab_pc = a_pc * b_pc
+    out_p = ab_pc[:, 0] + ab_pc[:, 1]
+    out_p += ab_pc[:, 2]
+    return out_p
 
 
 def rowsquare(a_pc):
