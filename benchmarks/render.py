@@ -24,7 +24,7 @@ DOCS = ROOT / 'docs'
 #: and benchmarks/pages/<name>.py (renders).
 SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
             'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
-            'thermostat', 'nose', 'lammps_cost', 'force_noise',
+            'thermostat', 'nose', 'lammps_cost', 'portable', 'force_noise',
             'full_precision', 'long_reversal')
 
 

@@ -36,7 +36,8 @@ SECTIONS = render.SECTIONS
 #: LennardJones); --only runs them, and the page shows them once stored.
 DEFAULT_SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
                     'reversal_error', 'stress', 'gradient_accuracy',
-                    'adjoint', 'thermostat', 'nose', 'lammps_cost')
+                    'adjoint', 'thermostat', 'nose', 'lammps_cost',
+                    'portable')
 
 
 def measure(name, quick, only, machine) -> dict:

@@ -16,6 +16,10 @@ each out once for all of its subclasses:
   terms; :meth:`ExactCalculator.scatter_pairs` always adds in the given
   pair order.
 
+The subclasses also compute with correctly rounded operations only (no
+numpy powers, BLAS or libm: :mod:`ase_reversible.core.portable`), so their
+results are the same bits on every CPU, not only on one.
+
 Array names follow one convention in all the calculators: a suffix gives
 the shape (``_nc``: ``[n_atoms, 3]``, ``_n``: ``[n_atoms]``, ``_pc``:
 ``[n_pairs, 3]``, ``_p``: ``[n_pairs]``), ``i_p`` and ``j_p`` index the two

@@ -37,6 +37,7 @@ from ase import Atoms
 from ase.calculators.calculator import all_changes
 from ase.constraints import FixAtoms
 
+from ..core.portable import rowdot, rowsquare
 from .base import ExactCalculator
 
 
@@ -94,7 +95,7 @@ class PendulumChain(ExactCalculator):
         m_n = atoms.get_masses()
         d_lc, r_l = _links(x_nc)
         stretch_l = r_l - self.parameters['rest_length']
-        u_l = 0.5 * k * stretch_l**2
+        u_l = 0.5 * k * (stretch_l * stretch_l)
         # A stretched link pulls its first atom towards the second:
         # F_l = -dE/dx_l = k (r - L) d / r.
         t_lc = _tension(k * stretch_l, r_l, d_lc)
@@ -128,7 +129,7 @@ class PendulumChain(ExactCalculator):
         dv_lc = v_nc[1:] - v_nc[:-1]
         # With u' = k (r - L) and u'' = k: the tension k (r - L) d / r
         # changes along dv by (u'/r) dv + (u'' - u'/r) (d.dv) d / r².
-        along_l = k * rest / r_l**3 * np.einsum('lc,lc->l', d_lc, dv_lc)
+        along_l = k * rest / (r_l * r_l * r_l) * rowdot(d_lc, dv_lc)
         kdv_lc = (k * (1.0 - rest / r_l))[:, None] * dv_lc \
             + along_l[:, None] * d_lc
         # K dv is the change of the pull on the first atom of the link,
@@ -139,7 +140,7 @@ class PendulumChain(ExactCalculator):
 def _links(x_nc):
     """Link vectors ``d_lc = x[l+1] - x[l]`` (Å) and lengths ``r_l``."""
     d_lc = x_nc[1:] - x_nc[:-1]
-    r_l = np.sqrt(np.einsum('lc,lc->l', d_lc, d_lc))
+    r_l = np.sqrt(rowsquare(d_lc))
     if np.any(r_l == 0.0):
         first = int(np.argmin(r_l))
         raise ValueError(f'Atoms {first} and {first + 1} coincide: a link '

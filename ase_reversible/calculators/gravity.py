@@ -34,6 +34,7 @@ import math
 import numpy as np
 from ase.calculators.calculator import all_changes
 
+from ..core.portable import rowdot, rowsquare
 from .base import ExactCalculator
 
 
@@ -97,7 +98,7 @@ class SoftenedGravity(ExactCalculator):
         i_p, j_p, d_pc, s_p, gmm_p = self._pair_terms(atoms)
         dv_pc = v_nc[j_p] - v_nc[i_p]
         w_p = gmm_p / (s_p * np.sqrt(s_p))
-        along_p = 3.0 * w_p / s_p * np.einsum('pc,pc->p', d_pc, dv_pc)
+        along_p = 3.0 * w_p / s_p * rowdot(d_pc, dv_pc)
         kdv_pc = w_p[:, None] * dv_pc - along_p[:, None] * d_pc
         return -self.scatter_pairs(kdv_pc, i_p, j_p, len(atoms))
 
@@ -110,7 +111,7 @@ class SoftenedGravity(ExactCalculator):
         m_n = atoms.get_masses()
         d_pc = x_nc[j_p] - x_nc[i_p]
         eps = self.parameters['softening']
-        s_p = np.einsum('pc,pc->p', d_pc, d_pc) + eps * eps
+        s_p = rowsquare(d_pc) + eps * eps
         gmm_p = self.parameters['G'] * m_n[i_p] * m_n[j_p]
         return i_p, j_p, d_pc, s_p, gmm_p
 

@@ -23,7 +23,10 @@ there once (``i < j``, or an image of one atom), and ``d_pc = x[j] - x[i]
 + image shift``.  Pair terms are summed onto atoms in pair order
 (:meth:`ExactCalculator.scatter_pairs
 <ase_reversible.calculators.base.ExactCalculator.scatter_pairs>`): with
-pairs in a canonical order, the sums are reproducible bit for bit.
+pairs in a canonical order, the sums are reproducible bit for bit.  Powers
+are products and dot products are summed in a fixed order
+(:mod:`ase_reversible.core.portable`), so every result is the same bits on
+every CPU, and a run can be continued or reversed on another machine.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ from ase.calculators.calculator import all_changes
 from ase.neighborlist import neighbor_list
 from ase.stress import full_3x3_to_voigt_6_stress
 
+from ..core.portable import outer_sum, rowdot, rowsquare, \
+    rows_times_matrix
 from .base import ExactCalculator
 
 
@@ -117,7 +122,7 @@ class LennardJones(ExactCalculator):
             if self.atoms.cell.rank != 3:
                 raise ValueError('Stress needs a cell with three non-zero '
                                  'vectors.')
-            stress_cc = d_pc.T @ g_pc / self.atoms.get_volume()
+            stress_cc = outer_sum(d_pc, g_pc) / self.atoms.get_volume()
             self.results['stress'] = full_3x3_to_voigt_6_stress(stress_cc)
 
     # -- derivatives ------------------------------------------------------
@@ -136,10 +141,10 @@ class LennardJones(ExactCalculator):
         # The force on i from a pair is g(r) d with g = u'/r; its
         # derivative along d is g I + (g'/r) d d^T, with g' = u''/r - u'/r².
         g_p = du_p / r_p
-        h_p = (d2u_p - g_p) / r_p**2
+        h_p = (d2u_p - g_p) / (r_p * r_p)
         dv_pc = v_nc[j_p] - v_nc[i_p]
-        jv_pc = g_p[:, None] * dv_pc + (h_p * np.einsum(
-            'pc,pc->p', d_pc, dv_pc))[:, None] * d_pc
+        jv_pc = g_p[:, None] * dv_pc \
+            + (h_p * rowdot(d_pc, dv_pc))[:, None] * d_pc
         # +jv on j, -jv on i: the indices swapped rather than the sum
         # negated, which would turn a zero sum into -0.0.
         return self.scatter_pairs(jv_pc, j_p, i_p, n)
@@ -150,8 +155,11 @@ class LennardJones(ExactCalculator):
         For the reversible adjoint's ``parameters=`` (see
         :attr:`differentiable_parameters`).
 
-        ``name`` is ``'epsilon'`` (result in Å⁻¹) or ``'sigma'`` (eV/Å²);
-        the cut-offs stay where they are.
+        ``name`` is ``'epsilon'`` (result in Å⁻¹) or ``'sigma'`` (eV/Å²).
+        The derivative is that of the calculator the constructor would
+        make with another ``sigma``: a cut-off left to its default
+        (``rc = 3 sigma``, ``ro = 0.66 rc``) moves with ``sigma``, one
+        given stays where it is.
         """
         if name not in self.differentiable_parameters:
             raise ValueError(f'No derivative with respect to {name!r}; '
@@ -163,22 +171,44 @@ class LennardJones(ExactCalculator):
             _, du_p, _ = self._pair_terms(r_p, second=False)
             ddu_p = du_p / epsilon
         else:
-            s6_p = (sigma / r_p)**6
-            s12_p = s6_p * s6_p
-            switch_p, dswitch_p, _ = self._switch(r_p)
-            dphi_p = 4 * epsilon * (12 * s12_p - 6 * s6_p) / sigma
-            ddphi_p = 4 * epsilon * (-144 * s12_p + 36 * s6_p) / (r_p * sigma)
-            ddu_p = ddphi_p * switch_p + dphi_p * dswitch_p
+            s6_p, s12_p = _powers(sigma / r_p)
+            phi_p = 4 * epsilon * (s12_p - s6_p)
+            dphi_p = 4 * epsilon * (-12 * s12_p + 6 * s6_p) / r_p
+            switch_p, dswitch_p, d2switch_p = self._switch(r_p)
+            # d/dsigma of phi and of dphi/dr, at fixed r.
+            phi_s_p = 4 * epsilon * (12 * s12_p - 6 * s6_p) / sigma
+            dphi_s_p = 4 * epsilon * (-144 * s12_p + 36 * s6_p) / (
+                r_p * sigma)
+            ddu_p = dphi_s_p * switch_p + phi_s_p * dswitch_p
+            dro, dwidth = self._cutoff_rates()
+            if dwidth or dro:
+                # The switch's t = (r - ro) / w moves with the cut-offs:
+                # dt/dsigma = -(dro + t dw) / w, so dS/dsigma = -S'(r)
+                # (dro + t dw) and d(S'(r))/dsigma = -S''(r) (dro + t dw)
+                # - S'(r) dw / w, S' and S'' derivatives along r.
+                ro, rc = self.cutoffs
+                width = rc - ro
+                t_p = np.clip((r_p - ro) / width, 0.0, 1.0)
+                rate_p = dro + t_p * dwidth
+                ddu_p += -dphi_p * dswitch_p * rate_p - phi_p * (
+                    d2switch_p * rate_p + dswitch_p * (dwidth / width))
         g_pc = (ddu_p / r_p)[:, None] * d_pc
         return self.scatter_pairs(g_pc, i_p, j_p, n)
 
     # -- pairs ------------------------------------------------------------
 
+    def _cutoff_rates(self):
+        """``(dro/dsigma, d(rc - ro)/dsigma)``: non-zero for the cut-offs
+        left to their defaults, which follow ``sigma``."""
+        p = self.parameters
+        drc = 3.0 if p['rc'] is None else 0.0
+        dro = 0.66 * drc if p['ro'] is None else 0.0
+        return dro, drc - dro
+
     def _pair_terms(self, r_p, second):
         """``u``, ``du/dr`` and (if ``second``) ``d2u/dr2`` per pair."""
         epsilon, sigma = self.parameters['epsilon'], self.parameters['sigma']
-        s6_p = (sigma / r_p)**6
-        s12_p = s6_p * s6_p
+        s6_p, s12_p = _powers(sigma / r_p)
         phi_p = 4 * epsilon * (s12_p - s6_p)
         dphi_p = 4 * epsilon * (-12 * s12_p + 6 * s6_p) / r_p
         switch_p, dswitch_p, d2switch_p = self._switch(r_p)
@@ -186,7 +216,7 @@ class LennardJones(ExactCalculator):
         du_p = dphi_p * switch_p + phi_p * dswitch_p
         if not second:
             return u_p, du_p, None
-        d2phi_p = 4 * epsilon * (156 * s12_p - 42 * s6_p) / r_p**2
+        d2phi_p = 4 * epsilon * (156 * s12_p - 42 * s6_p) / (r_p * r_p)
         d2u_p = (d2phi_p * switch_p + 2 * dphi_p * dswitch_p
                  + phi_p * d2switch_p)
         return u_p, du_p, d2u_p
@@ -195,9 +225,11 @@ class LennardJones(ExactCalculator):
         ro, rc = self.cutoffs
         width = rc - ro
         t_p = np.clip((r_p - ro) / width, 0.0, 1.0)
-        switch_p = 1 - t_p**3 * (10 - 15 * t_p + 6 * t_p**2)
-        dswitch_p = -30 * t_p**2 * (1 - t_p)**2 / width
-        d2switch_p = -60 * t_p * (1 - t_p) * (1 - 2 * t_p) / width**2
+        t2_p = t_p * t_p
+        u_p = 1 - t_p
+        switch_p = 1 - t2_p * t_p * (10 - 15 * t_p + 6 * t2_p)
+        dswitch_p = -30 * t2_p * (u_p * u_p) / width
+        d2switch_p = -60 * t_p * u_p * (1 - 2 * t_p) / (width * width)
         return switch_p, dswitch_p, d2switch_p
 
     def _pair_geometry(self, atoms):
@@ -212,7 +244,7 @@ class LennardJones(ExactCalculator):
             return self._pairs[1:]
         i_p, j_p, shift_pc = self._candidates(atoms)
         d_pc = x_nc[j_p] - x_nc[i_p] + shift_pc
-        r_p = np.sqrt(np.einsum('pc,pc->p', d_pc, d_pc))
+        r_p = np.sqrt(rowsquare(d_pc))
         # Only pairs inside rc enter the sums, so the candidates' history
         # (where the search last ran) cannot change a single bit.
         inside_p = r_p < self.cutoffs[1]
@@ -229,8 +261,8 @@ class LennardJones(ExactCalculator):
         if (search is not None and np.array_equal(search[1], cell)
                 and np.array_equal(search[2], pbc)
                 and len(search[0]) == len(x_nc)):
-            moved = np.einsum('nc,nc->n', x_nc - search[0], x_nc - search[0])
-            if moved.max(initial=0.0) <= (0.5 * skin)**2:
+            moved_n = rowsquare(x_nc - search[0])
+            if moved_n.max(initial=0.0) <= 0.25 * skin * skin:
                 return search[3:]
         i_p, j_p, s_pc = neighbor_list('ijS', atoms,
                                        self.cutoffs[1] + skin)
@@ -239,7 +271,7 @@ class LennardJones(ExactCalculator):
         order_p = np.lexsort((s_pc[keep_p, 2], s_pc[keep_p, 1],
                               s_pc[keep_p, 0], j_p[keep_p], i_p[keep_p]))
         i_p, j_p = i_p[keep_p][order_p], j_p[keep_p][order_p]
-        shift_pc = s_pc[keep_p][order_p] @ cell
+        shift_pc = rows_times_matrix(s_pc[keep_p][order_p], cell)
         self._search = (x_nc.copy(), cell.copy(), pbc.copy(), i_p, j_p,
                         shift_pc)
         return i_p, j_p, shift_pc
@@ -250,3 +282,11 @@ def _positive_image(s_pc):
     first_p = np.where(s_pc[:, 0] != 0, s_pc[:, 0],
                        np.where(s_pc[:, 1] != 0, s_pc[:, 1], s_pc[:, 2]))
     return first_p > 0
+
+
+def _powers(s_p):
+    """``(s**6, s**12)`` as products: ``**`` on arrays calls numpy's
+    power, whose last bits depend on the CPU."""
+    s2_p = s_p * s_p
+    s6_p = s2_p * s2_p * s2_p
+    return s6_p, s6_p * s6_p

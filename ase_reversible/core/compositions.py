@@ -53,8 +53,13 @@ def _mirror(first_half):
     return head + head[-2::-1]
 
 
-_CBRT2 = 2.0 ** (1.0 / 3.0)
-_SUZUKI_P = 1.0 / (4.0 - 4.0 ** (1.0 / 3.0))
+# 2.0 ** (1.0 / 3.0) and 4.0 ** (1.0 / 3.0), written out: ``**`` calls the
+# platform's libm, which need not round them the same everywhere, and every
+# kick's time step is made from them.  These are the correctly rounded
+# values (checked with 60-digit decimal arithmetic), the bits ``**`` gave
+# on the development machine, so no dynamics changed.
+_CBRT2 = 1.2599210498948732
+_SUZUKI_P = 1.0 / (4.0 - 1.5874010519681994)
 
 #: The built-in compositions, by name.
 #:

@@ -166,22 +166,6 @@ _dot = np.dot
 _NORM_LIMIT = 10_000
 
 
-def inner(a, b) -> float:
-    """``sum a * b`` of two flat float64 arrays of one length, on the
-    calling thread.
-
-    A BLAS dot up to ``_NORM_LIMIT`` elements; beyond, where OpenBLAS hands
-    the work to its threads, numpy's own loop (einsum).  On a busy machine
-    a thread handed work can wait for a core: measured on the development
-    machine with the load at 3 on its 2 cores, a dot of 12,000 elements
-    took 12 ms per call inside a run (3 µs in a quiet process), against
-    8 µs for einsum.
-    """
-    if a.size <= _NORM_LIMIT:
-        return float(_dot(a, b))
-    return float(np.einsum('i,i->', a, b))
-
-
 def _bound_abs(a, scratch) -> float:
     """An upper bound on ``max |a|`` in one pass, NaN or inf if ``a`` holds
     a non-finite value or overflows it."""

@@ -51,6 +51,7 @@ from ..core.codec import round_odd
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
 from ..core.plans import SubStep
+from ..core.portable import dot
 from ..core.record import read_record
 from ..core.variables import ExactVariable
 from ..errors import AnchorMovedWarning, UnstableIntegrationError
@@ -104,7 +105,7 @@ def thermostat_mass(g, kT, tdamp):
     """Nosé's ``Q = g kT tdamp**2``, eV (ASE time)**2 (``kT`` in eV,
     ``tdamp`` in ASE time units): the thermostat's period is of the order
     of ``tdamp``."""
-    return g * kT * tdamp**2
+    return g * kT * (tdamp * tdamp)
 
 
 def degrees_of_freedom(n_atoms, project):
@@ -205,13 +206,16 @@ class NoseHamiltonian(Hamiltonian):
 
     def thermostat_energy(self) -> float:
         """``pi**2 / 2Q + g kT ln s``, eV."""
+        # libm's log may differ between CPUs in the last bit: harmless,
+        # only the energy check reads this, never a step.
         pi = float(self.pi.floats[0])
         return 0.5 * pi * pi / self.Q + self.g * self.kT * math.log(
             self.s_value())
 
     def kinetic_energy(self):
         """The atoms' real kinetic energy ``sum p'**2 / (2 m s**2)``, eV."""
-        return 0.5 * self.momentum_square() / self.s_value()**2
+        s = self.s_value()
+        return 0.5 * self.momentum_square() / (s * s)
 
     def extended_energy(self):
         """``(H, proposed tolerance)``, eV: the conserved extended energy
@@ -226,7 +230,7 @@ class ScaledDrift(Drift):
     def apply(self, prepared):
         s = self.system
         self._drift(prepared, (s.p.label, s.s.label, prepared[0]),
-                    1.0 / s.s_value()**2)
+                    1.0 / (s.s_value() * s.s_value()))
 
     def adjoint(self, cotangents, ch):
         """``a_p' += c h P a_x / (m s**2)``; ``a_s -= 2 c h a_x . P p' /
@@ -235,8 +239,8 @@ class ScaledDrift(Drift):
         sys, s = self.system, self.system.s_value()
         w_nc = np.divide(cotangents['position'], sys.m_n1)
         sys.project(w_nc)
-        cotangents[S] -= 2.0 * ch / s**3 * float(np.vdot(w_nc, sys.p.floats))
-        cotangents['momentum'] += (ch / s**2) * w_nc
+        cotangents[S] -= 2.0 * ch / (s * s * s) * dot(w_nc, sys.p.floats)
+        cotangents['momentum'] += (ch / (s * s)) * w_nc
 
 
 def _add_rounded(variable, y):
@@ -269,7 +273,7 @@ class ThermostatKick(SubStep):
         if self._key != key:
             s = sys.s_value()
             two_k = sys.momentum_square()  # sum p'^2 / m
-            self._force = two_k / s**3 - sys.g * sys.kT / s
+            self._force = two_k / (s * s * s) - sys.g * sys.kT / s
             self._key = key
         return self._force
 
@@ -286,9 +290,10 @@ class ThermostatKick(SubStep):
             return
         s = sys.s_value()
         two_k = sys.momentum_square()
-        cotangents[S] += ch * a_pi * (sys.g * sys.kT / s**2
-                                      - 3.0 * two_k / s**4)
-        cotangents['momentum'] += (2.0 * ch * a_pi / s**3) * (
+        s2 = s * s
+        cotangents[S] += ch * a_pi * (sys.g * sys.kT / s2
+                                      - 3.0 * two_k / (s2 * s2))
+        cotangents['momentum'] += (2.0 * ch * a_pi / (s2 * s)) * (
             sys.p.floats / sys.m_n1)
 
 
@@ -340,7 +345,7 @@ def _warn_if_moving(system):
     if system.project is not no_projection:
         return
     momentum_c = system.p.floats.sum(axis=0)
-    drift = 0.5 * float(momentum_c @ momentum_c) / float(system.m_n1.sum())
+    drift = 0.5 * dot(momentum_c, momentum_c) / float(system.m_n1.sum())
     if drift > CENTRE_OF_MASS_TOLERANCE * system.kT:
         warnings.warn(
             f'The atoms move as a whole (centre-of-mass kinetic energy '
@@ -601,8 +606,8 @@ class ReversibleNose(ReversibleDynamics):
                 'carry= goes on from where the last backpropagate ended, '
                 'but the state has changed since: pass carry=False or none.')
         thermostat = carry.thermostat if carry else {}
-        a_s = float(thermostat.get('s', 0.0)) - float(
-            np.vdot(ap_nc, system.shown_momenta())) / s
+        a_s = float(thermostat.get('s', 0.0)) - dot(
+            ap_nc, system.shown_momenta()) / s
         return {'position': ax_nc, 'momentum': ap_nc / s,
                 S: np.array([a_s]),
                 PI: np.array([float(thermostat.get('pi', 0.0))]),
@@ -614,8 +619,8 @@ class ReversibleNose(ReversibleDynamics):
         system = self.system
         s = system.s_value()
         ap_nc = cotangents['momentum'] * s
-        a_s = float(cotangents[S][0]) + float(
-            np.vdot(cotangents['momentum'], system.shown_momenta()))
+        a_s = float(cotangents[S][0]) + dot(cotangents['momentum'],
+                                            system.shown_momenta())
         self._retrace_end = self._retrace_key()
         return (cotangents['position'].copy(), ap_nc,
                 {'s': a_s, 'pi': float(cotangents[PI][0])})
