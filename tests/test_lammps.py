@@ -116,6 +116,20 @@ def test_guarded_kicks_are_recomputed_and_stay_exact(tmp_path):
     assert_same_state(result, 'back', 'start')
 
 
+@pytest.mark.parametrize('ranks', [1, 2])
+def test_a_run_ending_on_a_recomputed_step_lands_exactly(ranks, tmp_path):
+    # A noise bound this coarse flags every step, the last of the run out
+    # too: its clean recomputation must still happen at the run's end.
+    steps = 12
+    result = job(ranks, 'reversal', tmp_path, system='argon', steps=steps,
+                 velocity_quantum=2.0**-28, force_noise=2.0**-30)
+    counters = result['counters']
+    assert counters['ended_recomputed'][0]
+    assert counters['clean_recomputations'] >= steps
+    assert not np.array_equal(result['out_x'], result['start_x'])
+    assert_same_state(result, 'back', 'start')
+
+
 @pytest.mark.parametrize('kind', ['restart', 'data'])
 @pytest.mark.parametrize('ranks', [1, 2])
 def test_restart_continues_bit_for_bit_and_runs_back(kind, ranks, tmp_path):

@@ -157,6 +157,8 @@ class ReversibleLammps:
         #: forces, and setups retried with finer sort bins.
         self.clean_recomputations = 0
         self.sort_retries = 0
+        #: The step of the latest clean recomputation (None before any).
+        self.last_recomputed_step = None
         #: Largest ``|F_run - F_clean|`` seen at a clean recomputation, and
         #: the bound the guard held it to (LAMMPS force units).
         self.max_observed_noise = 0.0
@@ -282,7 +284,9 @@ class ReversibleLammps:
             raise ValueError(f'nsteps must be >= 0, got {nsteps}; to run '
                              'back, negate the timestep')
         self._prepare()
-        target = self.step + nsteps
+        first = self.step
+        target = first + nsteps
+        counts = self.clean_recomputations, self.sort_retries
         self._mode = 'start'
         self._attach()
         try:
@@ -290,33 +294,45 @@ class ReversibleLammps:
         finally:
             self._detach()
             self._noisy = None
+        clean = self.clean_recomputations - counts[0]
+        retries = self.sort_retries - counts[1]
+        rate = f' ({100 * clean / nsteps:.2g}%)' if nsteps else ''
+        self._print(f'exact run of {nsteps} steps ({first} to {target}): '
+                    f'{clean} recomputed from clean forces{rate}, '
+                    f'{retries} sort retries')
 
     def _run_to(self, target):
-        while self.step < target:
+        # A redo pending at the target (its last step was flagged) still
+        # needs its setup: a run of 0 steps, or the kick taken back stays out.
+        while self.step < target or self._mode == 'redo':
             self._flag = 0
             self.lmp.fix_external_set_vector(f'{self.name}_ext', 1, 0.0)
             self._observed = None
-            self.lmp.command(f'run {target - self.step}')
+            before = self.step
+            self.lmp.command(f'run {target - before}')
             self._check_observed_noise()
             if self._flag == 0:
                 break
+            # A setup that stopped a run of 0 steps took no step to undo.
+            stepped = self.step > before
             if self._flag & _AMBIGUOUS:
                 # The kick just added is still the pending one: no step,
                 # and so no migration or sort, came after it.
                 self._local('v')[...] -= self._local(f'd2_{self.name}_k')
                 self.clean_recomputations += 1
+                self.last_recomputed_step = self.step
                 self._mode = 'redo'
-                self._print(f'exact step {self.step} recomputed from clean '
-                            'forces (an increment was within the guard)')
             elif self._flag & _NOT_CANONICAL:
                 retry = 'redo' if self._noisy is not None else 'start'
-                self._undo_drift()
+                if stepped:
+                    self._undo_drift()
                 self.sort_retries += 1
                 self.sort_bin /= 2
                 self._set_sort()
                 self._mode = retry
             else:
-                self._undo_drift()
+                if stepped:
+                    self._undo_drift()
                 raise FloatingPointError(
                     f'forces at step {self.step + 1} are not finite or '
                     'too large for the velocity grid; the atoms are back at '
