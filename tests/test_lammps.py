@@ -218,8 +218,6 @@ def test_runaway_forces_stop_the_run_and_lose_nothing(tmp_path):
      'units si are not supported'),
     ('units metal\natom_style sphere\nregion box block 0 10 0 10 0 10\n',
      'per-atom masses (rmass) are not supported'),
-    ('units metal\nregion box block 0 10 0 10 0 10\n',
-     'timestep 0.001 is not a power of two'),
 ])
 def test_systems_it_cannot_run_are_refused(setup, message):
     lammps = needs_lammps()

@@ -7,8 +7,10 @@ LAMMPS, with lines of one more command, ``reversible``:
 
 ``reversible nve [velocity_quantum Q] [force_noise F] [sort_bin B]``
     From here on, ``run N`` is an exact run (no ``fix nve``: this is the
-    integrator).  ``timestep`` must be a power of two in LAMMPS time units;
-    a negative one runs back.
+    integrator).  ``timestep`` (before or after this line) must be a power
+    of two in LAMMPS time units when a run starts; a negative one runs
+    back.  Fixes, pair styles and solvers that would make the motion depend
+    on more than positions are refused here and at every run.
 ``reversible anchor``
     Keep every atom's exact state beside it (no gather).
 ``reversible check``
@@ -90,10 +92,8 @@ class ScriptRunner:
                 raise ScriptError('reversible nve was already given; the '
                                   'grid it chose stays for the whole script')
             self.exact = ReversibleLammps(self.lmp, **_options(rest))
+            self.exact.hint = _hint
             self.on = True
-            settings = ', '.join(f'{key} {value!r}' for key, value
-                                 in self.exact.todict().items())
-            self.exact._print(f'reversible nve: {settings}')
         elif what in ('anchor', 'check', 'off') and self.exact is None:
             raise ScriptError(f'reversible {what} before reversible nve')
         elif what == 'anchor':
@@ -124,6 +124,11 @@ class ScriptRunner:
             raise ScriptError(f'run needs a whole number of steps >= 0, got '
                               f'{steps!r}')
         self.exact.run(int(steps))
+
+
+def _hint(option, value):
+    """An option as this script's own command gives it."""
+    return f'reversible nve {option} {value!r}'
 
 
 def _options(words):
