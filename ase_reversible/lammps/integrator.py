@@ -83,7 +83,7 @@ SUPPORTED_UNITS = ('metal', 'real', 'lj')
 #: examples: lj units 120 (in.lj), 296 (melt), 365 (in.chain), 549 (the 2d
 #: min); metal 4.6 eV/Å (in.eam), 0.3 (argon); real 134 kcal/mol/Å
 #: (in.rhodo without SHAKE).
-FORCE_SCALE = {'lj': 256.0, 'metal': 8.0, 'real': 256.0}
+FORCE_SCALE = {'lj': 256.0, 'metal': 4.0, 'real': 256.0}
 
 #: Fix styles that only add to or set forces, or only observe: the
 #: motion stays the exact integrator's.  Any other fix is refused before
@@ -112,7 +112,7 @@ _FIX_REASONS = (
     (('deposit', 'pour', 'evaporate', 'gcmc', 'atom/swap', 'bond/',
       'widom'),
      'adds, removes or changes atoms or bonds during a run'),
-    (('wall/reflect', 'recenter', 'dt/reset', 'freeze'),
+    (('wall/reflect', 'recenter', 'dt/reset'),
      'sets positions, velocities or the time step itself during a run'),
 )
 
@@ -613,6 +613,7 @@ class ReversibleLammps:
                              'orthogonal box')
         if lmp.get_natoms() == 0:
             raise ValueError('there are no atoms: define them first')
+        self._type_masses()
         self._check_styles()
 
     def _check_styles(self):
