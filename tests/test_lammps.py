@@ -405,3 +405,17 @@ def test_lammps_inputs_are_exact_or_refused_up_front(name, ranks, tmp_path):
     assert verdict == BENCH_VERDICTS[name], (detail, done.stderr[-2000:])
     if verdict == 'refused':
         assert 'exact run of' not in done.stdout
+
+
+def test_remedies_are_given_as_the_scripts_own_command(tmp_path):
+    # A grid so coarse that it resolves the velocities with 2 bits: the
+    # warning names the option as this script would write it.
+    script = write_script(tmp_path, ['reversible nve velocity_quantum 1.0',
+                                     'run 5'])
+    done = launch(1, '-m', 'ase_reversible.lammps', script, '-log', 'none',
+                  cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert 'fewer than 12' in done.stdout
+    assert 'precision, reversible nve velocity_quantum 0.00390625' in \
+        done.stdout
+    assert 'ReversibleLammps' not in done.stdout + done.stderr
