@@ -80,7 +80,7 @@ SUPPORTED_UNITS = ('metal', 'real', 'lj')
 #: takes the larger of this and the largest force when it is chosen,
 #: rounded up to a power of two (runs from a lattice start with no force
 #: at all).  Largest forces measured in runs of LAMMPS's bench inputs and
-#: examples: lj units 120 (in.lj), 296 (melt), 365 (in.chain), 549 (the 2d
+#: examples: lj units 120 (in.lj), 296 (melt), 365 (in.chain), 581 (the 2d
 #: min); metal 4.6 eV/Å (in.eam), 0.3 (argon); real 134 kcal/mol/Å
 #: (in.rhodo without SHAKE).
 FORCE_SCALE = {'lj': 256.0, 'metal': 4.0, 'real': 256.0}
