@@ -420,3 +420,19 @@ def test_remedies_are_given_as_the_scripts_own_command(tmp_path):
     assert 'precision, reversible nve velocity_quantum 0.00390625' in \
         done.stdout
     assert 'ReversibleLammps' not in done.stdout + done.stderr
+
+
+def test_a_force_fix_of_the_step_number_is_refused(tmp_path):
+    # Through a variable of a variable; the same force as a function of
+    # time runs back (measured exact), so only step is refused.
+    lines = ['variable phase equal step/10',
+             'variable fx equal 0.01*sin(v_phase)',
+             'fix push all addforce v_fx 0.0 0.0',
+             'reversible nve', 'run 5']
+    done = launch(1, '-m', 'ase_reversible.lammps',
+                  write_script(tmp_path, lines), '-log', 'none',
+                  cwd=tmp_path)
+    assert done.returncode == 1
+    assert ('fix push (addforce) takes variable fx, which depends on the '
+            'step number') in done.stderr
+    assert 'exact run of' not in done.stdout
