@@ -665,7 +665,7 @@ class ReversibleLammps:
             handle, path = tempfile.mkstemp(prefix='lammps-info-')
             os.close(handle)
         try:
-            self.lmp.command(f'info {what} out overwrite {path}')
+            self.lmp.command(f'info {what} out overwrite "{path}"')
             text = Path(path).read_text() if self.rank == 0 else ''
         finally:
             if self.rank == 0:
