@@ -124,10 +124,13 @@ def main(job, out, **options):
         lmp.command(f'timestep {-TIMESTEPS[system]!r}')
         rev.run(steps)
 
+    ended_recomputed = []
     if job in ('reversal', 'frozen'):
         rev.run(steps)
+        ended_recomputed.append(rev.last_recomputed_step == rev.step)
         states['out'] = rev.gather()
         back(steps)
+        ended_recomputed.append(rev.last_recomputed_step == rev.step)
         states['back'] = rev.gather()
     elif job == 'restart-write':
         # Out and on in one process, writing a restart and a data file
@@ -171,7 +174,8 @@ def main(job, out, **options):
                 'sort_retries': rev.sort_retries,
                 'max_observed_noise': rev.max_observed_noise,
                 'velocity_quantum': rev.velocity_quantum,
-                'ranks': rev.world.size}
+                'ranks': rev.world.size,
+                'ended_recomputed': ended_recomputed}
     if refused is not None:
         counters['refused'] = refused
     if rev.rank == 0:

@@ -36,7 +36,11 @@ retried with bins half the size.
 from __future__ import annotations
 
 import math
+import os
+import re
+import tempfile
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -70,6 +74,58 @@ CLEAN_RATE = 0.0025
 #: (forces of order 1, coordinates of order 10 to 1000).
 SUPPORTED_UNITS = ('metal', 'real', 'lj')
 
+#: Force scale (LAMMPS force units) the default velocity grid is chosen
+#: for, per unit style: the guard's bound grows with the largest force on
+#: a rank, so the grid must be coarser where forces are larger.  The grid
+#: takes the larger of this and the largest force when it is chosen,
+#: rounded up to a power of two (runs from a lattice start with no force
+#: at all).  Largest forces measured in runs of LAMMPS's bench inputs and
+#: examples: lj units 120 (in.lj), 296 (melt), 365 (in.chain), 581 (the 2d
+#: min); metal 4.6 eV/Å (in.eam), 0.3 (argon); real 134 kcal/mol/Å
+#: (in.rhodo without SHAKE).
+FORCE_SCALE = {'lj': 256.0, 'metal': 4.0, 'real': 256.0}
+
+#: Fix styles that only add to or set forces, or only observe: the
+#: motion stays the exact integrator's.  Any other fix is refused before
+#: a run (LAMMPS's all-capital styles are its own internal fixes).
+PASSIVE_FIXES = frozenset('''
+    addforce aveforce setforce gravity efield spring spring/self
+    spring/couple spring/rg indent lineforce planeforce enforce2d
+    wall/lj93 wall/lj126 wall/lj1043 wall/harmonic wall/morse
+    wall/colloid wall/table wall/region external print ave/time
+    ave/atom ave/chunk ave/histo ave/histo/weight ave/correlate vector
+    store/state property/atom halt balance'''.split())
+
+#: Why other fixes are refused, by style prefix: the first that matches.
+_FIX_REASONS = (
+    (('nvt', 'npt', 'nph', 'press/', 'deform', 'box/relax'),
+     'changes velocities or the box by a thermostat or barostat, which '
+     'depends on more than positions, so the motion could not be run back; '
+     'exact runs are at constant energy and box'),
+    (('nve', 'rigid', 'shake', 'rattle', 'move', 'nvk', 'nvl'),
+     'integrates or constrains the atoms itself: they would be moved twice '
+     '(reversible nve is the integrator, and constraints are not exact here)'),
+    (('langevin', 'temp/', 'viscous', 'momentum', 'gld', 'gle', 'heat',
+      'ehex', 'dpd', 'ttm', 'bd/', 'brownian'),
+     'changes velocities by friction, noise or rescaling, which depends on '
+     'more than positions: the motion could not be run back'),
+    (('deposit', 'pour', 'evaporate', 'gcmc', 'atom/swap', 'bond/',
+      'widom'),
+     'adds, removes or changes atoms or bonds during a run'),
+    (('wall/reflect', 'recenter', 'dt/reset'),
+     'sets positions, velocities or the time step itself during a run'),
+)
+
+#: Pair styles whose forces depend on velocities or on history, by prefix.
+_HISTORY_PAIRS = ('dpd', 'gran', 'lubricate', 'brownian', 'sdpd', 'mdpd',
+                  'edpd', 'tdpd')
+
+#: Long-range solvers whose force noise was measured (PPPM: rhodopsin,
+#: 32,000 atoms, forces at identical positions differed by at most
+#: 2.1e-13 kcal/mol/Å with max|F| 133 on 1 and 2 ranks, 73 times below
+#: the guard's bound; benchmarks/lammps_pppm_noise.py).
+MEASURED_KSPACE = ('pppm',)
+
 #: Default sort-bin width over the mean interatomic spacing (V/N)^(1/3).
 #: Two atoms share a bin only if closer than 2 sqrt(3) times the width,
 #: 0.87 (V/N)^(1/3): 0.77 of the nearest-neighbour distance of an fcc
@@ -86,18 +142,21 @@ class ReversibleLammps:
     lmp : lammps.lammps
         An instance on every rank (``mpiexec -n R python ...``), with the
         atoms, masses and interactions defined, an orthogonal box (any
-        boundaries), and no time-integration fix: this object defines its
-        own.  The time step
-        is LAMMPS's ``timestep``; it must be a power of two (in magnitude)
-        in LAMMPS time units, such as 0.001953125 ps (2^-9) in metal units.
-        A negative time step runs back.
+        boundaries, 2d or 3d), and no fix that integrates, thermostats,
+        constrains or changes the box: this object defines its own
+        integrator, and refuses those (ValueError naming the fix), here and
+        before every run.  The time step is LAMMPS's ``timestep`` when a
+        run starts; it must be a power of two (in magnitude) in LAMMPS time
+        units, such as 0.001953125 ps (2^-9) in metal units.  A negative
+        time step runs back.
     velocity_quantum : float, optional
-        Velocity grid, LAMMPS velocity units; a power of two.  Default:
-        the finest for which about ``CLEAN_RATE`` of steps need a clean
-        recomputation, from the atom count, the lightest mass, the
-        time step and ``force_noise``.  It depends on nothing that changes
-        during a run, so a restart from a LAMMPS restart or data file
-        chooses the same grid.
+        Velocity grid, LAMMPS velocity units; a power of two.  Default,
+        chosen when the first run starts: the finest for which about
+        ``CLEAN_RATE`` of steps need a clean recomputation, from the atom
+        count, the lightest mass, the time step, ``force_noise`` and a
+        force scale (``FORCE_SCALE`` of the unit style, or the largest
+        force then if larger).  A restart from a LAMMPS restart or data
+        file chooses the same grid unless its largest force is above both.
     force_noise : float
         Bound on the history noise of a force component, LAMMPS force
         units, for forces up to 1 and coordinates up to 32 (scaled by
@@ -123,6 +182,12 @@ class ReversibleLammps:
         self.name = name
         self.world = World(lmp.extract_setting('world_size'))
         self.rank = lmp.extract_setting('world_rank')
+        #: How an error message names an option: ``hint(name, value)``.
+        #: The script runner sets it to its own ``reversible nve`` words.
+        self.hint = lambda option, value: (
+            f'construct ReversibleLammps with {option}={value!r}')
+        self.units = lmp.extract_global('units')
+        self.dimension = lmp.extract_setting('dimension')
         self._check_system()
         self.force_noise = float(force_noise)
         if not (math.isfinite(self.force_noise) and self.force_noise > 0):
@@ -135,20 +200,22 @@ class ReversibleLammps:
         #: times the box's extent.
         self.position_quantum = quantum_for(POSITION_ROOM * self.extent)
         self._snap_box()  # first, so an anchor marked next is on it
-        dt = self._timestep()
         self.natoms = int(lmp.get_natoms())
-        masses = self._type_masses()
-        if velocity_quantum is None:
-            velocity_quantum = self._default_velocity_quantum(
-                self.natoms, abs(dt), masses.min())
-        #: Velocity grid, LAMMPS velocity units.
-        self.velocity_quantum = check_quantum(velocity_quantum,
-                                              'velocity_quantum')
-        self._check_drift_grid(dt)
+        self._type_masses()
+        #: Velocity grid, LAMMPS velocity units; if not given, chosen when
+        #: the first run starts (or at the anchor, if the time step is a
+        #: power of two by then), so the time step may be set afterwards.
+        self.velocity_quantum = None
+        if velocity_quantum is not None:
+            self.velocity_quantum = check_quantum(velocity_quantum,
+                                                  'velocity_quantum')
+        #: The force scale the default grid was chosen for (None if the
+        #: grid was given).
+        self.force_scale = None
         #: Bits with which the grid resolves the rms velocity component
-        #: at construction (None for atoms at rest).
+        #: when it is chosen (None for atoms at rest).
         self.velocity_bits = None
-        self._check_resolution()
+        self._grid_told = False
         if sort_bin is None:
             volume = float(np.prod(boxhi - boxlo))
             sort_bin = SORT_BIN_SPACING * (volume / self.natoms) ** (1 / 3)
@@ -157,10 +224,19 @@ class ReversibleLammps:
         #: forces, and setups retried with finer sort bins.
         self.clean_recomputations = 0
         self.sort_retries = 0
+        #: The step of the latest clean recomputation (None before any).
+        self.last_recomputed_step = None
         #: Largest ``|F_run - F_clean|`` seen at a clean recomputation, and
         #: the bound the guard held it to (LAMMPS force units).
         self.max_observed_noise = 0.0
         self.noise_bound_at_max = 0.0
+        #: Largest force component the kicks met in the latest run (LAMMPS
+        #: force units).
+        self.largest_force = 0.0
+        self._run_force = 0.0
+        #: Whether the anchor was kept before the grid was chosen: it is
+        #: snapped with the atoms when the grid is.
+        self._anchor_off_grid = False
         self._mode = 'start'
         self._flag = 0
         self._noisy = None
@@ -183,7 +259,12 @@ class ReversibleLammps:
         round_odd(y, out=k)
         # NaN propagates through both: the range test below refuses it.
         r_max = max(float(k.max(initial=0.0)), -float(k.min(initial=0.0)))
-        f_max = (r_max + 0.5) / self._scale_min
+        if self._type_scale is None:
+            f_max = (r_max + 0.5) / self._scale_min
+        else:  # the kicks' largest would overstate it by the mass ratio
+            f_max = float(np.abs(f).max(initial=0.0))
+        if f_max > self._run_force:
+            self._run_force = f_max
         bound = (self.force_noise * self._extent_factor * max(1.0, f_max)
                  * self._scale_max)
         local = 0
@@ -275,14 +356,20 @@ class ReversibleLammps:
         dumps, restart files) works as in any run.  Raises
         :class:`ImpureForcesError` if a clean recomputation found the
         forces noisier than the guard's bound, and ValueError (before any
-        step) for a time step that is not a power of two.
+        step) for a time step that is not a power of two, or a fix, pair
+        style or long-range solver exact runs cannot take.  Prints one
+        line at its end: the steps, how many were recomputed from clean
+        forces, and the largest force.
         """
         nsteps = int(nsteps)
         if nsteps < 0:
             raise ValueError(f'nsteps must be >= 0, got {nsteps}; to run '
                              'back, negate the timestep')
         self._prepare()
-        target = self.step + nsteps
+        first = self.step
+        target = first + nsteps
+        counts = self.clean_recomputations, self.sort_retries
+        self._run_force = 0.0
         self._mode = 'start'
         self._attach()
         try:
@@ -290,33 +377,47 @@ class ReversibleLammps:
         finally:
             self._detach()
             self._noisy = None
+        clean = self.clean_recomputations - counts[0]
+        retries = self.sort_retries - counts[1]
+        self.largest_force = float(self.world.max(self._run_force)[0])
+        rate = f' ({100 * clean / nsteps:.2g}%)' if nsteps else ''
+        self._print(f'exact run of {nsteps} steps ({first} to {target}): '
+                    f'{clean} recomputed from clean forces{rate}, '
+                    f'{retries} sort retries, max|F| '
+                    f'{self.largest_force:.3g}')
 
     def _run_to(self, target):
-        while self.step < target:
+        # A redo pending at the target (its last step was flagged) still
+        # needs its setup: a run of 0 steps, or the kick taken back stays out.
+        while self.step < target or self._mode == 'redo':
             self._flag = 0
             self.lmp.fix_external_set_vector(f'{self.name}_ext', 1, 0.0)
             self._observed = None
-            self.lmp.command(f'run {target - self.step}')
+            before = self.step
+            self.lmp.command(f'run {target - before}')
             self._check_observed_noise()
             if self._flag == 0:
                 break
+            # A setup that stopped a run of 0 steps took no step to undo.
+            stepped = self.step > before
             if self._flag & _AMBIGUOUS:
                 # The kick just added is still the pending one: no step,
                 # and so no migration or sort, came after it.
                 self._local('v')[...] -= self._local(f'd2_{self.name}_k')
                 self.clean_recomputations += 1
+                self.last_recomputed_step = self.step
                 self._mode = 'redo'
-                self._print(f'exact step {self.step} recomputed from clean '
-                            'forces (an increment was within the guard)')
             elif self._flag & _NOT_CANONICAL:
                 retry = 'redo' if self._noisy is not None else 'start'
-                self._undo_drift()
+                if stepped:
+                    self._undo_drift()
                 self.sort_retries += 1
                 self.sort_bin /= 2
                 self._set_sort()
                 self._mode = retry
             else:
-                self._undo_drift()
+                if stepped:
+                    self._undo_drift()
                 raise FloatingPointError(
                     f'forces at step {self.step + 1} are not finite or '
                     'too large for the velocity grid; the atoms are back at '
@@ -358,16 +459,24 @@ class ReversibleLammps:
             raise ImpureForcesError(
                 f'forces at step {self.step} differed from their clean '
                 f'recomputation by {noise:.3g}, more than the guard\'s bound '
-                f'{bound:.3g} (LAMMPS force units): earlier kicks may have '
-                'been rounded from noisy forces. Construct ReversibleLammps '
-                'with a larger force_noise.')
+                f'{bound:.3g} (LAMMPS force units): the forces depend on '
+                'more than the positions, by more than the guard allows '
+                '(LAMMPS\'s summation order, or a style whose noise was not '
+                'measured), and earlier kicks may have been rounded from '
+                'noisy forces. Run again from the start with a larger '
+                'bound: '
+                + self.hint('force_noise', _power_above(
+                    self.force_noise * 8 * noise / bound)))
 
     # -- set-up ----------------------------------------------------------------
 
     def _prepare(self):
         """Everything a run needs that the user may have changed since the
         last: the time step, the masses, the box and the atoms' grid."""
+        self._check_styles()
         dt = self._timestep()
+        self._snap_box()
+        self._choose_grid(dt)
         self._check_drift_grid(dt)
         masses = self._type_masses()
         ftm2v = self.lmp.extract_global('ftm2v')
@@ -380,18 +489,65 @@ class ReversibleLammps:
             self._type_scale = np.concatenate([[np.nan], per_type])
         extent = max(self.extent, *np.abs(np.concatenate(self._box())))
         self._extent_factor = max(1.0, extent / NOISE_REFERENCE_EXTENT)
-        self._snap_box()
         self._snap_atoms()
+        if self._anchor_off_grid:
+            anchor = self._anchor_views()[0]
+            for part, q in ((anchor[:, :3], self.position_quantum),
+                            (anchor[:, 3:], self.velocity_quantum)):
+                part[:] = np.rint(part / q) * q
+            self._anchor_off_grid = False
+        # Lists built at every step they may be needed, never incomplete:
+        # a list missing a pair forward may not miss it back.
         self.lmp.command('neigh_modify delay 0 every 1 check yes')
+
+    def _choose_grid(self, dt):
+        """The default velocity grid, once, for the time step of the first
+        run and the forces where it starts."""
+        if self.velocity_quantum is not None:
+            if not self._grid_told:
+                self._tell_grid()
+            return
+        # The forces where the run starts: a setup, as any run's, with the
+        # run's fixes in place (LAMMPS would warn of no integrator) and
+        # their kick off.
+        self._mode = 'halted'
+        self._attach()
+        try:
+            self.lmp.command('run 0 post no')
+        finally:
+            self._detach()
+        nlocal = self.lmp.extract_setting('nlocal')
+        f = self.lmp.numpy.extract_atom('f')[:nlocal]
+        f_max = float(self.world.max(float(np.abs(f).max(initial=0.0)))[0])
+        if not math.isfinite(f_max):
+            raise FloatingPointError('the forces where the run starts are '
+                                     'not finite: check the potential')
+        self.force_scale = _power_above(max(FORCE_SCALE[self.units], f_max))
+        self.velocity_quantum = self._default_velocity_quantum(
+            self.natoms, abs(dt), self._type_masses().min())
+        self._tell_grid()
+
+    def _tell_grid(self):
+        self._grid_told = True
+        scale = ('' if self.force_scale is None else
+                 f' (for forces up to {self.force_scale!r})')
+        self._print(f'exact grid: position_quantum {self.position_quantum!r}'
+                    f', velocity_quantum {self.velocity_quantum!r}{scale}, '
+                    f'force_noise {self.force_noise!r}, sort_bin '
+                    f'{self.sort_bin!r}')
+        self._check_resolution()
 
     def _snap_box(self):
         q = self.position_quantum
         lo, hi = self._box()
         snapped_lo, snapped_hi = np.rint(lo / q) * q, np.rint(hi / q) * q
+        if self.dimension == 2:  # z is 0 for every atom, and LAMMPS
+            snapped_lo[2], snapped_hi[2] = lo[2], hi[2]  # keeps it so
         if np.array_equal(lo, snapped_lo) and np.array_equal(hi, snapped_hi):
             return
         words = ' '.join(f'{axis} final {float(a)!r} {float(b)!r}' for axis, a, b
-                         in zip('xyz', snapped_lo, snapped_hi))
+                         in zip('xyz', snapped_lo, snapped_hi)
+                         if self.dimension == 3 or axis != 'z')
         self.lmp.command(f'change_box all {words} units box')
         change = max(np.abs(snapped_lo - lo).max(),
                      np.abs(snapped_hi - hi).max())
@@ -434,9 +590,10 @@ class ReversibleLammps:
         and data files written between runs hold nothing of them (the
         pending half-kick is recomputed when a run starts)."""
         n = self.name
+        vz = f'v_{n}_vz' if self.dimension == 3 else 'NULL'  # z stays 0
         for command in (f'fix {n}_k all property/atom d2_{n}_k 3 ghost no',
                         f'fix {n}_move all move variable NULL NULL NULL '
-                        f'v_{n}_vx v_{n}_vy v_{n}_vz',
+                        f'v_{n}_vx v_{n}_vy {vz}',
                         f'fix {n}_ext all external pf/callback 1 1',
                         f'fix {n}_halt all halt 1 v_{n}_halt > 0.5 '
                         'error continue message no'):
@@ -453,7 +610,7 @@ class ReversibleLammps:
 
     def _check_system(self):
         lmp = self.lmp
-        units = lmp.extract_global('units')
+        units = self.units
         if units not in SUPPORTED_UNITS:
             raise ValueError(
                 f'units {units} are not supported: the force-noise bound '
@@ -463,6 +620,57 @@ class ReversibleLammps:
                              'orthogonal box')
         if lmp.get_natoms() == 0:
             raise ValueError('there are no atoms: define them first')
+        self._type_masses()
+        self._check_styles()
+
+    def _check_styles(self):
+        """Refuse, before any step, every fix, pair style and long-range
+        solver that would make the motion depend on more than positions,
+        integrate the atoms a second time, or change the box, as LAMMPS's
+        ``info`` lists them."""
+        info = self._info('fixes system')
+        ours = {f'{self.name}_{part}' for part in
+                ('k', 'move', 'ext', 'halt', 'anchor')}
+        for fix, style in re.findall(
+                r'Fix\[\s*\d+\]:\s*(\S+),\s+style = (\S+),', info):
+            if fix in ours or style in PASSIVE_FIXES or style.isupper():
+                continue
+            reason = next((why for prefixes, why in _FIX_REASONS
+                           if style.startswith(prefixes)),
+                          'is not known to leave the motion to the exact '
+                          'integrator (only fixes that add to or set '
+                          'forces, or that observe, are taken)')
+            raise ValueError(
+                f'fix {fix} ({style}) {reason}. Remove it (unfix {fix}) '
+                'before the exact runs; for a thermostatted or constrained '
+                'run, use LAMMPS\'s own integrators after reversible off')
+        pair = re.search(r'Atoms\s*=.*style = (\S+)', info)
+        if pair and pair.group(1).startswith(_HISTORY_PAIRS):
+            raise ValueError(
+                f'pair_style {pair.group(1)} computes forces from velocities '
+                'or history, not from positions alone: its motion could not '
+                'be run back. Exact runs need a conservative potential')
+        kspace = re.search(r'Kspace style = (\S+)', info)
+        if kspace and kspace.group(1) not in MEASURED_KSPACE + ('none',):
+            raise ValueError(
+                f'kspace_style {kspace.group(1)}: its force noise at '
+                'identical positions was not measured, so the guard\'s bound '
+                'may not cover it (measured: '
+                f'{", ".join(MEASURED_KSPACE)}). Use kspace_style pppm')
+
+    def _info(self, what):
+        """LAMMPS's ``info`` about ``what``, as text, on every rank."""
+        path = os.devnull
+        if self.rank == 0:
+            handle, path = tempfile.mkstemp(prefix='lammps-info-')
+            os.close(handle)
+        try:
+            self.lmp.command(f'info {what} out overwrite "{path}"')
+            text = Path(path).read_text() if self.rank == 0 else ''
+        finally:
+            if self.rank == 0:
+                os.unlink(path)
+        return self.world.share(text, self.rank)
 
     def _box(self):
         lo, hi, *_ = self.lmp.extract_box()
@@ -476,7 +684,8 @@ class ReversibleLammps:
             raise ValueError(
                 f'timestep {dt!r} is not a power of two: the drift x += dt v '
                 'is exact only then. Use, for example, timestep '
-                f'{math.copysign(2.0 ** exponent, dt or 1)!r} (2^{exponent})')
+                f'{math.copysign(2.0 ** exponent, dt or 1)!r} (2^{exponent}) '
+                'before this run')
         return dt
 
     def _check_drift_grid(self, dt):
@@ -485,7 +694,9 @@ class ReversibleLammps:
                 f'timestep {dt!r} times the velocity quantum '
                 f'{self.velocity_quantum!r} is finer than the position '
                 f'quantum {self.position_quantum!r}: the drift would leave '
-                'the grid. Use a larger timestep or velocity_quantum.')
+                'the grid. Use a larger timestep, or '
+                + self.hint('velocity_quantum', _power_above(
+                    self.position_quantum / abs(dt))))
 
     def _check_resolution(self):
         """Warn when the velocity grid resolves the atoms' rms velocity
@@ -505,15 +716,19 @@ class ReversibleLammps:
                     f'the rms velocity with only {bits:.1f} bits (fewer than '
                     f'{MIN_MOMENTUM_BITS}): kicks lose precision. For '
                     f'{self.natoms} atoms the guard needs a grid this coarse '
-                    'to keep clean recomputations rare; pass a smaller '
-                    'velocity_quantum to trade speed for precision')
+                    'to keep clean recomputations rare; to trade speed for '
+                    'precision, '
+                    + self.hint('velocity_quantum',
+                                self.velocity_quantum / 2**8))
             self._print(f'WARNING: {text}')
             warnings.warn(text, RuntimeWarning, stacklevel=3)
 
     def _type_masses(self) -> np.ndarray:
         if self.lmp.extract_setting('rmass_flag'):
-            raise ValueError('per-atom masses (rmass) are not supported; '
-                             'use per-type masses')
+            raise ValueError(
+                'per-atom masses (rmass) are not supported: the atom_style '
+                'gives every atom a mass of its own (sphere, ellipsoid, ...); '
+                'use a style with per-type masses (atomic, bond, full, ...)')
         ntypes = self.lmp.extract_global('ntypes')
         masses = np.array(self.lmp.numpy.extract_atom('mass')[1:ntypes + 1],
                           dtype=float)
@@ -525,13 +740,13 @@ class ReversibleLammps:
         # P(clean) per step ~ 2 * 3N * noise / q in units of the kick:
         # the rule of GuardedForces.min_momentum_quantum.
         ftm2v = self.lmp.extract_global('ftm2v')
-        noise = (self.force_noise
+        noise = (self.force_noise * self.force_scale
                  * max(1.0, self.extent / NOISE_REFERENCE_EXTENT))
         wanted = (2 * 3 * natoms * noise * 0.5 * dt * ftm2v / m_min
                   / CLEAN_RATE)
         # No finer than the drift allows: dt q_v a multiple of q_x.
         wanted = max(wanted, self.position_quantum / dt)
-        return 2.0 ** math.ceil(math.log2(wanted))
+        return _power_above(wanted)
 
     def _print(self, text):
         """A line in LAMMPS's own output (screen and log), from rank 0."""
@@ -547,7 +762,17 @@ class ReversibleLammps:
             self.lmp.command(f'fix {self.name}_anchor all property/atom '
                              f'd2_{self.name}_anchor 6 ghost no')
             self._anchor_defined = True
-        self._snap_atoms()
+        if self.velocity_quantum is None:
+            try:
+                dt = self._timestep()
+            except ValueError:  # set later: the first run snaps the anchor
+                dt = None
+            if dt is not None:
+                self._snap_box()
+                self._choose_grid(dt)
+        if self.velocity_quantum is not None:
+            self._snap_atoms()
+        self._anchor_off_grid = self.velocity_quantum is None
         anchor, x_u, v = self._anchor_views()
         anchor[:, :3] = x_u
         anchor[:, 3:] = v
@@ -612,6 +837,11 @@ class ReversibleLammps:
         return {'position_quantum': self.position_quantum,
                 'velocity_quantum': self.velocity_quantum,
                 'force_noise': self.force_noise, 'sort_bin': self.sort_bin}
+
+
+def _power_above(value):
+    """The least power of two at or above ``value`` (> 0)."""
+    return 2.0 ** math.ceil(math.log2(value))
 
 
 __all__ = ['ReversibleLammps', 'FORCE_NOISE', 'CLEAN_RATE']

@@ -95,3 +95,15 @@ class World:
     def sum(self, *values) -> np.ndarray:
         """Elementwise sum over ranks of the given scalars."""
         return self._reduce(values, _MPI_SUM)
+
+    def share(self, text: str, rank: int) -> str:
+        """Rank 0's ``text`` on every rank (the others pass anything):
+        its bytes, summed with zeros from the other ranks."""
+        if self.size == 1:
+            return text
+        data = text.encode() if rank == 0 else b''
+        length = int(self.sum(len(data))[0])
+        codes = np.zeros(length)
+        if rank == 0:
+            codes[:] = np.frombuffer(data, dtype=np.uint8)
+        return bytes(self._reduce(codes, _MPI_SUM).astype(np.uint8)).decode()

@@ -7,8 +7,10 @@ LAMMPS, with lines of one more command, ``reversible``:
 
 ``reversible nve [velocity_quantum Q] [force_noise F] [sort_bin B]``
     From here on, ``run N`` is an exact run (no ``fix nve``: this is the
-    integrator).  ``timestep`` must be a power of two in LAMMPS time units;
-    a negative one runs back.
+    integrator).  ``timestep`` (before or after this line) must be a power
+    of two in LAMMPS time units when a run starts; a negative one runs
+    back.  Fixes, pair styles and solvers that would make the motion depend
+    on more than positions are refused here and at every run.
 ``reversible anchor``
     Keep every atom's exact state beside it (no gather).
 ``reversible check``
@@ -24,6 +26,7 @@ they lead to without the integrator.
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -52,6 +55,11 @@ class ScriptRunner:
         self.lmp = lmp
         self.exact = None
         self.on = False
+        #: The script's variables (name -> expression) and fixes (ID ->
+        #: words), as its lines define them: LAMMPS's info does not list a
+        #: fix's arguments.
+        self.variables = {}
+        self.fixes = {}
 
     def file(self, path):
         """Run every line of the script at ``path``."""
@@ -80,6 +88,41 @@ class ScriptRunner:
         if self.on and command == 'run':
             return self._run(words[1:])
         self.lmp.command(line)
+        self._note(command, words[1:])
+
+    def _note(self, command, words):
+        """Keep the variables and fixes a later run must check."""
+        if command == 'variable' and len(words) >= 2:
+            self.variables[words[0]] = ' '.join(words[1:])
+        elif command == 'fix' and len(words) >= 3:
+            self.fixes[words[0]] = words
+        elif command == 'unfix' and words:
+            self.fixes.pop(words[0], None)
+
+    def _check_step_dependence(self):
+        """Refuse a fix whose arguments are variables of the step number:
+        LAMMPS's step count rises on the way back too, so its forces on the
+        way back would not be those of the way out."""
+        for fix, words in self.fixes.items():
+            for name in re.findall(r'\bv_(\w+)', ' '.join(words[3:])):
+                if self._depends_on_step(name, set()):
+                    raise ScriptError(
+                        f'fix {fix} ({words[2]}) takes variable {name}, '
+                        'which depends on the step number: LAMMPS counts '
+                        'steps up on the way back too, so its forces there '
+                        'would not be those of the way out. Write it as a '
+                        'function of time (it runs back with the time '
+                        f'step), or unfix {fix} before the exact runs')
+
+    def _depends_on_step(self, name, seen):
+        if name in seen or name not in self.variables:
+            return False
+        seen.add(name)
+        text = self.variables[name]
+        if re.search(r'\b(step|elapsed|elaplong)\b', text):
+            return True
+        return any(self._depends_on_step(other, seen) for other in
+                   re.findall(r'(?:\bv_|\$\{?)(\w+)', text))
 
     def _reversible(self, words):
         if not words:
@@ -89,11 +132,10 @@ class ScriptRunner:
             if self.exact is not None:
                 raise ScriptError('reversible nve was already given; the '
                                   'grid it chose stays for the whole script')
+            self._check_step_dependence()
             self.exact = ReversibleLammps(self.lmp, **_options(rest))
+            self.exact.hint = _hint
             self.on = True
-            settings = ', '.join(f'{key} {value!r}' for key, value
-                                 in self.exact.todict().items())
-            self.exact._print(f'reversible nve: {settings}')
         elif what in ('anchor', 'check', 'off') and self.exact is None:
             raise ScriptError(f'reversible {what} before reversible nve')
         elif what == 'anchor':
@@ -123,7 +165,13 @@ class ScriptRunner:
         if steps != int(steps) or steps < 0:
             raise ScriptError(f'run needs a whole number of steps >= 0, got '
                               f'{steps!r}')
+        self._check_step_dependence()
         self.exact.run(int(steps))
+
+
+def _hint(option, value):
+    """An option as this script's own command gives it."""
+    return f'reversible nve {option} {value!r}'
 
 
 def _options(words):

@@ -1,0 +1,77 @@
+"""PPPM's force noise at identical positions: bench ``in.rhodo`` without
+SHAKE (32,000 atoms, CHARMM, ``kspace_style pppm 1e-4``, real units).
+
+``[mpiexec -n R] python benchmarks/lammps_pppm_noise.py [STEPS]
+[VELOCITY_QUANTUM]``
+
+Prints, on rank 0, the largest difference of any force component between
+two setups in a row at the same positions, between the last step of a
+run back and the setup before the run out (the same positions, reached
+exactly), and between setups before and after the run out and back; the
+clean recomputations' largest observed noise and the guard's bound.  A
+fine velocity quantum (default 2^-30 Å/fs) makes most steps recomputed,
+so the noise is sampled at each.  It saves the forces of the first setup
+as ``pppm-forces-R.npy`` to compare rank counts.
+"""
+
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from ase_reversible.lammps import ReversibleLammps, import_lammps  # noqa
+import lammps_bench  # noqa
+
+
+def main(steps=10, velocity_quantum=2.0**-30):
+    lammps = import_lammps()
+    bench = lammps_bench.bench_dir()
+    lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
+    text = lammps_bench.exact_script('rhodo without shake',
+                                     bench / 'in.rhodo')
+    setup = text.split('reversible nve')[0].replace(
+        'data.rhodo', str(bench / 'data.rhodo'))
+    lmp.commands_string(setup)
+    lmp.command('timestep 2.0')
+
+    def forces():
+        ids = np.ctypeslib.as_array(lmp.gather_atoms('id', 0, 1)).copy()
+        f = np.ctypeslib.as_array(lmp.gather_atoms('f', 1, 3))
+        return f.reshape(-1, 3)[np.argsort(ids)].copy()
+
+    def setup_forces():
+        lmp.command('run 0 post no')
+        return forces()
+
+    exact = ReversibleLammps(lmp, velocity_quantum=velocity_quantum)
+    exact.mark_anchor()
+    exact.run(0)
+    first, second = setup_forces(), setup_forces()
+    exact.run(steps)
+    lmp.command('timestep -2.0')
+    exact.run(steps)
+    back = forces()
+    after = setup_forces()
+    off, _ = exact.compare_with_anchor()
+    if exact.rank == 0:
+        np.save(f'pppm-forces-{exact.world.size}.npy', second)
+        print(f'{exact.world.size} rank(s), max|F| {np.abs(first).max():.4g}'
+              f': two setups {np.abs(second - first).max():.3g}, last step '
+              f'back vs setup {np.abs(back - second).max():.3g}, setups '
+              f'before and after out and back '
+              f'{np.abs(after - second).max():.3g}; '
+              f'{exact.clean_recomputations} of {2 * steps} steps '
+              f'recomputed, largest noise they saw '
+              f'{exact.max_observed_noise:.3g} against the bound '
+              f'{exact.noise_bound_at_max:.3g}; atoms off the anchor: {off}')
+    lmp.close()
+
+
+if __name__ == '__main__':
+    args = sys.argv[1:]
+    main(int(args[0]) if args else 10,
+         float(args[1]) if len(args) > 1 else 2.0**-30)
