@@ -53,7 +53,8 @@ def machine_env(name):
     env['PYTHONPATH'] = os.pathsep.join(
         [str(ROOT)] + [p for p in [env.get('PYTHONPATH')] if p])
     env.pop('NPY_DISABLE_CPU_FEATURES', None)
-    env.pop('OPENBLAS_CORETYPE', None)
+    # ``native`` keeps a core type the machine's environment sets (some
+    # set one because older OpenBLAS builds misbehave on their CPU).
     off = [feature for feature in disabled if feature in _dispatched()]
     if off:
         env['NPY_DISABLE_CPU_FEATURES'] = ' '.join(off)
