@@ -74,12 +74,9 @@ def admit(atoms, force_purity, force_noise):
             f'got {type(atoms).__name__}: filters that move the cell '
             '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
             'pass the Atoms themselves.')
+    refuse_unholdable_values(atoms)
     check_calculator(atoms.calc, 'constructing the integrator')
     masses_n = checked_masses(atoms)
-    for name in ('positions', 'momenta'):
-        values = atoms.arrays.get(name)
-        if values is not None and not np.all(np.isfinite(values)):
-            raise ValueError(f'The atoms have non-finite {name}.')
     project = constraint_projection(atoms)
     purity = force_provider(atoms, force_purity, force_noise)
     return masses_n, project, purity
@@ -725,7 +722,6 @@ class ReversibleDynamics(MolecularDynamics):
         to ``max_kick`` ASE time units) and refuses a quantum that would
         visibly change the momenta, all before anything is changed.
         """
-        refuse_unholdable_values(atoms)
         masses_n, project, purity, record = self._admit(
             atoms, force_purity, force_noise)
         grid = checked_grid(atoms, masses_n, project, purity, max_kick,

@@ -38,7 +38,6 @@ import operator
 import warnings
 
 import numpy as np
-from ase import Atoms
 
 from ..errors import AnchorMovedWarning, NonFiniteStateError
 from ..purity import calculator_members, mixture
@@ -218,8 +217,6 @@ def refuse_unholdable_values(atoms):
     """Refuse atoms with a NaN or infinite position, momentum or cell entry
     (:class:`~ase_reversible.NonFiniteStateError`, ``ValueError``), naming
     the atom, before a constructor changes anything."""
-    if not isinstance(atoms, Atoms):
-        return  # refused with advice by the admission
     check_finite_cell(atoms, 'Set a finite cell (atoms.set_cell).')
     problem = non_finite(atoms)
     if problem is not None:
