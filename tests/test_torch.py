@@ -1,0 +1,274 @@
+"""TorchCalculator: PyTorch energy models run out and back bit for bit, and
+their vector-Jacobian products against finite differences."""
+
+import pytest
+
+torch = pytest.importorskip('torch', reason='ase_reversible.torch needs '
+                            "PyTorch (pip install 'torch==2.13.0')")
+
+import warnings  # noqa: E402
+
+import numpy as np  # noqa: E402
+from ase import units  # noqa: E402
+
+import ase_reversible  # noqa: E402
+from ase_reversible import (AnchorMovedWarning, ReversibleLangevin,  # noqa: E402
+                            ReversibleVerlet)
+from ase_reversible.torch import (LennardJones, PairMLP,  # noqa: E402
+                                  TorchCalculator)
+
+from calculator_conformance import CalculatorConformance  # noqa: E402
+from conftest import AR_EPSILON, AR_SIGMA, DT  # noqa: E402
+from conftest import argon_bulk, argon_cluster  # noqa: E402
+from exactness import assert_runs_back, assert_same_state, snapshot  # noqa: E402
+
+MLP_CUTOFF = 7.0   # Å
+
+
+def mlp_calc(**kwargs):
+    model = PairMLP(cutoff=MLP_CUTOFF)
+    return TorchCalculator(model, MLP_CUTOFF, **kwargs)
+
+
+def lj_calc(**kwargs):
+    model = LennardJones(AR_EPSILON, AR_SIGMA)
+    return TorchCalculator(model, model.rc, **kwargs)
+
+
+def ar13(calc):
+    atoms = argon_cluster(2, 60)
+    atoms.rattle(0.05, seed=4)
+    atoms.calc = calc
+    return atoms
+
+
+def ar32(calc):
+    atoms = argon_bulk((2, 2, 2), 60)
+    atoms.rattle(0.05, seed=5)
+    atoms.calc = calc
+    return atoms
+
+
+MAKERS = {'mlp': mlp_calc, 'lj': lj_calc}
+SYSTEMS = {'ar13': ar13, 'ar32': ar32}
+
+
+# -- agreement with the package's numpy Lennard-Jones ----------------------
+
+@pytest.mark.parametrize('system', sorted(SYSTEMS))
+def test_torch_lj_matches_the_numpy_one(system):
+    atoms = SYSTEMS[system](lj_calc())
+    model = atoms.calc.model
+    ref = atoms.copy()
+    ref.calc = ase_reversible.LennardJones(
+        epsilon=AR_EPSILON, sigma=AR_SIGMA, rc=model.rc, ro=model.ro)
+    e, e_ref = atoms.get_potential_energy(), ref.get_potential_energy()
+    assert abs(e - e_ref) < 1e-12 * abs(e_ref)
+    f, f_ref = atoms.get_forces(), ref.get_forces()
+    assert np.abs(f - f_ref).max() < 1e-12 * np.abs(f_ref).max()
+    v_nc = np.random.default_rng(0).normal(size=f.shape)
+    dx_nc, dtheta = atoms.calc.vector_jacobian_product(
+        atoms, v_nc, ['epsilon', 'sigma'])
+    hv_nc = ref.calc.hessian_vector_product(ref, v_nc)
+    assert np.abs(dx_nc + hv_nc).max() < 1e-12 * np.abs(hv_nc).max()
+    for name in ('epsilon', 'sigma'):
+        expected = np.vdot(ref.calc.force_parameter_derivative(ref, name),
+                           v_nc)
+        assert isinstance(dtheta[name], float)
+        assert abs(dtheta[name] - expected) < 1e-12 * abs(expected)
+
+
+# -- products against central differences ----------------------------------
+
+def forces_at(atoms, x_nc):
+    atoms.positions = x_nc
+    return atoms.get_forces()
+
+
+@pytest.mark.parametrize('kind', sorted(MAKERS))
+def test_product_matches_finite_differences(kind):
+    atoms = ar13(MAKERS[kind]())
+    calc = atoms.calc
+    rng = np.random.default_rng(1)
+    x0_nc = atoms.get_positions()
+    f0_nc = atoms.get_forces()
+    v_nc = rng.normal(size=x0_nc.shape)
+    names = calc.differentiable_parameters
+    dx_nc, dtheta = calc.vector_jacobian_product(atoms, v_nc, names)
+    # Positions and results untouched by the product.
+    assert np.array_equal(atoms.positions, x0_nc)
+    assert calc.check_state(atoms) == []
+    assert np.array_equal(atoms.get_forces(), f0_nc)
+    # Positions: (dF/dx)^T v = (dF/dx) v (symmetric), along v.
+    h = 1e-5
+    fd_nc = (forces_at(atoms, x0_nc + h * v_nc)
+             - forces_at(atoms, x0_nc - h * v_nc)) / (2 * h)
+    atoms.positions = x0_nc
+    assert np.abs(dx_nc - fd_nc).max() < 1e-7 * np.abs(dx_nc).max()
+    # Parameters: along a random direction u in parameter space,
+    # u . (dF/dθ)^T v = v . d/de F(θ + e u).
+    u = {name: rng.normal(size=np.shape(value))
+         for name, value in calc.parameter_values().items()}
+    theta0 = calc.parameter_values()
+    exact = sum(float(np.vdot(u[name], dtheta[name])) for name in names)
+
+    def forces_with(e):
+        calc.set_parameter_values({name: theta0[name] + e * u[name]
+                                   for name in names})
+        return atoms.get_forces()
+
+    e = 1e-6 * max(abs(np.concatenate(
+        [np.ravel(t) for t in theta0.values()])).max(), 1e-3)
+    fd = np.vdot(v_nc, (forces_with(e) - forces_with(-e)) / (2 * e))
+    calc.set_parameter_values(theta0)
+    assert abs(exact - fd) < 1e-6 * abs(exact)
+    assert np.array_equal(atoms.get_forces(), f0_nc)
+
+
+# -- purity and exact reversal ----------------------------------------------
+
+@pytest.mark.parametrize('kind', sorted(MAKERS))
+def test_forces_are_pure_and_the_same_with_one_and_two_threads(kind):
+    atoms = ar32(MAKERS[kind]())
+    x0_nc = atoms.get_positions()
+    f0_nc = atoms.get_forces()
+    rng = np.random.default_rng(3)
+    for scale in (0.05, 1.0):
+        atoms.positions = x0_nc + rng.normal(0.0, scale, x0_nc.shape)
+        atoms.get_forces()
+        atoms.positions = x0_nc
+        assert np.array_equal(atoms.get_forces(), f0_nc)
+    two = atoms.copy()
+    two.calc = MAKERS[kind](threads=2)
+    assert np.array_equal(two.get_forces(), f0_nc)
+
+
+def test_the_callers_torch_settings_are_restored():
+    atoms = ar13(mlp_calc(threads=2))
+    threads = torch.get_num_threads()
+    deterministic = torch.are_deterministic_algorithms_enabled()
+    atoms.get_forces()
+    atoms.calc.vector_jacobian_product(atoms, np.ones((13, 3)))
+    assert torch.get_num_threads() == threads
+    assert torch.are_deterministic_algorithms_enabled() == deterministic
+
+
+@pytest.mark.parametrize('kind', sorted(MAKERS))
+@pytest.mark.parametrize('system', sorted(SYSTEMS))
+def test_verlet_runs_out_and_back_bit_for_bit(kind, system):
+    atoms = SYSTEMS[system](MAKERS[kind]())
+    dyn = ReversibleVerlet(atoms, DT)
+    assert dyn.force_purity.mode == 'trust'
+    assert_runs_back(dyn, 30)
+
+
+@pytest.mark.parametrize('kind', sorted(MAKERS))
+def test_langevin_runs_out_and_back_bit_for_bit(kind):
+    atoms = ar13(MAKERS[kind]())
+    dyn = ReversibleLangevin(atoms, DT, temperature_K=60,
+                             friction=0.02 / units.fs, seed=1)
+    assert_runs_back(dyn, 30)
+
+
+# -- weights changed between runs -------------------------------------------
+
+def test_an_optimiser_step_moves_the_anchor_and_reversal_leads_there():
+    atoms = ar13(mlp_calc())
+    model = atoms.calc.model
+    dyn = ReversibleVerlet(atoms, DT)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', AnchorMovedWarning)
+        dyn.run(10)
+        dyn.run(5)   # no change: no warning
+    # A training step between two runs.
+    optimiser = torch.optim.SGD(model.parameters(), lr=1e-3)
+    x = torch.from_numpy(atoms.get_positions())
+    edge = torch.tensor([[0, 1], [1, 0]])
+    loss = model(x, None, None, edge, torch.zeros((2, 3),
+                                                  dtype=torch.float64))
+    loss.backward()
+    optimiser.step()
+    anchor = snapshot(atoms)
+    with pytest.warns(AnchorMovedWarning, match='weights'):
+        dyn.run(15)
+    dyn.reverse()
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', AnchorMovedWarning)
+        dyn.run(15)
+    assert_same_state(atoms, anchor)
+
+
+def test_an_edit_through_data_is_seen():
+    atoms = ar13(mlp_calc())
+    calc = atoms.calc
+    f_nc = atoms.get_forces()
+    fingerprint = calc.parameters['weights']
+    # Not seen by tensor._version.
+    calc.model.mlp[0].weight.data[:, 8] += 1e-3   # basis near 3.8 Å
+    assert calc.parameters['weights'] != fingerprint
+    assert calc.check_state(atoms) == ['weights']
+    assert not np.array_equal(atoms.get_forces(), f_nc)
+
+
+# -- refusals and the protocol's checks -------------------------------------
+
+def test_float32_models_are_refused():
+    with pytest.raises(TypeError, match=r'model\.double\(\)'):
+        TorchCalculator(PairMLP(cutoff=MLP_CUTOFF).float(), MLP_CUTOFF)
+    calc = mlp_calc()
+    atoms = ar13(calc)
+    calc.model.float()   # after construction: refused at the next call
+    with pytest.raises(TypeError, match=r'model\.double\(\)'):
+        atoms.get_forces()
+
+
+def test_bad_arguments_are_refused_with_what_to_do():
+    calc = mlp_calc()
+    atoms = ar13(calc)
+    with pytest.raises(ValueError, match='available'):
+        calc.vector_jacobian_product(atoms, np.zeros((13, 3)), ['nope'])
+    with pytest.raises(ValueError, match='shape'):
+        calc.vector_jacobian_product(atoms, np.zeros((12, 3)))
+    with pytest.raises(ValueError, match='available'):
+        calc.parameter_values(['nope'])
+    before = calc.parameter_values()
+    with pytest.raises(ValueError, match='shape'):
+        calc.set_parameter_values({'mlp.0.bias': np.zeros(3)})
+    with pytest.raises(ValueError, match='NaN'):
+        calc.set_parameter_values({'mlp.0.bias': np.full(64, np.nan),
+                                   'mlp.2.bias': np.zeros(44)})
+    after = calc.parameter_values()
+    assert all(np.array_equal(before[k], after[k]) for k in before)
+    with pytest.raises(ValueError, match="model's cutoff"):
+        TorchCalculator(PairMLP(cutoff=MLP_CUTOFF), MLP_CUTOFF - 1)
+    with pytest.raises(TypeError, match='torch.nn.Module'):
+        TorchCalculator(lambda x: x, 5.0)
+
+
+def test_import_ase_reversible_stays_without_torch():
+    import subprocess
+    import sys
+    code = ('import sys, ase_reversible; '
+            'print("torch" in sys.modules)')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True,
+                         text=True, check=True).stdout.strip()
+    assert out == 'False'
+
+
+# -- the shared calculator checks -------------------------------------------
+
+class TestTorchLennardJones(CalculatorConformance):
+    systems = {'ar13': lambda: ar13(None)}
+    timestep = DT
+    reversal_steps = 30
+    gradient_tolerance = 1e-8
+    hessian_tolerance = 1e-7
+    bad_parameters = [({'cutoff': -1.0}, ValueError, 'cutoff')]
+
+    def make_calc(self, **parameters):
+        model = LennardJones(AR_EPSILON, AR_SIGMA)
+        return TorchCalculator(model, **{'cutoff': model.rc, **parameters})
+
+    def test_force_parameter_derivatives_match_finite_differences(self):
+        pytest.skip('the parameters are model tensors: their products are '
+                    'checked in test_product_matches_finite_differences')

@@ -1,0 +1,113 @@
+"""The canonical neighbour list of ase_reversible.torch: the set of pairs
+(against a brute force and ASE's neighbor_list) and its canonical order."""
+
+import pytest
+
+pytest.importorskip('torch', reason='ase_reversible.torch needs PyTorch')
+
+import itertools  # noqa: E402
+
+import numpy as np  # noqa: E402
+from ase import Atoms  # noqa: E402
+from ase.neighborlist import neighbor_list as ase_neighbor_list  # noqa: E402
+
+from ase_reversible.torch.neighbours import neighbour_list  # noqa: E402
+
+
+def brute_force(x_nc, cell, pbc, cutoff):
+    """Every (i, j, S) within the cut-off, by trying all images in reach."""
+    reach = []
+    for a in range(3):
+        if pbc[a]:
+            normal = np.cross(cell[(a + 1) % 3], cell[(a + 2) % 3])
+            height = abs(np.dot(cell[a], normal)) / np.linalg.norm(normal)
+            # Atoms may sit outside the cell: reach over their spread too.
+            f = x_nc @ np.linalg.inv(cell)
+            spread = np.ptp(f[:, a]) if len(f) else 0
+            reach.append(int(np.ceil(cutoff / height + spread)) + 1)
+        else:
+            reach.append(0)
+    pairs = set()
+    for s in itertools.product(*[range(-r, r + 1) for r in reach]):
+        shift = np.array(s, float) @ cell
+        d = x_nc[None, :, :] - x_nc[:, None, :] + shift
+        r2 = (d * d).sum(axis=2)
+        for i, j in zip(*np.nonzero(r2 < cutoff * cutoff)):
+            if i != j or any(s):
+                pairs.add((int(i), int(j), s))
+    return pairs
+
+
+def as_set(edge_index, image):
+    return set(zip(edge_index[0].tolist(), edge_index[1].tolist(),
+                   map(tuple, image.tolist())))
+
+
+def random_system(rng):
+    n = int(rng.integers(2, 40))
+    pbc = rng.random(3) < 0.6
+    cell = np.diag(rng.uniform(2.5, 8, 3))
+    if rng.random() < 0.6:          # triclinic
+        cell = cell + np.triu(rng.uniform(-1.5, 1.5, (3, 3)), 1)
+    # Some atoms outside the cell, as MD leaves them.
+    x_nc = rng.uniform(-0.3, 1.3, (n, 3)) @ cell
+    return x_nc, cell, pbc, float(rng.uniform(1.5, 6.0))
+
+
+@pytest.mark.parametrize('seed', range(12))
+def test_pairs_are_those_of_a_brute_force_and_of_ase(seed):
+    rng = np.random.default_rng(seed)
+    x_nc, cell, pbc, cutoff = random_system(rng)
+    edge_index, edge_shift, image = neighbour_list(x_nc, cell, pbc, cutoff)
+    got = as_set(edge_index, image)
+    assert len(got) == edge_index.shape[1]          # no duplicates
+    assert got == brute_force(x_nc, cell, pbc, cutoff)
+    atoms = Atoms(f'H{len(x_nc)}', positions=x_nc, cell=cell, pbc=pbc)
+    i, j, s = ase_neighbor_list('ijS', atoms, cutoff)
+    assert got == set(zip(i.tolist(), j.tolist(), map(tuple, s.tolist())))
+    # Both directions, shifts that give the pair vectors.
+    assert got == {(j, i, tuple(-np.array(s))) for i, j, s in got}
+    assert np.array_equal(edge_shift, image.astype(float) @ cell) or \
+        np.allclose(edge_shift, image @ cell, rtol=0, atol=1e-12)
+    d = x_nc[edge_index[1]] - x_nc[edge_index[0]] + edge_shift
+    assert (np.sqrt((d * d).sum(axis=1)) < cutoff).all()
+
+
+def test_a_cell_thinner_than_the_cutoff_gets_several_images():
+    cell = np.array([[2.0, 0, 0], [0.7, 2.2, 0], [0, 0, 9.0]])
+    x_nc = np.array([[0.1, 0.2, 0.3], [1.0, 1.1, 4.0]])
+    pbc = np.array([True, True, False])
+    edge_index, _, image = neighbour_list(x_nc, cell, pbc, 5.0)
+    got = as_set(edge_index, image)
+    assert got == brute_force(x_nc, cell, pbc, 5.0)
+    assert max(abs(s[0]) for _, _, s in got) >= 2
+
+
+def test_order_is_canonical_and_the_bits_repeat():
+    rng = np.random.default_rng(7)
+    x_nc, cell, pbc, cutoff = random_system(rng)
+    pbc[:] = True
+    first = neighbour_list(x_nc, cell, pbc, cutoff)
+    i, j = first[0]
+    s = first[2]
+    keys = np.lexsort((s[:, 2], s[:, 1], s[:, 0], j, i))
+    assert np.array_equal(keys, np.arange(len(i)))
+    # Same input after other calls: same bits, same order.
+    neighbour_list(x_nc + 0.3, cell, pbc, cutoff)
+    again = neighbour_list(x_nc.copy(), cell, pbc, cutoff)
+    for a, b in zip(first, again):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    assert first[0].dtype == np.int64 and first[1].dtype == np.float64
+
+
+def test_open_system_far_apart_and_bad_input():
+    x_nc = np.array([[0.0, 0, 0], [1e4, 0, 0], [1e4 + 1.0, 0, 0]])
+    edge_index, _, _ = neighbour_list(x_nc, np.zeros((3, 3)), [False] * 3,
+                                      2.0)
+    assert edge_index.tolist() == [[1, 2], [2, 1]]
+    with pytest.raises(ValueError, match='positive length'):
+        neighbour_list(x_nc, np.zeros((3, 3)), [False] * 3, 0.0)
+    with pytest.raises(ValueError, match='not independent'):
+        neighbour_list(x_nc, np.zeros((3, 3)), [True, False, False], 2.0)
+    with pytest.raises(ValueError, match='NaN'):
+        neighbour_list(x_nc * np.nan, np.zeros((3, 3)), [False] * 3, 2.0)
