@@ -227,6 +227,62 @@ class CalculatorConformance:
         with pytest.raises(ValueError, match='available'):
             atoms.calc.force_parameter_derivative(atoms, 'no such parameter')
 
+    def test_vector_jacobian_product_matches_finite_differences(
+            self, atoms):
+        calc = atoms.calc
+        self._needs(callable(getattr(calc, 'vector_jacobian_product', None)),
+                    'no vector_jacobian_product')
+        names = tuple(getattr(calc, 'differentiable_parameters', ()))
+        x0_nc = atoms.get_positions()
+        v_nc = np.random.default_rng(4).normal(size=x0_nc.shape)
+        dx_nc, dtheta = calc.vector_jacobian_product(atoms, v_nc, names)
+        assert np.array_equal(atoms.positions, x0_nc)
+        assert sorted(dtheta) == sorted(names)
+        # (dF/dx)^T v = -H v: H is symmetric.
+        fd_nc = -hessian_times(atoms, v_nc, 1e-5)
+        assert np.abs(dx_nc - fd_nc).max() < \
+            self.hessian_tolerance * np.abs(dx_nc).max()
+        for name in names:
+            value = calc.parameter_values([name])[name]
+            h = 1e-6 * value
+
+            def along_v(theta):
+                other = self.make_calc(**self.held_fixed)
+                other.set_parameter_values({name: theta})
+                return np.vdot(other.get_forces(atoms), v_nc)
+
+            fd = (along_v(value + h) - along_v(value - h)) / (2 * h)
+            scale = np.abs(calc.force_parameter_derivative(atoms, name)).max() \
+                * np.abs(v_nc).sum()
+            assert abs(dtheta[name] - fd) < \
+                self.parameter_derivative_tolerance * scale, name
+        with pytest.raises(ValueError, match='available'):
+            calc.vector_jacobian_product(atoms, v_nc, ['no such parameter'])
+
+    def test_parameter_values_round_trip_and_changes_are_seen(self, atoms):
+        calc = atoms.calc
+        names = tuple(getattr(calc, 'differentiable_parameters', ()))
+        self._needs(names and callable(getattr(calc, 'set_parameter_values',
+                                                None)),
+                    'no differentiable parameters to set')
+        values = calc.parameter_values()
+        assert sorted(values) == sorted(names)
+        f_nc = atoms.get_forces(apply_constraint=False)
+        before = dict(calc.parameters)
+        name = names[0]
+        calc.set_parameter_values({name: 1.01 * values[name]})
+        assert calc.parameter_values([name])[name] == 1.01 * values[name]
+        assert dict(calc.parameters) != before  # what the watch compares
+        assert not np.array_equal(atoms.get_forces(apply_constraint=False),
+                                  f_nc)
+        calc.set_parameter_values(values)
+        assert np.array_equal(atoms.get_forces(apply_constraint=False), f_nc)
+        with pytest.raises(ValueError, match='scalar|shape'):
+            calc.set_parameter_values({name: [1.0, 2.0]})
+        with pytest.raises(ValueError, match='available'):
+            calc.set_parameter_values({'no such parameter': 1.0})
+        assert calc.parameter_values() == values
+
     # -- parameters -------------------------------------------------------
 
     def test_a_changed_parameter_changes_the_results(self, atoms):

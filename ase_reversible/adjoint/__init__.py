@@ -43,6 +43,9 @@ others.
 
 from .cotangents import Cotangents, Gradients
 from .hessian import AnalyticHVP, FiniteDifferenceHVP, hvp_for
+from .products import CalculatorProduct, HessianProduct, product_for
+from .schedule import LossSchedule
 
 __all__ = ['Cotangents', 'Gradients', 'AnalyticHVP', 'FiniteDifferenceHVP',
-           'hvp_for']
+           'hvp_for', 'CalculatorProduct', 'HessianProduct', 'product_for',
+           'LossSchedule']

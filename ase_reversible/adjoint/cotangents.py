@@ -21,9 +21,11 @@ class Gradients(tuple):
     positions, momenta : numpy.ndarray
         The pair, by name.
     parameters : dict
-        ``dL/dtheta`` for each potential parameter asked for.
-    hessian_vector_products : int
-        Products computed during the retrace.
+        ``dL/dtheta`` for each potential parameter asked for, shaped like
+        the parameter's value (a float for a scalar).
+    products : int
+        Vector-Jacobian (or Hessian-vector) products computed during the
+        retrace; also ``hessian_vector_products``.
     thermostat : dict
         dL/d(variable) for a thermostat's own variables (empty for
         dynamics without any), at fixed positions and momenta: for
@@ -36,7 +38,8 @@ class Gradients(tuple):
                 hessian_vector_products=0, thermostat=None):
         self = super().__new__(cls, (positions, momenta))
         self.parameters = dict(parameters or {})
-        self.hessian_vector_products = hessian_vector_products
+        self.products = self.hessian_vector_products = \
+            hessian_vector_products
         self.thermostat = dict(thermostat or {})
         return self
 
@@ -56,28 +59,36 @@ class Cotangents(dict):
 
     A dict of ``dL/d(variable)`` arrays by variable name (``'position'``,
     ``'momentum'``, ...), each of the variable's shape, plus what the
-    sub-steps' adjoint rules share: the Hessian-vector product, the
-    potential parameters asked for and their gradients, and adjoint
-    updates deferred so that neighbours can be merged.
+    sub-steps' adjoint rules share: the vector-Jacobian product of the
+    forces, the gradients of the potential parameters asked for, and
+    adjoint updates deferred so that neighbours can be merged.
 
     Parameters
     ----------
     arrays : dict of str to numpy.ndarray
         The starting cotangents (float64, owned by this object).
-    hvp : callable, optional
-        ``hvp(atoms, v_nc) -> H v_nc`` (see :mod:`.hessian`).
-    parameters : tuple of str
-        Potential parameters to differentiate.
+    product : callable, optional
+        ``product(atoms, w_nc) -> ((dF/dx)^T w, {name: (dF/dtheta)^T w})``
+        (see :mod:`.products`).
+    grad_parameters : dict, optional
+        ``{name: zero}`` for each parameter to differentiate, shaped like
+        it (:func:`.products.zero_gradients`).
     """
 
-    def __init__(self, arrays, hvp=None, parameters=()):
+    def __init__(self, arrays, product=None, grad_parameters=None):
         super().__init__(arrays)
-        self.hvp = hvp
-        self.parameters = tuple(parameters)
-        self.grad_parameters = {name: 0.0 for name in self.parameters}
-        #: Hessian-vector products computed so far.
+        self.product = product
+        self.grad_parameters = dict(grad_parameters or {})
+        #: Products computed so far.
         self.products = 0
         self._pending = {}
+
+    def clear(self):
+        """Zero every cotangent (the start of a truncation window: what
+        came before does not reach the loss), keeping the parameters'."""
+        self.flush()
+        for array in self.values():
+            array[...] = 0.0
 
     def defer(self, rule, ch):
         """Add ``ch`` to the pending coefficient of ``rule``.
@@ -113,24 +124,3 @@ def checked_gradient(value, n, name):
     if not np.all(np.isfinite(g_nc)):
         raise ValueError(f'{name} contains non-finite values')
     return g_nc
-
-
-def checked_parameters(calc, names):
-    """``names`` as a tuple, refused unless ``calc`` can differentiate its
-    forces with respect to each."""
-    if isinstance(names, str):
-        names = (names,)
-    names = tuple(names)
-    if not names:
-        return names
-    available = tuple(getattr(calc, 'differentiable_parameters', ()))
-    unknown = [n for n in names if n not in available]
-    if unknown or not callable(getattr(calc, 'force_parameter_derivative',
-                                       None)):
-        raise ValueError(
-            f'{type(calc).__name__} cannot differentiate its forces with '
-            f'respect to {unknown or list(names)}; it offers '
-            f'{list(available) or "no parameters"} (a calculator provides '
-            'them with differentiable_parameters and '
-            'force_parameter_derivative(atoms, name)).')
-    return names

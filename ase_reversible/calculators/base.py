@@ -34,6 +34,8 @@ import math
 import numpy as np
 from ase.calculators.calculator import Calculator, all_changes
 
+from ..core.portable import dot
+
 #: How to read each quantity :func:`exact_system_changes` can compare.
 _SYSTEM_QUANTITIES = {
     'positions': lambda atoms: atoms.arrays['positions'],
@@ -81,6 +83,14 @@ class ExactCalculator(Calculator):
 
     It may override ``_check_relations`` (checks between parameters)
     and ``_forget`` (drop caches that depend on the parameters).
+
+    For the reversible adjoint it may declare
+    :attr:`differentiable_parameters` and implement
+    ``hessian_vector_product(atoms, v_nc)`` and
+    ``_force_parameter_derivative(atoms, name)``; the base class turns
+    them into the protocol the adjoint calls once per kick,
+    :meth:`vector_jacobian_product`, with :meth:`parameter_values` and
+    :meth:`set_parameter_values`.
     """
 
     #: Numeric parameter -> ``'positive'`` or ``'non-negative'``.
@@ -88,6 +98,9 @@ class ExactCalculator(Calculator):
     #: What of the atoms the results depend on, compared bit for bit.
     system_quantities = ('positions', 'numbers')
     nolabel = True
+    #: Parameters the forces can be differentiated by (scalars, all of
+    #: them numeric entries of ``parameters``).
+    differentiable_parameters: tuple = ()
 
     #: The forces depend on the atoms alone.  Every subclass sums its terms
     #: in a fixed order and keeps no state that changes a bit of them; one
@@ -155,6 +168,67 @@ class ExactCalculator(Calculator):
         self.results['energy'] = self.results['free_energy'] = energy
         self.results['energies'] = energies_n
         self.results['forces'] = f_nc
+
+    # -- derivatives (the reversible adjoint's protocol) ------------------
+
+    def checked_parameter_names(self, names):
+        """``names`` (a str or a sequence) as a tuple, ValueError naming
+        the available ones if any is not differentiable."""
+        names = (names,) if isinstance(names, str) else tuple(names)
+        unknown = [n for n in names if n not in self.differentiable_parameters]
+        if unknown:
+            raise ValueError(
+                f'{type(self).__name__} cannot differentiate its forces by '
+                f'{unknown}; available: {list(self.differentiable_parameters)}')
+        return names
+
+    def parameter_values(self, names=None):
+        """``{name: value}`` (floats) of the differentiable parameters (all
+        of them, or ``names``)."""
+        names = self.differentiable_parameters if names is None \
+            else self.checked_parameter_names(names)
+        return {name: float(self.parameters[name]) for name in names}
+
+    def set_parameter_values(self, values):
+        """Set differentiable parameters from ``{name: value}`` (through
+        :meth:`set`, so bounds are checked and the change is seen by the
+        integrators, which move their anchor of reversal)."""
+        values = dict(values)
+        self.checked_parameter_names(tuple(values))
+        converted = {}
+        for name, value in values.items():
+            array = np.asarray(value, dtype=float)
+            if array.shape != ():
+                raise ValueError(f'{name} is a scalar; got shape '
+                                 f'{array.shape}')
+            converted[name] = float(array)
+        return self.set(**converted)
+
+    def force_parameter_derivative(self, atoms, name):
+        """``dF/d(name)`` ``[n_atoms, 3]`` at the atoms' positions (eV/Å
+        per unit of the parameter)."""
+        self.checked_parameter_names((name,))
+        return self._force_parameter_derivative(atoms, name)
+
+    def _force_parameter_derivative(self, atoms, name):
+        raise NotImplementedError
+
+    def vector_jacobian_product(self, atoms, v_nc, parameters=()):
+        """``((dF/dx)^T v, {name: (dF/dtheta)^T v})`` at the atoms'
+        positions: what the adjoint of a kick needs, in one call.
+
+        ``v_nc`` is ``[n_atoms, 3]``; the first result too (eV/Å² x unit
+        of ``v``); each parameter's is a float (eV/Å per unit of the
+        parameter x unit of ``v``).  ``dF/dx = -H``, the Hessian of the
+        energy, which is symmetric, so the first is ``-H v``.  Sums are
+        in a fixed order: the same bits on every CPU.
+        """
+        v_nc = self.as_vector(atoms, v_nc)
+        names = self.checked_parameter_names(parameters)
+        hv_nc = self.hessian_vector_product(atoms, v_nc)
+        dx_nc = np.negative(hv_nc, out=hv_nc)
+        return dx_nc, {name: dot(self._force_parameter_derivative(atoms, name),
+                                 v_nc) for name in names}
 
     # -- order-fixed sums -------------------------------------------------
 

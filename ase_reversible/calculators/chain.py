@@ -70,6 +70,7 @@ class PendulumChain(ExactCalculator):
     parameter_bounds = {'stiffness': 'positive',
                         'rest_length': 'non-negative',
                         'gravity': 'non-negative'}
+    differentiable_parameters = ('stiffness', 'rest_length', 'gravity')
     # Gravity pulls each atom by its mass; ASE's default check ignores
     # masses.
     system_quantities = ('positions', 'masses', 'numbers')
@@ -135,6 +136,23 @@ class PendulumChain(ExactCalculator):
         # K dv is the change of the pull on the first atom of the link,
         # i.e. -(H v) there; the second atom gets the opposite.
         return -_onto_atoms(kdv_lc, len(atoms))
+
+
+    def _force_parameter_derivative(self, atoms, name):
+        """``dF/d(name)`` ``[n_atoms, 3]`` at the atoms' positions: per
+        unit of stiffness (Å), of rest length (eV/Å²) or of gravity (amu).
+        """
+        n = len(atoms)
+        if name == 'gravity':
+            df_nc = np.zeros((n, 3))
+            df_nc[:, 2] = -atoms.get_masses()
+            return df_nc
+        d_lc, r_l = _links(atoms.positions)
+        if name == 'stiffness':
+            pull_l = r_l - self.parameters['rest_length']
+        else:
+            pull_l = np.full_like(r_l, -self.parameters['stiffness'])
+        return _onto_atoms(_tension(pull_l, r_l, d_lc), n)
 
 
 def _links(x_nc):

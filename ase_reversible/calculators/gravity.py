@@ -56,6 +56,7 @@ class SoftenedGravity(ExactCalculator):
 
     implemented_properties = ['energy', 'free_energy', 'energies', 'forces']
     default_parameters = {'G': 1.0, 'softening': 0.5}
+    differentiable_parameters = ('G', 'softening')
     parameter_bounds = {'G': 'positive', 'softening': 'positive'}
     # The pull of a pair is proportional to both masses; ASE's default
     # check ignores masses.
@@ -101,6 +102,18 @@ class SoftenedGravity(ExactCalculator):
         along_p = 3.0 * w_p / s_p * rowdot(d_pc, dv_pc)
         kdv_pc = w_p[:, None] * dv_pc - along_p[:, None] * d_pc
         return -self.scatter_pairs(kdv_pc, i_p, j_p, len(atoms))
+
+    def _force_parameter_derivative(self, atoms, name):
+        """``dF/dG`` (amu² / Å², the forces over ``G``) or ``dF/d eps``
+        (eV/Å²): the pull ``G m m s**-1.5 d`` changes with ``eps`` by ``-3
+        eps G m m s**-2.5 d``."""
+        i_p, j_p, d_pc, s_p, gmm_p = self._pair_terms(atoms)
+        w_p = 1.0 / (s_p * np.sqrt(s_p))
+        if name == 'G':
+            w_p *= gmm_p / self.parameters['G']
+        else:
+            w_p *= -3.0 * self.parameters['softening'] * gmm_p / s_p
+        return self.scatter_pairs(w_p[:, None] * d_pc, i_p, j_p, len(atoms))
 
     def _pair_terms(self, atoms):
         n = len(atoms)

@@ -61,7 +61,9 @@ class LennardJones(ExactCalculator):
         repeated when an atom has moved more than ``skin / 2``.
 
     Besides ``energy``, ``energies``, ``forces`` and ``stress`` it offers
-    :meth:`hessian_vector_product` and :meth:`force_parameter_derivative`.
+    :meth:`hessian_vector_product`, :meth:`force_parameter_derivative`
+    and, for the reversible adjoint, both in one call:
+    :meth:`~ase_reversible.calculators.base.ExactCalculator.vector_jacobian_product`.
     """
 
     implemented_properties = ['energy', 'free_energy', 'energies', 'forces',
@@ -77,7 +79,7 @@ class LennardJones(ExactCalculator):
     # Pure (see the base class): pair search results are reduced to the
     # pairs inside ``rc``, sorted, before any sum.
 
-    #: Parameters :meth:`force_parameter_derivative` differentiates.
+    #: Parameters the forces are differentiated by.
     differentiable_parameters = ('epsilon', 'sigma')
 
     def _forget(self):
@@ -149,21 +151,15 @@ class LennardJones(ExactCalculator):
         # negated, which would turn a zero sum into -0.0.
         return self.scatter_pairs(jv_pc, j_p, i_p, n)
 
-    def force_parameter_derivative(self, atoms, name):
-        """``dF/d(name)`` ``[n_atoms, 3]`` at the atoms' positions.
+    def _force_parameter_derivative(self, atoms, name):
+        """``dF/d(name)`` ``[n_atoms, 3]``: Å⁻¹ for ``'epsilon'``, eV/Å²
+        for ``'sigma'``.
 
-        For the reversible adjoint's ``parameters=`` (see
-        :attr:`differentiable_parameters`).
-
-        ``name`` is ``'epsilon'`` (result in Å⁻¹) or ``'sigma'`` (eV/Å²).
         The derivative is that of the calculator the constructor would
         make with another ``sigma``: a cut-off left to its default
         (``rc = 3 sigma``, ``ro = 0.66 rc``) moves with ``sigma``, one
         given stays where it is.
         """
-        if name not in self.differentiable_parameters:
-            raise ValueError(f'No derivative with respect to {name!r}; '
-                             f'available: {self.differentiable_parameters}')
         n = len(atoms)
         i_p, j_p, d_pc, r_p = self._pair_geometry(atoms)
         epsilon, sigma = self.parameters['epsilon'], self.parameters['sigma']

@@ -171,12 +171,14 @@ class Engine:
     def _retrace_step(self, prepared, cotangents):
         """One step back: each sub-step undoes the forward sub-step with
         the opposite coefficient, after pulling the cotangents back
-        through it at the values it saw."""
+        through it at the values it saw (none if ``cotangents`` is
+        None)."""
         for checkpoint in self._checkpoints:
             checkpoint()
         try:
             for substep, argument, forward_ch in prepared:
-                substep.adjoint(cotangents, forward_ch)
+                if cotangents is not None:
+                    substep.adjoint(cotangents, forward_ch)
                 substep.apply(argument)
         except BaseException:
             self._rollback()
@@ -193,21 +195,29 @@ class Engine:
         """Flip the direction of time."""
         self.set_dt(-self._dt)
 
-    def retrace(self, steps, cotangents):
+    def retrace(self, steps, cotangents, visit=None):
         """Undo ``steps`` steps while pulling ``cotangents`` back.
 
         ``cotangents`` holds dL/d(variable) by name and ``flush()``; the
-        sub-steps' :meth:`~.plans.SubStep.adjoint` update it.  Afterwards
-        the variables are ``steps`` steps back and ``dt`` has its sign
-        again, also if a step fails (the state is then that of the last
-        completed step).
+        sub-steps' :meth:`~.plans.SubStep.adjoint` update it.  ``visit(k)``,
+        if given, is called at each state met, ``k = steps, ..., 0`` (its
+        steps from the state the retrace ends on): it may add to the
+        cotangents (flushing first what it must not merge with) and
+        returns whether the step from state ``k`` back to ``k - 1`` is to
+        carry the adjoint; a step that does not is undone with no adjoint
+        work at all.  Afterwards the variables are ``steps`` steps back
+        and ``dt`` has its sign again, also if a step fails (the state is
+        then that of the last completed step).
         """
         self.reverse()
         try:
             retrace = tuple((s, s.prepare(c * self._dt), -(c * self._dt))
                             for s, c in self.plan)
-            for _ in range(steps):
-                self._retrace_step(retrace, cotangents)
+            for k in range(steps, 0, -1):
+                carry = True if visit is None else visit(k)
+                self._retrace_step(retrace, cotangents if carry else None)
+            if visit is not None:
+                visit(0)
             cotangents.flush()
         finally:
             self.reverse()

@@ -18,8 +18,11 @@ import numpy as np
 from ase import Atoms, units
 from ase.md.md import MolecularDynamics
 
-from ..adjoint import Cotangents, Gradients, hvp_for
-from ..adjoint.cotangents import checked_gradient, checked_parameters
+from ..adjoint import Cotangents, Gradients
+from ..adjoint.cotangents import checked_gradient
+from ..adjoint.products import checked_parameters, product_for, \
+    zero_gradients
+from ..adjoint.schedule import LossSchedule, checked_schedule
 from ..core.codec import LIMIT, encode
 from ..core.quanta import choose_grid
 from ..core.record import (INFO_KEY, RecordWriter, read_record,
@@ -438,8 +441,9 @@ class ReversibleDynamics(MolecularDynamics):
 
     # -- the adjoint ------------------------------------------------------
 
-    def backpropagate(self, steps, grad_positions, grad_momenta=None, *,
-                      hvp='auto', parameters=(), carry=None):
+    def backpropagate(self, steps, grad_positions=None, grad_momenta=None,
+                      *, hvp='auto', parameters=(), carry=None, loss=None,
+                      every=1, window=None):
         """Gradients of a loss with respect to the state ``steps`` steps ago.
 
         After ``run(steps)``, with ``grad_positions`` = dL/d(positions)
@@ -452,59 +456,81 @@ class ReversibleDynamics(MolecularDynamics):
         repeats the forward run exactly.  Memory does not grow with
         ``steps``.
 
-        The retrace costs what the forward run cost, plus one
-        Hessian-vector product per step (kick-drift-kick, ``steps + 1`` in
-        all; one per kick for drift-kick-drift).  Observers are not called
-        during it.  A loss on several states of a run is handled by calling
-        this once per segment, adding each state's own dL/dx, dL/dp to the
-        gradients returned and passing them on as ``carry``::
+        The retrace costs what the forward run cost, plus one product of
+        the forces' Jacobian with a vector per step (kick-drift-kick,
+        ``steps + 1`` in all; one per kick for drift-kick-drift): the
+        calculator's ``vector_jacobian_product`` where it has one (one
+        call gives the positions' and every parameter's part).  Observers
+        are not called during it.
 
-            g = dyn.backpropagate(k, dL_dx_T, dL_dp_T)
-            g = dyn.backpropagate(k, g.positions + dL_dx_T_minus_k,
-                                  g.momenta, carry=g)
+        A loss on many states of the run (a time average, say) is
+        gathered in the same retrace by ``loss``: it is called at the
+        sampled states as the retrace passes them and returns each one's
+        own dL/dx, dL/dp.
 
         Parameters
         ----------
         steps : int
             Number of steps to retrace, >= 0.
-        grad_positions : array_like ``[n_atoms, 3]``
-            dL/dx at the current state, (loss unit) / Å.
+        grad_positions : array_like ``[n_atoms, 3]``, optional
+            dL/dx at the current state, (loss unit) / Å; None means zero.
         grad_momenta : array_like ``[n_atoms, 3]``, optional
             dL/dp at the current state, (loss unit) / (amu Å / ASE time);
             None means zero.
         hvp : {'auto', 'analytic', 'finite-difference'} or callable
-            How Hessian-vector products are computed
-            (:func:`ase_reversible.adjoint.hvp_for`): ``'auto'`` uses the
-            calculator's ``hessian_vector_product`` if it has one, else a
-            central finite difference of the forces (two force calls).
+            Where the products come from
+            (:func:`ase_reversible.adjoint.product_for`): ``'auto'`` uses
+            the calculator's ``vector_jacobian_product``, else its
+            ``hessian_vector_product``, else a central finite difference
+            of the forces (two force calls; positions only).  A callable
+            ``hvp(atoms, v_nc)`` returns ``H v``.
         parameters : sequence of str
             Potential parameters (e.g. ``('epsilon', 'sigma')`` for
-            :class:`ase_reversible.LennardJones`) whose gradients to
-            accumulate; returned in ``.parameters``.
+            :class:`ase_reversible.LennardJones`, or a network's weights
+            for :class:`ase_reversible.torch.TorchCalculator`) whose
+            gradients to accumulate; returned in ``.parameters``, each
+            shaped like the parameter.
         carry : Gradients or False, optional
             What the previous segment's retrace returned, for a loss on
-            several states: its thermostat cotangents (``.thermostat``) go
-            on from here.  Its positions and momenta are not used: pass
-            them, plus this state's own gradients, as ``grad_positions``
-            and ``grad_momenta``.  A dynamics with thermostat variables
+            several states split over several calls: its thermostat
+            cotangents (``.thermostat``) go on from here.  Its positions
+            and momenta are not used: pass them, plus this state's own
+            gradients, as ``grad_positions`` and ``grad_momenta``.  A
+            dynamics with thermostat variables
             (:class:`~ase_reversible.ReversibleNose`) refuses to go on from
             where its last retrace ended without it; ``False`` says that
             a new loss starts there.
+        loss : callable, optional
+            ``loss(atoms, k)``, called at the states ``k`` with ``k %
+            every == 0``, ``k`` counted in steps from the state the
+            retrace ends on (``k = steps`` is the present state, ``k = 0``
+            the earliest); the atoms show that state's positions and
+            momenta.  Returns None or ``(dL/dx, dL/dp)`` there (arrays
+            ``[n_atoms, 3]``; either may be None).
+        every : int
+            Steps between the states ``loss`` is called at.
+        window : int, optional
+            Carry each state's gradient back at most this many steps (a
+            truncated objective; at most ``every``, so that windows do not
+            overlap).  Steps outside every window are undone with no
+            product at all.  The gradients returned for the earliest
+            state are those of the windows that reach it.
 
         Returns
         -------
         Gradients
             ``(grad_positions0, grad_momenta0)``, each ``[n_atoms, 3]``,
-            with ``.parameters`` (dict) and ``.hessian_vector_products``.
-            Constraints are honoured: the gradients are those of the
-            constrained run, and the momentum gradient is projected
-            (momenta a constraint holds are not free).
+            with ``.parameters`` (dict) and ``.products``.  Constraints are
+            honoured: the gradients are those of the constrained run, and
+            the momentum gradient is projected (momenta a constraint holds
+            are not free).
 
         If the retrace fails (the calculator raises, or an interrupt), the
         atoms are left at the last completed step, still exactly
         reversible, and the time step keeps its original sign.
         """
         steps = check_steps(steps)
+        every, window = checked_schedule(loss, every, window, steps)
         self._sync()
         available = self.engine.steps_since_anchor
         if steps > available:
@@ -520,28 +546,49 @@ class ReversibleDynamics(MolecularDynamics):
             raise TypeError('carry must be the Gradients the previous '
                             f'backpropagate returned (or False), got '
                             f'{type(carry).__name__}')
+        if grad_positions is None and grad_momenta is None and loss is None:
+            raise ValueError('Nothing to differentiate: give grad_positions '
+                             'and/or grad_momenta (the loss\'s gradients at '
+                             'the present state) or loss=.')
+        ax_nc = checked_gradient(grad_positions, n, 'grad_positions')
+        ap_nc = checked_gradient(grad_momenta, n, 'grad_momenta')
+        names = checked_parameters(atoms.calc, parameters)
         cotangents = Cotangents(
-            self._cotangents_of(
-                checked_gradient(grad_positions, n, 'grad_positions'),
-                checked_gradient(grad_momenta, n, 'grad_momenta'), carry),
-            hvp=hvp_for(atoms.calc, hvp),
-            parameters=checked_parameters(atoms.calc, parameters))
+            self._cotangents_of(ax_nc, ap_nc, carry),
+            product=product_for(atoms.calc, hvp, names),
+            grad_parameters=zero_gradients(atoms.calc, names))
+        schedule = LossSchedule(steps, loss, every, window,
+                                self.system.show_momenta,
+                                self._loss_cotangents, atoms)
+        schedule.start(cotangents, bool(ax_nc.any() or ap_nc.any()
+                                        or carry))
         try:
-            self.engine.retrace(steps, cotangents)
+            self.engine.retrace(steps, cotangents, visit=schedule)
         finally:
             self._committed()
         ax_nc, ap_nc, thermostat = self._gradients_of(cotangents)
         if self.system.centre is not None:
             self.system.centre.pull_back(ap_nc)
         self.system.project(ap_nc)
-        return Gradients(ax_nc, ap_nc, cotangents.grad_parameters,
-                         cotangents.products, thermostat)
+        grads = {name: float(g) if np.ndim(g) == 0 else g
+                 for name, g in cotangents.grad_parameters.items()}
+        return Gradients(ax_nc, ap_nc, grads, cotangents.products,
+                         thermostat)
 
     def _cotangents_of(self, ax_nc, ap_nc, carry):
         """The cotangent of every exact variable, by name, for a loss
         with gradients ``ax_nc``, ``ap_nc`` on the shown positions and
         momenta, going on from ``carry`` (Gradients or None)."""
         return {'position': ax_nc, 'momentum': ap_nc}
+
+    def _loss_cotangents(self, ax_nc, ap_nc):
+        """What a loss with gradients ``ax_nc``, ``ap_nc`` (or None) on the
+        shown positions and momenta of the present state adds to the
+        exact variables' cotangents, by name."""
+        added = {'position': ax_nc}
+        if ap_nc is not None:
+            added['momentum'] = ap_nc
+        return added
 
     def _gradients_of(self, cotangents):
         """``(dL/dx, dL/dp, thermostat)`` on the shown positions and

@@ -20,7 +20,6 @@ from ase import units
 
 from ..core.codec import round_odd
 from ..core.plans import SubStep, compose
-from ..core.portable import dot
 from ..core.variables import ExactVariable
 from .constraints import no_projection
 from ..errors import NonFiniteForcesError, QuantumRangeError
@@ -298,25 +297,25 @@ class Kick(SubStep):
         cotangents.defer(self._pull_back, ch)
 
     def _pull_back(self, cotangents, ch):
-        """``a_x -= c h H(x) P a_p`` and ``a_theta += c h (dF/dtheta)^T P
-        a_p`` at the atoms' current positions."""
+        """``a_x += c h (dF/dx)^T P a_p`` and ``a_theta += c h (dF/dtheta)^T
+        P a_p`` at the atoms' current positions: one product."""
         s = self.system
         w_nc = np.array(cotangents['momentum'])
         if s.centre is not None:
             s.centre.pull_back(w_nc)
         s.project(w_nc)
         if not w_nc.any():
-            return  # H 0 = 0 (a loss on positions only starts this way)
-        # A copy: a user's product may keep or modify its argument.
-        hv_nc = np.asarray(cotangents.hvp(s.atoms, w_nc.copy()), dtype=float)
-        if hv_nc.shape != w_nc.shape:
-            raise ValueError(f'The Hessian-vector product has shape '
-                             f'{hv_nc.shape}, expected {w_nc.shape}')
+            return  # J^T 0 = 0 (a loss on positions only starts this way)
+        dx_nc, dtheta = cotangents.product(s.atoms, w_nc)
+        if dx_nc.shape != w_nc.shape:
+            raise ValueError(f'The product for the positions has shape '
+                             f'{dx_nc.shape}, expected {w_nc.shape}')
         cotangents.products += 1
-        cotangents['position'] -= ch * hv_nc
-        for name in cotangents.parameters:
-            df_nc = s.atoms.calc.force_parameter_derivative(s.atoms, name)
-            cotangents.grad_parameters[name] += ch * dot(df_nc, w_nc)
+        cotangents['position'] += ch * dx_nc
+        grads = cotangents.grad_parameters
+        for name in grads:
+            grads[name] = grads[name] + ch * np.asarray(dtheta[name],
+                                                        dtype=float)
 
 
 def explain_energy_drift(number, drift, tolerance, dt):

@@ -591,8 +591,6 @@ class ReversibleNose(ReversibleDynamics):
         # The user's gradients are on (x, p, s, pi) with p = p' / s; the
         # exact variables are (x, p', s, pi): dL/dp' = dL/dp / s and
         # dL/ds at fixed p' = dL/ds at fixed p - dL/dp . p / s.
-        system = self.system
-        s = system.s_value()
         here = self._retrace_key()
         if carry is None and here == self._retrace_end:
             raise ValueError(
@@ -606,12 +604,19 @@ class ReversibleNose(ReversibleDynamics):
                 'carry= goes on from where the last backpropagate ended, '
                 'but the state has changed since: pass carry=False or none.')
         thermostat = carry.thermostat if carry else {}
-        a_s = float(thermostat.get('s', 0.0)) - dot(
-            ap_nc, system.shown_momenta()) / s
-        return {'position': ax_nc, 'momentum': ap_nc / s,
-                S: np.array([a_s]),
+        added = self._loss_cotangents(ax_nc, ap_nc)
+        return {'position': ax_nc, 'momentum': added['momentum'],
+                S: added[S] + float(thermostat.get('s', 0.0)),
                 PI: np.array([float(thermostat.get('pi', 0.0))]),
                 CLOCK: np.zeros(1)}
+
+    def _loss_cotangents(self, ax_nc, ap_nc):
+        if ap_nc is None:
+            return {'position': ax_nc}
+        system = self.system
+        s = system.s_value()
+        return {'position': ax_nc, 'momentum': ap_nc / s,
+                S: np.array([-dot(ap_nc, system.shown_momenta()) / s])}
 
     def _gradients_of(self, cotangents):
         # Back to (x, p, s, pi): dL/dp = s dL/dp', dL/ds at fixed p =
