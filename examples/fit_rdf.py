@@ -294,7 +294,9 @@ class MLPStudent:
             miss = (self.model.pair_energy(r) - target) / EPSILON
             (miss * miss).mean().backward()
             optimiser.step()
-        self.pretrain_rms = float((miss * miss).mean().sqrt().detach()) * EPSILON
+        with torch.no_grad():
+            miss = self.model.pair_energy(r) - target
+            self.pretrain_rms = float((miss * miss).mean().sqrt())
 
     def calculator(self):
         return self.calc
