@@ -104,3 +104,15 @@ def test_training_quick_mode(name, student, tmp_path):
     # every epoch; σ (for the MLP: where its pair energy crosses zero),
     # started 0.3 Å too long, must move towards 3.4 Å.
     assert result['sigma_final'] < result['sigma_initial']
+
+
+@pytest.mark.parametrize('name', tiered(TRAINING, quick=[]))
+def test_training_vacf_quick_mode(name, tmp_path):
+    pytest.importorskip('torch', reason='the example imports torch')
+    result = load(name).fit_vacf(out_dir=tmp_path, quick=True,
+                                 report=lambda line: None)
+    check_pictures([result['picture']], tmp_path)
+    assert result['exact_return'] is True
+    assert result['exact_returns'] == result['epochs'] + 1
+    # σ started 0.3 Å long; the velocity autocorrelation pulls it back.
+    assert result['sigma_final'] < result['sigma_initial']
