@@ -3,7 +3,7 @@ right, what memory do they take, what do they cost.
 
 A section of ``run_all.py``::
 
-    python benchmarks/run_all.py --only training           # ~15 minutes
+    python benchmarks/run_all.py --only training           # ~25 minutes (loaded)
     python benchmarks/run_all.py --quick --only training   # ~1 minute
 
 Gradients.  Liquid argon (32 atoms at 94.4 K and 1.374 g/cm³, equilibrated
@@ -378,7 +378,8 @@ def measure_time(quick):
     cases = []
     students = [('LennardJones (numpy), ε and σ', 4 if not quick else 2,
                  lambda: (LennardJones(epsilon=fit.EPSILON,
-                                       sigma=fit.WRONG_SIGMA),
+                                       sigma=fit.WRONG_SIGMA,
+                                       rc=fit.STUDENT_RC),
                           ('epsilon', 'sigma')))]
 
     def mlp():
