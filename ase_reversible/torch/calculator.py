@@ -191,6 +191,28 @@ class TorchCalculator(ExactCalculator):
             dtheta[name] = float(value) if value.ndim == 0 else value
         return dx_nc, dtheta
 
+    def _force_parameter_derivative(self, atoms, name):
+        """``dF/d(name)`` ``[n_atoms, 3]`` for a scalar parameter (eV/Å per
+        unit of it), by a product taken twice; a tensor parameter has one
+        such array per entry: use :meth:`vector_jacobian_product`."""
+        (param,) = self._named([name]).values()
+        if param.numel() != 1:
+            raise ValueError(
+                f'{name} has {param.numel()} entries: dF/d{name} would be '
+                'one [n_atoms, 3] array per entry; use '
+                'vector_jacobian_product for its product with a vector.')
+        with self._scope():
+            x, numbers, cell, edge_index, edge_shift = self._inputs(atoms)
+            x.requires_grad_(True)
+            energy = self.model(x, numbers, cell, edge_index, edge_shift)
+            (g,) = torch.autograd.grad(energy, x, create_graph=True)
+            # u . dg/dθ is linear in u: its gradient in u is dg/dθ.
+            u = torch.zeros_like(g, requires_grad=True)
+            (ug,) = torch.autograd.grad(g, param, grad_outputs=u,
+                                        create_graph=True)
+            (dg,) = torch.autograd.grad(ug.sum(), u, allow_unused=True)
+        return _negated(dg, x)
+
     def hessian_vector_product(self, atoms, v_nc):
         """``H v`` (eV/Å² x unit of ``v``): minus the position part of
         :meth:`vector_jacobian_product`, for the adjoint's ``hvp``."""
