@@ -143,6 +143,36 @@ def test_forces_are_pure_and_the_same_with_one_and_two_threads(kind):
     assert np.array_equal(two.get_forces(), f0_nc)
 
 
+def test_a_product_from_the_kept_graph_is_the_fresh_one_bit_for_bit():
+    # After a first product the force calls keep their graph for the next
+    # product at the same positions: same bits as a fresh pass, and the
+    # forces are those of a calculator that keeps nothing.
+    atoms = ar32(mlp_calc())
+    calc = atoms.calc
+    names = calc.differentiable_parameters
+    v_nc = np.random.default_rng(8).normal(size=(len(atoms), 3))
+    calc.vector_jacobian_product(atoms, v_nc, names)
+    atoms.positions[0, 0] += 0.01
+    f_nc = atoms.get_forces()
+    assert calc._graph is not None
+    kept = calc.vector_jacobian_product(atoms, v_nc, names)
+    fresh_atoms = atoms.copy()
+    fresh_atoms.calc = mlp_calc()
+    assert np.array_equal(fresh_atoms.get_forces(), f_nc)
+    fresh = fresh_atoms.calc.vector_jacobian_product(fresh_atoms, v_nc, names)
+    assert np.array_equal(kept[0], fresh[0])
+    assert all(np.array_equal(kept[1][n], fresh[1][n]) for n in names)
+    # A weight changed in place after the force call: not from the graph.
+    atoms.get_forces()
+    with torch.no_grad():
+        calc.model.mlp[0].bias.data += 1e-3
+    changed = calc.vector_jacobian_product(atoms, v_nc, names)
+    fresh_atoms.calc.model.mlp[0].bias.data += 1e-3
+    again = fresh_atoms.calc.vector_jacobian_product(fresh_atoms, v_nc, names)
+    assert np.array_equal(changed[0], again[0])
+    assert not np.array_equal(changed[0], kept[0])
+
+
 def test_the_callers_torch_settings_are_restored():
     atoms = ar13(mlp_calc(threads=2))
     threads = torch.get_num_threads()

@@ -85,6 +85,7 @@ class TorchCalculator(ExactCalculator):
                              f'{threads!r}')
         self.model = model
         self.threads = threads
+        self._keep_graph = False
         self._results_weights = None
         super().__init__(cutoff=cutoff, **kwargs)
 
@@ -108,7 +109,10 @@ class TorchCalculator(ExactCalculator):
         return super().set(**kwargs)
 
     def _forget(self):
-        self._lists = None   # (positions, cell, pbc bytes, tensors)
+        self._lists = None   # (state key, numbers, cell, edges, shifts)
+        # The last force call's graph (state key, positions tensor, energy,
+        # weights' fingerprint), kept once products have been asked for.
+        self._graph = None
 
     def weights_fingerprint(self) -> str:
         """CRC-32 of every parameter's and buffer's bytes (and the
@@ -175,10 +179,20 @@ class TorchCalculator(ExactCalculator):
         v_nc = self.as_vector(atoms, v_nc)
         names = tuple(parameters)
         params = self._named(names)
+        # From now on the force calls keep their graph: the adjoint asks
+        # for the product where it has just asked for the forces.
+        self._keep_graph = True
+        graph, self._graph = self._graph, None
         with self._scope():
-            x, numbers, cell, edge_index, edge_shift = self._inputs(atoms)
-            x.requires_grad_(True)
-            energy = self.model(x, numbers, cell, edge_index, edge_shift)
+            if graph is not None and graph[0] == self._state_key(atoms) \
+                    and graph[3] == self.weights_fingerprint():
+                x, energy = graph[1], graph[2]
+            else:
+                x, numbers, cell, edge_index, edge_shift = \
+                    self._inputs(atoms)
+                x.requires_grad_(True)
+                energy = self.model(x, numbers, cell, edge_index,
+                                    edge_shift)
             (g,) = torch.autograd.grad(energy, x, create_graph=True)
             inputs = [x] + [params[name] for name in names]
             grads = torch.autograd.grad(
@@ -242,9 +256,14 @@ class TorchCalculator(ExactCalculator):
             x.requires_grad_(True)
             energy = self.model(x, numbers, cell, edge_index, edge_shift)
             _check_energy(energy)
-            (g,) = torch.autograd.grad(energy, x)
+            # Keeping the graph changes no bit of the gradient.
+            (g,) = torch.autograd.grad(energy, x,
+                                       retain_graph=self._keep_graph)
         f_nc = _negated(g, x)
         self._results_weights = self.weights_fingerprint()
+        self._graph = ((self._state_key(self.atoms), x, energy,
+                        self._results_weights) if self._keep_graph
+                       else None)
         value = float(energy.detach())
         self.results['energy'] = self.results['free_energy'] = value
         self.results['forces'] = f_nc
@@ -283,11 +302,15 @@ class TorchCalculator(ExactCalculator):
             if threads != self.threads:
                 torch.set_num_threads(threads)
 
+    def _state_key(self, atoms):
+        return (atoms.positions.tobytes(), atoms.cell.array.tobytes(),
+                atoms.pbc.tobytes(), atoms.arrays['numbers'].tobytes(),
+                self.parameters_cutoff())
+
     def _inputs(self, atoms):
         """Fresh position tensor and the cached list for these positions."""
         x_nc = atoms.positions
-        key = (x_nc.tobytes(), atoms.cell.array.tobytes(),
-               atoms.pbc.tobytes(), self.parameters_cutoff())
+        key = self._state_key(atoms)
         lists = self._lists
         if lists is None or lists[0] != key:
             edge_index, edge_shift, _ = neighbour_list(
@@ -297,10 +320,6 @@ class TorchCalculator(ExactCalculator):
                      torch.from_numpy(atoms.cell.array.copy()),
                      torch.from_numpy(edge_index),
                      torch.from_numpy(edge_shift))
-            self._lists = lists
-        elif not np.array_equal(lists[1].numpy(), atoms.arrays['numbers']):
-            lists = (key, torch.from_numpy(
-                atoms.arrays['numbers'].astype(np.int64))) + lists[2:]
             self._lists = lists
         x = torch.from_numpy(np.array(x_nc, dtype=np.float64))
         return (x,) + lists[1:]

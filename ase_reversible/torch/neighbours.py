@@ -86,9 +86,24 @@ def neighbour_list(positions, cell, pbc, cutoff):
                                           & ~s_pc.any(axis=1))
     i_p, j_p, s_pc, shift_pc = (i_p[keep_p], j_p[keep_p], s_pc[keep_p],
                                 shift_pc[keep_p])
-    order_p = np.lexsort((s_pc[:, 2], s_pc[:, 1], s_pc[:, 0], j_p, i_p))
+    order_p = _canonical_order(i_p, j_p, s_pc, n)
     edge_index = np.stack((i_p[order_p], j_p[order_p]))
     return edge_index, shift_pc[order_p], s_pc[order_p]
+
+
+def _canonical_order(i_p, j_p, s_pc, n):
+    """The permutation sorting by (i, j, S): one sort of a combined
+    integer key where it fits in int64, else numpy's lexsort."""
+    if not len(i_p):
+        return np.zeros(0, np.int64)
+    low = s_pc.min(axis=0)
+    width = s_pc.max(axis=0) - low + 1
+    if float(n) * n * float(np.prod(width.astype(float))) < 2.0**62:
+        key = i_p * n + j_p
+        for c in range(3):
+            key = key * width[c] + (s_pc[:, c] - low[c])
+        return np.argsort(key, kind='stable')
+    return np.lexsort((s_pc[:, 2], s_pc[:, 1], s_pc[:, 0], j_p, i_p))
 
 
 def _shifts(s_pc, cell):
@@ -180,6 +195,14 @@ def _candidates(x_nc, cell, pbc, cutoff):
     first = np.repeat(start - np.cumsum(count) + count, count)
     slot = first + np.arange(total)
     k = order[slot]
+    # A first cut by the ghosts' distances (cheap, slightly inexact: the
+    # exact test follows on the survivors), with room for rounding.
+    d = ghost_k[k] - xw_nc[centre]
+    scale = np.abs(ghost_k).max(initial=0.0) + np.abs(xw_nc).max()
+    reach2 = (margin + 1e-12 * scale) ** 2
+    close = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2] \
+        < reach2
+    k, centre = k[close], centre[close]
     j = atom_k[k]
     # The true image: ghost = x_j - w_j cell + S' cell, centre = x_i - w_i
     # cell, so the pair vector is x_j - x_i + (S' - w_j + w_i) cell.
