@@ -25,7 +25,7 @@ DOCS = ROOT / 'docs'
 SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
             'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
             'thermostat', 'nose', 'lammps_cost', 'portable', 'force_noise',
-            'full_precision', 'long_reversal')
+            'full_precision', 'long_reversal', 'torch_products')
 
 
 def page_module(name):

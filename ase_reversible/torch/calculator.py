@@ -92,6 +92,9 @@ class TorchCalculator(ExactCalculator):
     # ``parameters`` carries the weights' fingerprint, fresh at every read.
     @property
     def parameters(self):
+        """ASE's parameter dict: ``cutoff`` (Å) and ``weights``, the
+        fingerprint of the model's weights as they are now (computed at
+        each read, see the class docstring for its cost)."""
         params = self._parameters
         if params is not None and getattr(self, 'model', None) is not None:
             params['weights'] = self.weights_fingerprint()
@@ -305,7 +308,7 @@ class TorchCalculator(ExactCalculator):
     def _state_key(self, atoms):
         return (atoms.positions.tobytes(), atoms.cell.array.tobytes(),
                 atoms.pbc.tobytes(), atoms.arrays['numbers'].tobytes(),
-                self.parameters_cutoff())
+                self._cutoff())
 
     def _inputs(self, atoms):
         """Fresh position tensor and the cached list for these positions."""
@@ -314,7 +317,7 @@ class TorchCalculator(ExactCalculator):
         lists = self._lists
         if lists is None or lists[0] != key:
             edge_index, edge_shift, _ = neighbour_list(
-                x_nc, atoms.cell.array, atoms.pbc, self.parameters_cutoff())
+                x_nc, atoms.cell.array, atoms.pbc, self._cutoff())
             lists = (key, torch.from_numpy(
                          atoms.arrays['numbers'].astype(np.int64)),
                      torch.from_numpy(atoms.cell.array.copy()),
@@ -324,7 +327,7 @@ class TorchCalculator(ExactCalculator):
         x = torch.from_numpy(np.array(x_nc, dtype=np.float64))
         return (x,) + lists[1:]
 
-    def parameters_cutoff(self) -> float:
+    def _cutoff(self) -> float:
         return self._parameters['cutoff']
 
     def _check_relations(self):

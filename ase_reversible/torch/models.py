@@ -76,6 +76,7 @@ class LennardJones(torch.nn.Module):
         self.rc, self.ro = rc, ro
 
     def forward(self, positions, numbers, cell, edge_index, edge_shift):
+        """The energy (eV, scalar tensor); see the class docstring."""
         mask = half_pairs(edge_index, edge_shift)
         r = pair_distances(positions, edge_index, edge_shift, mask)
         s = self.sigma / r
@@ -149,6 +150,7 @@ class PairMLP(torch.nn.Module):
         return self.energy_scale * phi * (c * c * c)
 
     def forward(self, positions, numbers, cell, edge_index, edge_shift):
+        """The energy (eV, scalar tensor): ``phi`` summed over pairs."""
         mask = half_pairs(edge_index, edge_shift)
         r = pair_distances(positions, edge_index, edge_shift, mask)
         return self.pair_energy(r).sum()
