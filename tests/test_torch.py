@@ -416,3 +416,42 @@ def test_larger_system_longer_run_out_and_back(dynamics):
         dyn = ReversibleLangevin(atoms, DT, temperature_K=80,
                                  friction=0.02 / units.fs, seed=2)
     assert_runs_back(dyn, 200)
+
+
+# -- MACE, where mace-torch is installed --------------------------------------
+
+def test_a_mace_model_runs_back_and_its_product_matches_differences(
+        monkeypatch):
+    # e3nn 0.4.4 loads its own constants file with torch.load, refused by
+    # torch >= 2.6's weights-only default.
+    monkeypatch.setenv('TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD', '1')
+    pytest.importorskip('e3nn', reason='MACE needs e3nn (pip install '
+                        'mace-torch==0.3.16 e3nn==0.4.4)')
+    modules = pytest.importorskip(
+        'mace.modules', reason='mace-torch is not installed (pip install '
+        'mace-torch==0.3.16 e3nn==0.4.4)')
+    from e3nn import o3
+    from ase_reversible.torch.mace import MACEModel
+    torch.manual_seed(0)
+    block = modules.interaction_classes['RealAgnosticResidualInteractionBlock']
+    model = modules.MACE(
+        r_max=5.0, num_bessel=8, num_polynomial_cutoff=6, max_ell=2,
+        interaction_cls=block, interaction_cls_first=block,
+        num_interactions=2, num_elements=1,
+        hidden_irreps=o3.Irreps('8x0e + 8x1o'), MLP_irreps=o3.Irreps('8x0e'),
+        gate=torch.nn.functional.silu, atomic_energies=np.array([0.0]),
+        avg_num_neighbors=8.0, atomic_numbers=[18], correlation=2).double()
+    wrapped = MACEModel(model)
+    atoms = ar13(TorchCalculator(wrapped, wrapped.cutoff))
+    calc = atoms.calc
+    x0_nc = atoms.get_positions()
+    v_nc = np.random.default_rng(0).normal(size=x0_nc.shape)
+    dx_nc, dtheta = calc.vector_jacobian_product(
+        atoms, v_nc, calc.differentiable_parameters)
+    assert set(dtheta) == set(calc.differentiable_parameters)
+    h = 1e-5
+    fd_nc = (forces_at(atoms, x0_nc + h * v_nc)
+             - forces_at(atoms, x0_nc - h * v_nc)) / (2 * h)
+    atoms.positions = x0_nc
+    assert np.abs(dx_nc - fd_nc).max() < 1e-7 * np.abs(dx_nc).max()
+    assert_runs_back(ReversibleVerlet(atoms, DT), 10)
