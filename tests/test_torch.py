@@ -271,6 +271,13 @@ def test_bad_arguments_are_refused_with_what_to_do():
     assert all(np.array_equal(before[k], after[k]) for k in before)
     with pytest.raises(ValueError, match="model's cutoff"):
         TorchCalculator(PairMLP(cutoff=MLP_CUTOFF), MLP_CUTOFF - 1)
+    # A refused set changes nothing.
+    f_nc = atoms.get_forces()
+    with pytest.raises(ValueError, match="model's cutoff"):
+        calc.set(cutoff=MLP_CUTOFF - 1)
+    assert calc.parameters['cutoff'] == MLP_CUTOFF
+    assert calc.check_state(atoms) == []
+    assert np.array_equal(atoms.get_forces(), f_nc)
     with pytest.raises(TypeError, match='torch.nn.Module'):
         TorchCalculator(lambda x: x, 5.0)
 
@@ -293,7 +300,9 @@ class TestTorchLennardJones(CalculatorConformance):
     reversal_steps = 30
     gradient_tolerance = 1e-8
     hessian_tolerance = 1e-7
-    bad_parameters = [({'cutoff': -1.0}, ValueError, 'cutoff')]
+    bad_parameters = [({'cutoff': -1.0}, ValueError, 'cutoff'),
+                      ({'cutoff': 'far'}, TypeError, 'cutoff'),
+                      ({'cutoff': 5.0}, ValueError, "model's cutoff")]
 
     def make_calc(self, **parameters):
         model = LennardJones(AR_EPSILON, AR_SIGMA)

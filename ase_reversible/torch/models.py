@@ -75,6 +75,11 @@ class LennardJones(torch.nn.Module):
             torch.tensor(float(sigma), dtype=torch.float64))
         self.rc, self.ro = rc, ro
 
+    @property
+    def cutoff(self) -> float:
+        """``rc``, Å: the calculator's cut-off must reach it."""
+        return self.rc
+
     def forward(self, positions, numbers, cell, edge_index, edge_shift):
         """The energy (eV, scalar tensor); see the class docstring."""
         mask = half_pairs(edge_index, edge_shift)
