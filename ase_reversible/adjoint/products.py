@@ -13,7 +13,7 @@ in the order ``hvp='auto'`` tries:
 :class:`CalculatorProduct`
     ``calc.vector_jacobian_product(atoms, w, parameters)``: one call for
     both parts (this package's calculators, and
-    :class:`ase_reversible.torch.TorchCalculator` with one double-backward
+    ``ase_reversible.torch.TorchCalculator`` with one double-backward
     pass for any number of network weights).
 :class:`HessianProduct`
     ``dx = -H w`` from a Hessian-vector product (the calculator's
