@@ -464,3 +464,18 @@ def test_a_mace_model_runs_back_and_its_product_matches_differences(
     atoms.positions = x0_nc
     assert np.abs(dx_nc - fd_nc).max() < 1e-7 * np.abs(dx_nc).max()
     assert_runs_back(ReversibleVerlet(atoms, DT), 10)
+
+
+def test_atoms_without_neighbours_have_zero_forces_and_products():
+    from ase import Atoms
+    atoms = Atoms('Ar2', positions=[[0, 0, 0], [20.0, 0, 0]])
+    atoms.set_momenta([[0.5, 0, 0], [0, 0.3, 0]])
+    for make in (mlp_calc, lj_calc):
+        atoms.calc = make()
+        assert atoms.get_potential_energy() == 0.0
+        assert not atoms.get_forces().any()
+        dx_nc, dtheta = atoms.calc.vector_jacobian_product(
+            atoms, np.ones((2, 3)), atoms.calc.differentiable_parameters)
+        assert not dx_nc.any()
+        assert not any(np.any(d) for d in dtheta.values())
+    assert_runs_back(ReversibleVerlet(atoms, DT), 5)

@@ -209,11 +209,9 @@ class TorchCalculator(ExactCalculator):
                 x.requires_grad_(True)
                 energy = self.model(x, numbers, cell, edge_index,
                                     edge_shift)
-            (g,) = torch.autograd.grad(energy, x, create_graph=True)
+            g = _gradient(energy, x, create_graph=True)
             inputs = [x] + [params[name] for name in names]
-            grads = torch.autograd.grad(
-                (g * torch.from_numpy(v_nc)).sum(), inputs,
-                allow_unused=True)
+            grads = _products(g, torch.from_numpy(v_nc), inputs)
         dx_nc = _negated(grads[0], x)
         dtheta = {}
         for name, grad in zip(names, grads[1:]):
@@ -235,12 +233,17 @@ class TorchCalculator(ExactCalculator):
             x, numbers, cell, edge_index, edge_shift = self._inputs(atoms)
             x.requires_grad_(True)
             energy = self.model(x, numbers, cell, edge_index, edge_shift)
-            (g,) = torch.autograd.grad(energy, x, create_graph=True)
-            # u . dg/dθ is linear in u: its gradient in u is dg/dθ.
-            u = torch.zeros_like(g, requires_grad=True)
-            (ug,) = torch.autograd.grad(g, param, grad_outputs=u,
-                                        create_graph=True)
-            (dg,) = torch.autograd.grad(ug.sum(), u, allow_unused=True)
+            g = _gradient(energy, x, create_graph=True)
+            dg = None
+            if g is not None and g.requires_grad:
+                # u . dg/dθ is linear in u: its gradient in u is dg/dθ.
+                u = torch.zeros_like(g, requires_grad=True)
+                (ug,) = torch.autograd.grad(g, param, grad_outputs=u,
+                                            create_graph=True,
+                                            allow_unused=True)
+                if ug is not None:
+                    (dg,) = torch.autograd.grad(ug.sum(), u,
+                                                allow_unused=True)
         return _negated(dg, x)
 
     def hessian_vector_product(self, atoms, v_nc):
@@ -273,8 +276,7 @@ class TorchCalculator(ExactCalculator):
             energy = self.model(x, numbers, cell, edge_index, edge_shift)
             _check_energy(energy)
             # Keeping the graph changes no bit of the gradient.
-            (g,) = torch.autograd.grad(energy, x,
-                                       retain_graph=self._keep_graph)
+            g = _gradient(energy, x, retain_graph=self._keep_graph)
         f_nc = _negated(g, x)
         self._results_weights = self.weights_fingerprint()
         self._graph = ((self._state_key(self.atoms), x, energy,
@@ -389,9 +391,24 @@ def _check_energy(energy):
     if energy.dtype != torch.float64:
         raise TypeError(f'The model returned a {energy.dtype} energy: '
                         'compute in float64 (model.double()).')
+
+
+def _gradient(energy, x, **kwargs):
+    """``dE/dx``, or None (zero) where the energy does not depend on the
+    positions (no pair within the cut-off, for a model that then returns
+    a constant)."""
     if not energy.requires_grad:
-        raise ValueError('The energy does not depend on the positions '
-                         '(no gradient): the model must use them.')
+        return None
+    (g,) = torch.autograd.grad(energy, x, allow_unused=True, **kwargs)
+    return g
+
+
+def _products(g, v, inputs):
+    """Gradients of ``g . v`` with respect to ``inputs`` (None where zero)."""
+    if g is None or not g.requires_grad:
+        return [None] * len(inputs)
+    return list(torch.autograd.grad((g * v).sum(), inputs,
+                                    allow_unused=True))
 
 
 def _negated(grad, like):
