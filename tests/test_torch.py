@@ -479,3 +479,13 @@ def test_atoms_without_neighbours_have_zero_forces_and_products():
         assert not dx_nc.any()
         assert not any(np.any(d) for d in dtheta.values())
     assert_runs_back(ReversibleVerlet(atoms, DT), 5)
+
+
+def test_without_torch_the_import_says_how_to_install_it(monkeypatch):
+    import importlib
+    import sys
+    for name in [m for m in sys.modules if m.startswith('ase_reversible.torch')]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, 'torch', None)   # as if not installed
+    with pytest.raises(ImportError, match=r"pip install 'torch==2\.13\.0'"):
+        importlib.import_module('ase_reversible.torch')
