@@ -402,6 +402,22 @@ def test_backpropagate_through_a_users_model_quick():
     assert errors[0] < 1e-6, errors
 
 
+def test_a_windowed_loss_along_the_run_spends_one_product_per_step():
+    atoms = ar13(mlp_calc())
+    calc = atoms.calc
+    dyn = ReversibleVerlet(atoms, DT)
+    start = snapshot(atoms)
+    dyn.run(40)
+    g = dyn.backpropagate(40, loss=lambda a, k: (a.get_positions(), None),
+                          every=10, window=5,
+                          parameters=calc.differentiable_parameters)
+    assert_same_state(atoms, start)
+    # Four windows of five steps (the loss at k = 0 reaches back no step).
+    assert g.products == 20
+    assert all(np.shape(g.parameters[n]) == np.shape(v) for n, v in
+               calc.parameter_values().items())
+
+
 @pytest.mark.slow
 def test_backpropagate_through_a_users_model_matches_float_verlet():
     # u has entries ~1 against parameters of 1e-3 to 4.  Measured at 300
