@@ -125,6 +125,24 @@ def test_product_matches_finite_differences(kind):
     assert np.array_equal(atoms.get_forces(), f0_nc)
 
 
+def test_pair_mlp_fits_a_pair_curve_deterministically():
+    def lj(r):
+        s6 = (AR_SIGMA / r) ** 6
+        return 4 * AR_EPSILON * (s6 * s6 - s6)
+
+    r = np.linspace(3.2, MLP_CUTOFF, 200)
+    models = [PairMLP(cutoff=MLP_CUTOFF) for _ in range(2)]
+    before = np.sqrt(np.mean((models[0].pair_energy(
+        torch.from_numpy(r)).detach().numpy() - lj(r)) ** 2))
+    errors = [m.fit_pair_curve(lj, 3.2, steps=200) for m in models]
+    # Measured: 6.3e-3 eV RMS before, 3.6e-4 after 200 steps (the well is
+    # 1.04e-2 deep).
+    assert errors[0] < 5e-4 < before / 10
+    assert errors[0] == errors[1]
+    for a, b in zip(*(m.parameters() for m in models)):
+        assert torch.equal(a, b)
+
+
 # -- purity and exact reversal ----------------------------------------------
 
 @pytest.mark.parametrize('kind', sorted(MAKERS))

@@ -154,6 +154,52 @@ class PairMLP(torch.nn.Module):
         c = 1 - u * u
         return self.energy_scale * phi * (c * c * c)
 
+    def fit_pair_curve(self, target, r_min, points=200, steps=1000,
+                       learning_rate=1e-2) -> float:
+        """Train the weights so that ``phi(r)`` follows ``target(r)``.
+
+        Parameters
+        ----------
+        target : callable
+            ``target(r)`` in eV for a float64 numpy array of distances in
+            Å, e.g. a Lennard-Jones curve.  Beyond the cut-off ``phi`` is
+            zero whatever the target; a target that is not near zero
+            towards the cut-off cannot be followed there.
+        r_min : float
+            Å: the fit covers ``[r_min, cutoff]`` (closer pairs should not
+            occur in the runs).
+        points, steps, learning_rate
+            Evenly spaced distances, Adam steps and its learning rate.
+
+        Returns the root-mean-square error over the points after the fit,
+        eV.  Deterministic (the same weights from the same start): it runs
+        on one torch thread, restored afterwards (two threads took 30 times
+        as long on a busy two-core machine).  Fitted to argon's
+        Lennard-Jones curve over [3.2, 7] Å with the defaults: 2.2e-4 eV
+        RMS against a well depth of 0.0104 eV, in 0.75 s.  Make the
+        optimiser for your own training afterwards: this replaces the
+        weights in place.
+        """
+        import numpy as np
+        r_np = np.linspace(float(r_min), self.cutoff, int(points))
+        r = torch.from_numpy(r_np)
+        goal = torch.from_numpy(np.asarray(target(r_np), dtype=np.float64))
+        optimiser = torch.optim.Adam(self.mlp.parameters(),
+                                     lr=learning_rate)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            for _ in range(int(steps)):
+                optimiser.zero_grad()
+                loss = ((self.pair_energy(r) - goal) ** 2).mean()
+                loss.backward()
+                optimiser.step()
+            with torch.no_grad():
+                error = ((self.pair_energy(r) - goal) ** 2).mean().sqrt()
+        finally:
+            torch.set_num_threads(threads)
+        return float(error)
+
     def forward(self, positions, numbers, cell, edge_index, edge_shift):
         """The energy (eV, scalar tensor): ``phi`` summed over pairs."""
         mask = half_pairs(edge_index, edge_shift)
