@@ -43,10 +43,12 @@ class TorchCalculator(ExactCalculator):
         model's own cut-off.
     threads : int
         Torch threads inside the calculator's calls (the caller's setting
-        is restored after each).  Float64 forces were the same bits with 1
-        and 2 threads for the models tested (tests/test_torch.py); fixing
-        the count keeps a model whose reductions split by thread count
-        pure.
+        is restored after each).  The float64 forces of PairMLP and the
+        torch LennardJones were the same bits with 1 and 2 threads at 32
+        (tests/test_torch.py), 512 and 2048 atoms; fixing the count keeps
+        a model whose reductions split by thread count pure.  Two threads
+        were much slower than one on a busy two-core machine (its
+        benchmark in docs/benchmarks.md).
 
     Results: ``energy``, ``free_energy`` (eV) and ``forces`` (eV/Å), the
     forces from ``torch.autograd.grad`` of the energy without
