@@ -256,6 +256,13 @@ def test_an_edit_through_data_is_seen():
     assert calc.parameters['weights'] != fingerprint
     assert calc.check_state(atoms) == ['weights']
     assert not np.array_equal(atoms.get_forces(), f_nc)
+    # A plain setting of a module is part of the fingerprint too.
+    fingerprint = calc.parameters['weights']
+    calc.model.energy_scale *= 2
+    assert calc.parameters['weights'] != fingerprint
+    f_nc = atoms.get_forces()
+    calc.model.energy_scale /= 2
+    assert not np.array_equal(atoms.get_forces(), f_nc)
 
 
 # -- refusals and the protocol's checks -------------------------------------

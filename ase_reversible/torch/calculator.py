@@ -56,24 +56,25 @@ class TorchCalculator(ExactCalculator):
     models, so the run never takes forces from the products).
 
     ``parameters['weights']`` is a CRC-32 of the bytes of every parameter
-    and buffer, computed whenever ``parameters`` is read, so the
-    integrators see any change of the weights (an optimiser's step,
-    ``load_state_dict``, an edit through ``.data``) and move the anchor of
-    reversal instead of retracing with other forces.  Cost per read,
-    measured with 1 thread on a loaded 2-core machine: the CRC itself
-    13 µs for 4,000 float64 parameters, 68 µs for 33,000, 1.9 ms for
-    1,000,000 (SHA-1 took twice as long, BLAKE2b four times); with the walk
-    over the model's tensors, 36-40 µs for the 3,993 of the default
-    :class:`~ase_reversible.torch.PairMLP`.  It is taken once per force
-    call (so that results cached at unchanged positions are not those of
-    other weights) and once per read by the integrators' watch (every step
-    when observers are attached): a ReversibleVerlet step with an observer
-    took 1.29 ms against 1.20 ms without any fingerprint for Ar13 and that
-    PairMLP, 6.90 against 6.83 ms for Ar108, 1.67 against 1.43 ms for Ar13
-    with a 32,181-parameter PairMLP (medians of 9 interleaved blocks of 10
-    steps).  A CRC-32 sees every change confined to 32 consecutive bits of
-    the weights; a change spread wider goes unseen with probability
-    2**-32.
+    and buffer, with a hash of the modules' plain settings
+    (:meth:`weights_fingerprint`), computed whenever ``parameters`` is
+    read, so the integrators see any change of the weights (an
+    optimiser's step, ``load_state_dict``, an edit through ``.data``) and
+    move the anchor of reversal instead of retracing with other forces.
+    Cost, measured with 1 thread on a loaded 2-core machine: the CRC
+    itself 13 µs for 4,000 float64 parameters, 68 µs for 33,000, 1.9 ms
+    for 1,000,000 (SHA-1 took twice as long, BLAKE2b four times); the
+    whole fingerprint 48-52 µs for the 3,993 parameters of the default
+    :class:`~ase_reversible.torch.PairMLP`, 104 µs for 32,181.  It is
+    taken once per force call (so that results cached at unchanged
+    positions are not those of other weights) and once per read by the
+    integrators' watch (every step when observers are attached): a
+    ReversibleVerlet step with an observer took 1.36 ms against 1.20 ms
+    with no fingerprint for Ar13 and that PairMLP, 1.72 against 1.42 ms
+    with 32,181 parameters; for Ar108 the difference was within the noise
+    (7.0 and 7.4 ms; medians of 9 interleaved blocks of 10 steps).  A
+    CRC-32 sees every change confined to 32 consecutive bits of the
+    weights; a change spread wider goes unseen with probability 2**-32.
     """
 
     implemented_properties = ['energy', 'free_energy', 'forces']
@@ -133,12 +134,25 @@ class TorchCalculator(ExactCalculator):
         self._graph = None
 
     def weights_fingerprint(self) -> str:
-        """CRC-32 of every parameter's and buffer's bytes (and the
-        training flag), as text."""
+        """CRC-32 of every parameter's and buffer's bytes and of the
+        modules' plain settings, as text.
+
+        Settings are the public attributes of each submodule that are
+        numbers, strings, booleans (``training``) or tuples of them, such
+        as :class:`~ase_reversible.torch.PairMLP`'s ``energy_scale``.
+        Other Python state of a model (a dict, an array attribute) is not
+        seen: attach a new calculator after changing it.
+        """
         crc = 0
         for tensor in self._tensors():
             crc = zlib.crc32(_as_bytes(tensor), crc)
-        return f'crc32:{crc:08x}:{int(self.model.training)}'
+        # Python's hash of the settings: equal settings, equal hashes
+        # within the process, which is where the fingerprints are compared.
+        settings = hash(tuple(
+            (k, v) for module in self.model.modules()
+            for k, v in vars(module).items()
+            if k[0] != '_' and _is_plain(v)))
+        return f'crc32:{crc:08x}:{settings & 0xFFFFFFFFFFFFFFFF:016x}'
 
     def _tensors(self):
         for _, p in self.model.named_parameters():
@@ -271,6 +285,7 @@ class TorchCalculator(ExactCalculator):
         (eV/Å) into ``results``."""
         super().calculate(atoms, properties, system_changes)
         _refuse_other_dtypes(self.model)
+        self._check_cutoff(self._cutoff())   # the model's may have grown
         with self._scope():
             x, numbers, cell, edge_index, edge_shift = \
                 self._inputs(self.atoms)
@@ -423,6 +438,12 @@ def _negated(grad, like):
 def _to_value(p):
     array = p.detach().numpy().astype(np.float64, copy=True)
     return float(array) if array.ndim == 0 else array
+
+
+def _is_plain(value):
+    if isinstance(value, tuple):
+        return all(map(_is_plain, value))
+    return value is None or isinstance(value, (bool, int, float, str))
 
 
 def _as_bytes(tensor):
