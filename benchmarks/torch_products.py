@@ -13,14 +13,18 @@ periodic fcc argon rattled by 0.1 Å) and torch thread count (1, 2), one
 ``TorchCalculator`` and rounds of, interleaved:
 
 - a force call at new positions (every round moves one atom by 1e-9 Å, so
-  that nothing is cached: the neighbour list is built in it);
+  that no result is cached; the neighbour list keeps its candidates
+  within its 1 Å skin, as between most steps of a run, and selects the
+  pairs afresh);
 - the product the adjoint calls, ``vector_jacobian_product(atoms, v, all
   parameter names)``, at those positions: the calculator keeps the force
   call's graph once products are asked for (a warm-up product before the
   rounds), so this is what a retrace pays;
 - the same product again, which finds no graph and runs the forward pass
   itself (as the first product of a retrace does);
-- with one thread, the neighbour list alone and ASE's
+- with one thread, the neighbour list alone: searched from scratch
+  (``neighbour_list``), with candidates kept from an earlier search
+  (``NeighbourList`` with a 1 Å skin), and ASE's
   ``neighbor_list('ijS', ...)`` at the same cut-off.
 
 CPU time (``time.process_time``, all threads of the process) and wall
@@ -70,6 +74,7 @@ def _timed(function):
 def measure(model, n_atoms, threads, rounds):
     from ase.neighborlist import neighbor_list
     from ase_reversible.torch import neighbour_list
+    from ase_reversible.torch.neighbours import NeighbourList
     atoms = _system(n_atoms)
     calc = _calculator(model, threads)
     atoms.calc = calc
@@ -79,8 +84,11 @@ def measure(model, n_atoms, threads, rounds):
     x0_nc = atoms.get_positions()
     atoms.get_forces()
     calc.vector_jacobian_product(atoms, v_nc, names)   # keeps graphs now
+    listing = NeighbourList(cutoff, skin=1.0)
+    listing(atoms.positions, atoms.cell.array, atoms.pbc)
     times = {k: [] for k in ('force', 'product', 'product_fresh',
-                             'neighbours', 'ase_neighbours')}
+                             'neighbours', 'neighbours_skin',
+                             'ase_neighbours')}
     for r in range(rounds):
         atoms.positions = x0_nc
         atoms.positions[0, 0] += 1e-9 * (r + 1)
@@ -92,6 +100,8 @@ def measure(model, n_atoms, threads, rounds):
         if threads == 1:
             times['neighbours'].append(_timed(lambda: neighbour_list(
                 atoms.positions, atoms.cell.array, atoms.pbc, cutoff)))
+            times['neighbours_skin'].append(_timed(lambda: listing(
+                atoms.positions, atoms.cell.array, atoms.pbc)))
             times['ase_neighbours'].append(_timed(
                 lambda: neighbor_list('ijS', atoms, cutoff)))
     out = {'model': model, 'n_atoms': n_atoms, 'threads': threads,

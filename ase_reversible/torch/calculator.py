@@ -21,7 +21,7 @@ import torch
 from ase.calculators.calculator import all_changes
 
 from ..calculators.base import ExactCalculator
-from .neighbours import neighbour_list
+from .neighbours import NeighbourList
 
 
 class TorchCalculator(ExactCalculator):
@@ -41,6 +41,11 @@ class TorchCalculator(ExactCalculator):
     cutoff : float
         Å: pairs strictly closer are handed to the model.  At least the
         model's own cut-off.
+    skin : float
+        Å: the neighbour search reaches ``cutoff + skin`` and is repeated
+        once an atom has moved more than ``skin / 2``
+        (:class:`~ase_reversible.torch.neighbours.NeighbourList`); the
+        pairs handed to the model are the same bits whatever the skin.
     threads : int
         Torch threads inside the calculator's calls (the caller's setting
         is restored after each).  The float64 forces of PairMLP and the
@@ -78,15 +83,16 @@ class TorchCalculator(ExactCalculator):
     """
 
     implemented_properties = ['energy', 'free_energy', 'forces']
-    default_parameters = {'cutoff': None, 'weights': None}
-    parameter_bounds = {'cutoff': 'positive'}
+    default_parameters = {'cutoff': None, 'skin': 1.0, 'weights': None}
+    parameter_bounds = {'cutoff': 'positive', 'skin': 'non-negative'}
     system_quantities = ('positions', 'numbers', 'cell', 'pbc')
     # Pure: the neighbour list is a function of positions, cell and pbc,
     # sorted; the model runs with deterministic algorithms and a fixed
     # thread count (tested bit for bit after moving away and back).
     forces_are_pure = True
 
-    def __init__(self, model, cutoff, *, threads: int = 1, **kwargs):
+    def __init__(self, model, cutoff, *, skin: float = 1.0, threads: int = 1,
+                 **kwargs):
         if not isinstance(model, torch.nn.Module):
             raise TypeError(f'model must be a torch.nn.Module, got '
                             f'{type(model).__name__}')
@@ -99,7 +105,7 @@ class TorchCalculator(ExactCalculator):
         self.threads = threads
         self._keep_graph = False
         self._results_weights = None
-        super().__init__(cutoff=cutoff, **kwargs)
+        super().__init__(cutoff=cutoff, skin=skin, **kwargs)
 
     # ``parameters`` carries the weights' fingerprint, fresh at every read.
     @property
@@ -129,6 +135,8 @@ class TorchCalculator(ExactCalculator):
 
     def _forget(self):
         self._lists = None   # (state key, numbers, cell, edges, shifts)
+        self._neighbours = NeighbourList(self._parameters['cutoff'],
+                                         self._parameters['skin'])
         # The last force call's graph (state key, positions tensor, energy,
         # weights' fingerprint), kept once products have been asked for.
         self._graph = None
@@ -348,8 +356,8 @@ class TorchCalculator(ExactCalculator):
         key = self._state_key(atoms)
         lists = self._lists
         if lists is None or lists[0] != key:
-            edge_index, edge_shift, _ = neighbour_list(
-                x_nc, atoms.cell.array, atoms.pbc, self._cutoff())
+            edge_index, edge_shift, _ = self._neighbours(
+                x_nc, atoms.cell.array, atoms.pbc)
             lists = (key, torch.from_numpy(
                          atoms.arrays['numbers'].astype(np.int64)),
                      torch.from_numpy(atoms.cell.array.copy()),
