@@ -42,7 +42,8 @@ def markdown(results):
            f'{load[1]:.1f} at the end, on a machine shared with other work: '
            'the ratios, taken within each round, are the result)'
            if load else '') + '. '
-XX
+        'A force call selects the pairs from the candidates its neighbour '
+        'list kept (1 Å skin); the product is '
         '`vector_jacobian_product` for the positions and every parameter '
         'at once, from the graph the force call kept, and "fresh" the same '
         'product running its own forward pass. Times are CPU time of all '
