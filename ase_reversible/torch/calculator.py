@@ -74,10 +74,11 @@ class TorchCalculator(ExactCalculator):
     taken once per force call (so that results cached at unchanged
     positions are not those of other weights) and once per read by the
     integrators' watch (every step when observers are attached): a
-    ReversibleVerlet step with an observer took 1.36 ms against 1.20 ms
-    with no fingerprint for Ar13 and that PairMLP, 1.72 against 1.42 ms
-    with 32,181 parameters; for Ar108 the difference was within the noise
-    (7.0 and 7.4 ms; medians of 9 interleaved blocks of 10 steps).  A
+    ReversibleVerlet step with an observer took 1.03-1.06 ms against
+    0.90-0.93 ms with no fingerprint for Ar13 and that PairMLP (two
+    runs), 1.40-1.43 against 1.15-1.16 ms with 32,181 parameters, and
+    4.50-5.39 against 4.45-5.06 ms for Ar108 (medians of 9 interleaved
+    blocks of 10 steps).  A
     CRC-32 sees every change confined to 32 consecutive bits of the
     weights; a change spread wider goes unseen with probability 2**-32.
     """
