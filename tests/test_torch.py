@@ -246,6 +246,30 @@ def test_an_optimiser_step_moves_the_anchor_and_reversal_leads_there():
     assert_same_state(atoms, anchor)
 
 
+def test_gradients_reach_a_torch_optimiser_and_its_step_is_taken():
+    atoms = ar13(mlp_calc())
+    calc, model = atoms.calc, atoms.calc.model
+    dyn = ReversibleVerlet(atoms, DT)
+    start = snapshot(atoms)
+    dyn.run(10)
+    g = dyn.backpropagate(10, atoms.get_positions() - start[0],
+                          parameters=calc.differentiable_parameters)
+    assert_same_state(atoms, start)
+    calc.assign_gradients(g.parameters)
+    for name, p in model.named_parameters():
+        assert p.grad.dtype == torch.float64
+        assert np.array_equal(p.grad.numpy(), g.parameters[name])
+    before = calc.parameter_values()
+    torch.optim.Adam(model.parameters(), lr=1e-3).step()
+    assert any(not np.array_equal(before[n], v)
+               for n, v in calc.parameter_values().items())
+    with pytest.warns(AnchorMovedWarning, match='weights'):
+        dyn.run(3)
+    name = calc.differentiable_parameters[0]
+    with pytest.raises(ValueError, match='shape'):
+        calc.assign_gradients({name: np.zeros(3)})
+
+
 def test_an_edit_through_data_is_seen():
     atoms = ar13(mlp_calc())
     calc = atoms.calc

@@ -206,6 +206,24 @@ class TorchCalculator(ExactCalculator):
                 params[name].copy_(torch.from_numpy(array))
         self.reset()
 
+    def assign_gradients(self, gradients: dict):
+        """Put ``{name: dL/dθ}`` (``Gradients.parameters`` from
+        ``backpropagate``) into each parameter's ``.grad``, as a torch
+        optimiser expects after ``loss.backward()``; parameters not named
+        keep theirs.  Shapes must match (ValueError, nothing written)."""
+        params = self._named(list(gradients))
+        new = {}
+        for name, value in gradients.items():
+            array = np.asarray(value, dtype=np.float64)
+            shape = tuple(params[name].shape)
+            if array.shape != shape:
+                raise ValueError(f'The gradient of {name} must have shape '
+                                 f'{shape}, got {array.shape}')
+            new[name] = array
+        for name, array in new.items():
+            params[name].grad = torch.from_numpy(array.copy()).to(
+                params[name].dtype)
+
     def vector_jacobian_product(self, atoms, v_nc, parameters=()):
         """``((dF/dx)^T v, {name: (dF/dθ)^T v})`` at the atoms' positions.
 
