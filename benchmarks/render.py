@@ -25,7 +25,8 @@ DOCS = ROOT / 'docs'
 SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
             'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
             'thermostat', 'nose', 'lammps_cost', 'portable', 'force_noise',
-            'full_precision', 'long_reversal', 'training')
+            'full_precision', 'long_reversal', 'torch_products',
+            'training')
 
 
 def page_module(name):

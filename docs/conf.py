@@ -51,6 +51,14 @@ shutil.rmtree(Path(__file__).resolve().parent / 'api', ignore_errors=True)
 # __all__ lists the names to import, not its modules).
 autosummary_ignore_module_all = True
 
+# ase_reversible.torch needs PyTorch, an optional dependency: without it
+# its pages are built against a stand-in.
+try:
+    import torch  # noqa: F401
+    autodoc_mock_imports = []
+except ImportError:
+    autodoc_mock_imports = ['torch']
+
 autodoc_member_order = 'bysource'
 autodoc_default_options = {'show-inheritance': True}
 # Signatures as written; types are explained in the docstrings' Parameters.

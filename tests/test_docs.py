@@ -211,9 +211,21 @@ def package_modules():
     modules = [ase_reversible]
     for info in pkgutil.walk_packages(ase_reversible.__path__,
                                       prefix='ase_reversible.'):
-        if info.name.rsplit('.', 1)[-1] not in COMMAND_MODULES:
-            modules.append(importlib.import_module(info.name))
+        if info.name.rsplit('.', 1)[-1] in COMMAND_MODULES:
+            continue
+        # ase_reversible.torch needs PyTorch, an optional dependency.
+        if info.name.startswith('ase_reversible.torch') and not _has_torch():
+            continue
+        modules.append(importlib.import_module(info.name))
     return modules
+
+
+def _has_torch():
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def own_docstring(obj):

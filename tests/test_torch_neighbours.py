@@ -111,3 +111,24 @@ def test_open_system_far_apart_and_bad_input():
         neighbour_list(x_nc, np.zeros((3, 3)), [True, False, False], 2.0)
     with pytest.raises(ValueError, match='NaN'):
         neighbour_list(x_nc * np.nan, np.zeros((3, 3)), [False] * 3, 2.0)
+
+
+def test_a_skin_changes_no_bit_of_the_list():
+    from ase_reversible.torch.neighbours import NeighbourList
+    rng = np.random.default_rng(11)
+    x_nc, cell, pbc, cutoff = random_system(rng)
+    pbc[:2] = True
+    listing = NeighbourList(cutoff, skin=0.8)
+    for step in range(12):
+        if step == 6:
+            x_nc = x_nc + cell[0]            # wrapped by a whole cell
+        elif step == 9:
+            cell = cell * 1.01               # a new cell
+        else:
+            x_nc = x_nc + rng.normal(0.0, 0.15, x_nc.shape)
+        got = listing(x_nc, cell, pbc)
+        expected = neighbour_list(x_nc, cell, pbc, cutoff)
+        for a, b in zip(got, expected):
+            assert a.dtype == b.dtype and np.array_equal(a, b)
+    with pytest.raises(ValueError, match='skin'):
+        NeighbourList(cutoff, skin=-1.0)

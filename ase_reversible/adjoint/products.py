@@ -13,7 +13,7 @@ in the order ``hvp='auto'`` tries:
 :class:`CalculatorProduct`
     ``calc.vector_jacobian_product(atoms, w, parameters)``: one call for
     both parts (this package's calculators, and
-    :class:`ase_reversible.torch.TorchCalculator` with one double-backward
+    ``ase_reversible.torch.TorchCalculator`` with one double-backward
     pass for any number of network weights).
 :class:`HessianProduct`
     ``dx = -H w`` from a Hessian-vector product (the calculator's
@@ -50,6 +50,8 @@ class CalculatorProduct:
         self.parameters = tuple(parameters)
 
     def __call__(self, atoms, w_nc):
+        """``((dF/dx)^T w, {name: (dF/dtheta)^T w})`` at the atoms'
+        positions; ``w_nc`` is ``[n_atoms, 3]``."""
         dx_nc, dtheta = atoms.calc.vector_jacobian_product(
             atoms, w_nc, self.parameters)
         dx_nc = np.asarray(dx_nc, dtype=float)
@@ -80,6 +82,8 @@ class HessianProduct:
         self.name = getattr(hvp, 'name', 'Hessian-vector product')
 
     def __call__(self, atoms, w_nc):
+        """``(-H w, {name: (dF/dtheta)^T w})`` at the atoms' positions;
+        ``w_nc`` is ``[n_atoms, 3]``."""
         # A copy: a user's product may keep or modify its argument.
         hv_nc = np.asarray(self.hvp(atoms, w_nc.copy()), dtype=float)
         if hv_nc.shape != w_nc.shape:

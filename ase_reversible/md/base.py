@@ -487,7 +487,7 @@ class ReversibleDynamics(MolecularDynamics):
         parameters : sequence of str
             Potential parameters (e.g. ``('epsilon', 'sigma')`` for
             :class:`ase_reversible.LennardJones`, or a network's weights
-            for :class:`ase_reversible.torch.TorchCalculator`) whose
+            for ``ase_reversible.torch.TorchCalculator``) whose
             gradients to accumulate; returned in ``.parameters``, each
             shaped like the parameter.
         carry : Gradients or False, optional

@@ -21,7 +21,7 @@ import torch
 from ase.calculators.calculator import all_changes
 
 from ..calculators.base import ExactCalculator
-from .neighbours import neighbour_list
+from .neighbours import NeighbourList
 
 
 class TorchCalculator(ExactCalculator):
@@ -41,12 +41,19 @@ class TorchCalculator(ExactCalculator):
     cutoff : float
         Å: pairs strictly closer are handed to the model.  At least the
         model's own cut-off.
+    skin : float
+        Å: the neighbour search reaches ``cutoff + skin`` and is repeated
+        once an atom has moved more than ``skin / 2``
+        (:class:`~ase_reversible.torch.neighbours.NeighbourList`); the
+        pairs handed to the model are the same bits whatever the skin.
     threads : int
         Torch threads inside the calculator's calls (the caller's setting
-        is restored after each).  Float64 forces were the same bits with 1
-        and 2 threads for the models tested (tests/test_torch.py); fixing
-        the count keeps a model whose reductions split by thread count
-        pure.
+        is restored after each).  The float64 forces of PairMLP and the
+        torch LennardJones were the same bits with 1 and 2 threads at 32
+        (tests/test_torch.py), 512 and 2048 atoms; fixing the count keeps
+        a model whose reductions split by thread count pure.  Two threads
+        were much slower than one on a busy two-core machine (its
+        benchmark in docs/benchmarks.md).
 
     Results: ``energy``, ``free_energy`` (eV) and ``forces`` (eV/Å), the
     forces from ``torch.autograd.grad`` of the energy without
@@ -54,27 +61,39 @@ class TorchCalculator(ExactCalculator):
     models, so the run never takes forces from the products).
 
     ``parameters['weights']`` is a CRC-32 of the bytes of every parameter
-    and buffer, computed whenever ``parameters`` is read, so the
-    integrators see any change of the weights (an optimiser's step,
-    ``load_state_dict``, an edit through ``.data``) and move the anchor of
-    reversal instead of retracing with other forces.  Cost per read,
-    measured with 1 thread on a loaded 2-core machine: 13 µs for 4,000
-    float64 parameters, 68 µs for 33,000, 1.9 ms for 1,000,000 (SHA-1
-    took twice as long, BLAKE2b four times).  A CRC-32 sees every change
-    confined to 32 consecutive bits of the weights; a change spread wider
-    goes unseen with probability 2**-32.
+    and buffer, with a hash of the modules' plain settings
+    (:meth:`weights_fingerprint`), computed whenever ``parameters`` is
+    read, so the integrators see any change of the weights (an
+    optimiser's step, ``load_state_dict``, an edit through ``.data``) and
+    move the anchor of reversal instead of retracing with other forces.
+    Cost, measured with 1 thread on a loaded 2-core machine: the CRC
+    itself 13 µs for 4,000 float64 parameters, 68 µs for 33,000, 1.9 ms
+    for 1,000,000 (SHA-1 took twice as long, BLAKE2b four times); the
+    whole fingerprint 48-52 µs for the 3,993 parameters of the default
+    :class:`~ase_reversible.torch.PairMLP`, 104 µs for 32,181.  It is
+    taken once per force call (so that results cached at unchanged
+    positions are not those of other weights) and once per read by the
+    integrators' watch (every step when observers are attached): a
+    ReversibleVerlet step with an observer took 1.03-1.06 ms against
+    0.90-0.93 ms with no fingerprint for Ar13 and that PairMLP (two
+    runs), 1.40-1.43 against 1.15-1.16 ms with 32,181 parameters, and
+    4.50-5.39 against 4.45-5.06 ms for Ar108 (medians of 9 interleaved
+    blocks of 10 steps).  A
+    CRC-32 sees every change confined to 32 consecutive bits of the
+    weights; a change spread wider goes unseen with probability 2**-32.
     """
 
     implemented_properties = ['energy', 'free_energy', 'forces']
-    default_parameters = {'cutoff': None, 'weights': None}
-    parameter_bounds = {'cutoff': 'positive'}
+    default_parameters = {'cutoff': None, 'skin': 1.0, 'weights': None}
+    parameter_bounds = {'cutoff': 'positive', 'skin': 'non-negative'}
     system_quantities = ('positions', 'numbers', 'cell', 'pbc')
     # Pure: the neighbour list is a function of positions, cell and pbc,
     # sorted; the model runs with deterministic algorithms and a fixed
     # thread count (tested bit for bit after moving away and back).
     forces_are_pure = True
 
-    def __init__(self, model, cutoff, *, threads: int = 1, **kwargs):
+    def __init__(self, model, cutoff, *, skin: float = 1.0, threads: int = 1,
+                 **kwargs):
         if not isinstance(model, torch.nn.Module):
             raise TypeError(f'model must be a torch.nn.Module, got '
                             f'{type(model).__name__}')
@@ -85,12 +104,16 @@ class TorchCalculator(ExactCalculator):
                              f'{threads!r}')
         self.model = model
         self.threads = threads
+        self._keep_graph = False
         self._results_weights = None
-        super().__init__(cutoff=cutoff, **kwargs)
+        super().__init__(cutoff=cutoff, skin=skin, **kwargs)
 
     # ``parameters`` carries the weights' fingerprint, fresh at every read.
     @property
     def parameters(self):
+        """ASE's parameter dict: ``cutoff`` (Å) and ``weights``, the
+        fingerprint of the model's weights as they are now (computed at
+        each read, see the class docstring for its cost)."""
         params = self._parameters
         if params is not None and getattr(self, 'model', None) is not None:
             params['weights'] = self.weights_fingerprint()
@@ -101,22 +124,44 @@ class TorchCalculator(ExactCalculator):
         self._parameters = value
 
     def set(self, **kwargs):
+        """Change ``cutoff`` (Å): checked before anything changes.
+        Returns the changed parameters (dict)."""
         if 'weights' in kwargs:
             raise ValueError("'weights' is the model's fingerprint, not a "
                              'setting: change the model (or use '
                              'set_parameter_values).')
+        if 'cutoff' in kwargs:
+            self._check_cutoff(kwargs['cutoff'])
         return super().set(**kwargs)
 
     def _forget(self):
-        self._lists = None   # (positions, cell, pbc bytes, tensors)
+        self._lists = None   # (state key, numbers, cell, edges, shifts)
+        self._neighbours = NeighbourList(self._parameters['cutoff'],
+                                         self._parameters['skin'])
+        # The last force call's graph (state key, positions tensor, energy,
+        # weights' fingerprint), kept once products have been asked for.
+        self._graph = None
 
     def weights_fingerprint(self) -> str:
-        """CRC-32 of every parameter's and buffer's bytes (and the
-        training flag), as text."""
+        """CRC-32 of every parameter's and buffer's bytes and of the
+        modules' plain settings, as text.
+
+        Settings are the public attributes of each submodule that are
+        numbers, strings, booleans (``training``) or tuples of them, such
+        as :class:`~ase_reversible.torch.PairMLP`'s ``energy_scale``.
+        Other Python state of a model (a dict, an array attribute) is not
+        seen: attach a new calculator after changing it.
+        """
         crc = 0
         for tensor in self._tensors():
             crc = zlib.crc32(_as_bytes(tensor), crc)
-        return f'crc32:{crc:08x}:{int(self.model.training)}'
+        # Python's hash of the settings: equal settings, equal hashes
+        # within the process, which is where the fingerprints are compared.
+        settings = hash(tuple(
+            (k, v) for module in self.model.modules()
+            for k, v in vars(module).items()
+            if k[0] != '_' and _is_plain(v)))
+        return f'crc32:{crc:08x}:{settings & 0xFFFFFFFFFFFFFFFF:016x}'
 
     def _tensors(self):
         for _, p in self.model.named_parameters():
@@ -161,6 +206,24 @@ class TorchCalculator(ExactCalculator):
                 params[name].copy_(torch.from_numpy(array))
         self.reset()
 
+    def assign_gradients(self, gradients: dict):
+        """Put ``{name: dL/dθ}`` (``Gradients.parameters`` from
+        ``backpropagate``) into each parameter's ``.grad``, as a torch
+        optimiser expects after ``loss.backward()``; parameters not named
+        keep theirs.  Shapes must match (ValueError, nothing written)."""
+        params = self._named(list(gradients))
+        new = {}
+        for name, value in gradients.items():
+            array = np.asarray(value, dtype=np.float64)
+            shape = tuple(params[name].shape)
+            if array.shape != shape:
+                raise ValueError(f'The gradient of {name} must have shape '
+                                 f'{shape}, got {array.shape}')
+            new[name] = array
+        for name, array in new.items():
+            params[name].grad = torch.from_numpy(array.copy()).to(
+                params[name].dtype)
+
     def vector_jacobian_product(self, atoms, v_nc, parameters=()):
         """``((dF/dx)^T v, {name: (dF/dθ)^T v})`` at the atoms' positions.
 
@@ -175,21 +238,56 @@ class TorchCalculator(ExactCalculator):
         v_nc = self.as_vector(atoms, v_nc)
         names = tuple(parameters)
         params = self._named(names)
+        # From now on the force calls keep their graph: the adjoint asks
+        # for the product where it has just asked for the forces.
+        self._keep_graph = True
+        graph, self._graph = self._graph, None
         with self._scope():
-            x, numbers, cell, edge_index, edge_shift = self._inputs(atoms)
-            x.requires_grad_(True)
-            energy = self.model(x, numbers, cell, edge_index, edge_shift)
-            (g,) = torch.autograd.grad(energy, x, create_graph=True)
+            if graph is not None and graph[0] == self._state_key(atoms) \
+                    and graph[3] == self.weights_fingerprint():
+                x, energy = graph[1], graph[2]
+            else:
+                x, numbers, cell, edge_index, edge_shift = \
+                    self._inputs(atoms)
+                x.requires_grad_(True)
+                energy = self.model(x, numbers, cell, edge_index,
+                                    edge_shift)
+            g = _gradient(energy, x, create_graph=True)
             inputs = [x] + [params[name] for name in names]
-            grads = torch.autograd.grad(
-                (g * torch.from_numpy(v_nc)).sum(), inputs,
-                allow_unused=True)
+            grads = _products(g, torch.from_numpy(v_nc), inputs)
         dx_nc = _negated(grads[0], x)
         dtheta = {}
         for name, grad in zip(names, grads[1:]):
             value = _negated(grad, params[name])
             dtheta[name] = float(value) if value.ndim == 0 else value
         return dx_nc, dtheta
+
+    def _force_parameter_derivative(self, atoms, name):
+        """``dF/d(name)`` ``[n_atoms, 3]`` for a scalar parameter (eV/Å per
+        unit of it), by a product taken twice; a tensor parameter has one
+        such array per entry: use :meth:`vector_jacobian_product`."""
+        (param,) = self._named([name]).values()
+        if param.numel() != 1:
+            raise ValueError(
+                f'{name} has {param.numel()} entries: dF/d{name} would be '
+                'one [n_atoms, 3] array per entry; use '
+                'vector_jacobian_product for its product with a vector.')
+        with self._scope():
+            x, numbers, cell, edge_index, edge_shift = self._inputs(atoms)
+            x.requires_grad_(True)
+            energy = self.model(x, numbers, cell, edge_index, edge_shift)
+            g = _gradient(energy, x, create_graph=True)
+            dg = None
+            if g is not None and g.requires_grad:
+                # u . dg/dθ is linear in u: its gradient in u is dg/dθ.
+                u = torch.zeros_like(g, requires_grad=True)
+                (ug,) = torch.autograd.grad(g, param, grad_outputs=u,
+                                            create_graph=True,
+                                            allow_unused=True)
+                if ug is not None:
+                    (dg,) = torch.autograd.grad(ug.sum(), u,
+                                                allow_unused=True)
+        return _negated(dg, x)
 
     def hessian_vector_product(self, atoms, v_nc):
         """``H v`` (eV/Å² x unit of ``v``): minus the position part of
@@ -214,15 +312,20 @@ class TorchCalculator(ExactCalculator):
         (eV/Å) into ``results``."""
         super().calculate(atoms, properties, system_changes)
         _refuse_other_dtypes(self.model)
+        self._check_cutoff(self._cutoff())   # the model's may have grown
         with self._scope():
             x, numbers, cell, edge_index, edge_shift = \
                 self._inputs(self.atoms)
             x.requires_grad_(True)
             energy = self.model(x, numbers, cell, edge_index, edge_shift)
             _check_energy(energy)
-            (g,) = torch.autograd.grad(energy, x)
+            # Keeping the graph changes no bit of the gradient.
+            g = _gradient(energy, x, retain_graph=self._keep_graph)
         f_nc = _negated(g, x)
         self._results_weights = self.weights_fingerprint()
+        self._graph = ((self._state_key(self.atoms), x, energy,
+                        self._results_weights) if self._keep_graph
+                       else None)
         value = float(energy.detach())
         self.results['energy'] = self.results['free_energy'] = value
         self.results['forces'] = f_nc
@@ -261,44 +364,53 @@ class TorchCalculator(ExactCalculator):
             if threads != self.threads:
                 torch.set_num_threads(threads)
 
+    def _state_key(self, atoms):
+        return (atoms.positions.tobytes(), atoms.cell.array.tobytes(),
+                atoms.pbc.tobytes(), atoms.arrays['numbers'].tobytes(),
+                self._cutoff())
+
     def _inputs(self, atoms):
         """Fresh position tensor and the cached list for these positions."""
         x_nc = atoms.positions
-        key = (x_nc.tobytes(), atoms.cell.array.tobytes(),
-               atoms.pbc.tobytes(), self.parameters_cutoff())
+        key = self._state_key(atoms)
         lists = self._lists
         if lists is None or lists[0] != key:
-            edge_index, edge_shift, _ = neighbour_list(
-                x_nc, atoms.cell.array, atoms.pbc, self.parameters_cutoff())
+            edge_index, edge_shift, _ = self._neighbours(
+                x_nc, atoms.cell.array, atoms.pbc)
             lists = (key, torch.from_numpy(
                          atoms.arrays['numbers'].astype(np.int64)),
                      torch.from_numpy(atoms.cell.array.copy()),
                      torch.from_numpy(edge_index),
                      torch.from_numpy(edge_shift))
             self._lists = lists
-        elif not np.array_equal(lists[1].numpy(), atoms.arrays['numbers']):
-            lists = (key, torch.from_numpy(
-                atoms.arrays['numbers'].astype(np.int64))) + lists[2:]
-            self._lists = lists
         x = torch.from_numpy(np.array(x_nc, dtype=np.float64))
         return (x,) + lists[1:]
 
-    def parameters_cutoff(self) -> float:
+    def _cutoff(self) -> float:
         return self._parameters['cutoff']
 
     def _check_relations(self):
-        if self._parameters['cutoff'] is None:
+        self._check_cutoff(self._parameters['cutoff'])
+
+    def _check_cutoff(self, cutoff):
+        if cutoff is None:
             raise ValueError('TorchCalculator needs a cutoff (Å): the '
                              'neighbour list hands the model the pairs '
                              'strictly inside it.')
+        try:
+            cutoff = float(cutoff)
+        except (TypeError, ValueError):
+            raise TypeError(f'cutoff must be a number (Å), got {cutoff!r}') \
+                from None
+        if not (math.isfinite(cutoff) and cutoff > 0):
+            raise ValueError(f'cutoff must be a finite, positive length in '
+                             f'Å, got {cutoff!r}')
         model_cutoff = getattr(self.model, 'cutoff', None)
-        if isinstance(model_cutoff, (int, float)) and \
-                model_cutoff > self._parameters['cutoff']:
+        if isinstance(model_cutoff, (int, float)) and model_cutoff > cutoff:
             raise ValueError(
                 f"The model's cutoff {model_cutoff} Å is beyond the "
-                f"calculator's {self._parameters['cutoff']} Å: pairs in "
-                'between would be missing. Give the calculator at least '
-                "the model's cutoff.")
+                f"calculator's {cutoff} Å: pairs in between would be "
+                "missing. Give the calculator at least the model's cutoff.")
 
 
 def _refuse_other_dtypes(model):
@@ -323,9 +435,24 @@ def _check_energy(energy):
     if energy.dtype != torch.float64:
         raise TypeError(f'The model returned a {energy.dtype} energy: '
                         'compute in float64 (model.double()).')
+
+
+def _gradient(energy, x, **kwargs):
+    """``dE/dx``, or None (zero) where the energy does not depend on the
+    positions (no pair within the cut-off, for a model that then returns
+    a constant)."""
     if not energy.requires_grad:
-        raise ValueError('The energy does not depend on the positions '
-                         '(no gradient): the model must use them.')
+        return None
+    (g,) = torch.autograd.grad(energy, x, allow_unused=True, **kwargs)
+    return g
+
+
+def _products(g, v, inputs):
+    """Gradients of ``g . v`` with respect to ``inputs`` (None where zero)."""
+    if g is None or not g.requires_grad:
+        return [None] * len(inputs)
+    return list(torch.autograd.grad((g * v).sum(), inputs,
+                                    allow_unused=True))
 
 
 def _negated(grad, like):
@@ -338,6 +465,12 @@ def _negated(grad, like):
 def _to_value(p):
     array = p.detach().numpy().astype(np.float64, copy=True)
     return float(array) if array.ndim == 0 else array
+
+
+def _is_plain(value):
+    if isinstance(value, tuple):
+        return all(map(_is_plain, value))
+    return value is None or isinstance(value, (bool, int, float, str))
 
 
 def _as_bytes(tensor):

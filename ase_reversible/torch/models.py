@@ -75,7 +75,13 @@ class LennardJones(torch.nn.Module):
             torch.tensor(float(sigma), dtype=torch.float64))
         self.rc, self.ro = rc, ro
 
+    @property
+    def cutoff(self) -> float:
+        """``rc``, Å: the calculator's cut-off must reach it."""
+        return self.rc
+
     def forward(self, positions, numbers, cell, edge_index, edge_shift):
+        """The energy (eV, scalar tensor); see the class docstring."""
         mask = half_pairs(edge_index, edge_shift)
         r = pair_distances(positions, edge_index, edge_shift, mask)
         s = self.sigma / r
@@ -91,10 +97,10 @@ class PairMLP(torch.nn.Module):
     """A neural pair potential: ``phi(r) = MLP(basis(r)) * fc(r)``.
 
     ``basis`` is ``n_basis`` Gaussians of width ``cutoff / n_basis`` evenly
-    spread over ``[0, cutoff]``, the MLP has SiLU activations (smooth, so
-    the forces are continuously differentiable, which the adjoint needs),
-    and ``fc(r) = (1 - (r / cutoff)**2)**3`` takes the pair energy to zero
-    at the cut-off with its first and second derivatives.  One species.
+    spread over ``[0, cutoff]``, the MLP has smooth activations (so the
+    forces are continuously differentiable, which the adjoint needs), and
+    ``fc(r) = (1 - (r / cutoff)**2)**3`` takes the pair energy to zero at
+    the cut-off with its first and second derivatives.  One species.
 
     Parameters
     ----------
@@ -109,16 +115,26 @@ class PairMLP(torch.nn.Module):
     seed : int or None
         Seeds the initial weights (``torch.Generator``), so two models
         made alike are equal.
+    activation : {'tanh', 'silu'}
+        The hidden layers' activation.  ``tanh``'s derivatives are
+        polynomials of its value, which the double-backward pass of the
+        adjoint's product reuses: at 512 argon atoms (7 Å, one thread,
+        loaded machine) the product took 31.6 ms with tanh against 50.0 ms
+        with SiLU, the force call 20.0 against 16.9 ms.
     """
 
     def __init__(self, cutoff: float = 5.0, n_basis: int = 16,
                  hidden: tuple = (64, 44), energy_scale: float = 0.01,
-                 seed: int | None = 0):
+                 seed: int | None = 0, activation: str = 'tanh'):
         super().__init__()
         cutoff = float(cutoff)
         if not (math.isfinite(cutoff) and cutoff > 0):
             raise ValueError(f'cutoff must be a positive length in Å, got '
                              f'{cutoff!r}')
+        activations = {'tanh': torch.nn.Tanh, 'silu': torch.nn.SiLU}
+        if activation not in activations:
+            raise ValueError(f'activation must be one of '
+                             f'{tuple(activations)}, got {activation!r}')
         self.cutoff = cutoff
         self.energy_scale = float(energy_scale)
         self.register_buffer('centres', torch.linspace(
@@ -127,7 +143,7 @@ class PairMLP(torch.nn.Module):
         layers, width = [], n_basis
         for h in hidden:
             layers += [torch.nn.Linear(width, h, dtype=torch.float64),
-                       torch.nn.SiLU()]
+                       activations[activation]()]
             width = h
         layers.append(torch.nn.Linear(width, 1, dtype=torch.float64))
         self.mlp = torch.nn.Sequential(*layers)
@@ -148,7 +164,54 @@ class PairMLP(torch.nn.Module):
         c = 1 - u * u
         return self.energy_scale * phi * (c * c * c)
 
+    def fit_pair_curve(self, target, r_min, points=200, steps=1000,
+                       learning_rate=1e-2) -> float:
+        """Train the weights so that ``phi(r)`` follows ``target(r)``.
+
+        Parameters
+        ----------
+        target : callable
+            ``target(r)`` in eV for a float64 numpy array of distances in
+            Å, e.g. a Lennard-Jones curve.  Beyond the cut-off ``phi`` is
+            zero whatever the target; a target that is not near zero
+            towards the cut-off cannot be followed there.
+        r_min : float
+            Å: the fit covers ``[r_min, cutoff]`` (closer pairs should not
+            occur in the runs).
+        points, steps, learning_rate
+            Evenly spaced distances, Adam steps and its learning rate.
+
+        Returns the root-mean-square error over the points after the fit,
+        eV.  Deterministic (the same weights from the same start): it runs
+        on one torch thread, restored afterwards (two threads took 30 times
+        as long on a busy two-core machine).  Fitted to argon's
+        Lennard-Jones curve over [3.2, 7] Å with the defaults: 2.4e-4 eV
+        RMS against a well depth of 0.0104 eV, in 0.81 s.  Make the
+        optimiser for your own training afterwards: this replaces the
+        weights in place.
+        """
+        import numpy as np
+        r_np = np.linspace(float(r_min), self.cutoff, int(points))
+        r = torch.from_numpy(r_np)
+        goal = torch.from_numpy(np.asarray(target(r_np), dtype=np.float64))
+        optimiser = torch.optim.Adam(self.mlp.parameters(),
+                                     lr=learning_rate)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            for _ in range(int(steps)):
+                optimiser.zero_grad()
+                loss = ((self.pair_energy(r) - goal) ** 2).mean()
+                loss.backward()
+                optimiser.step()
+            with torch.no_grad():
+                error = ((self.pair_energy(r) - goal) ** 2).mean().sqrt()
+        finally:
+            torch.set_num_threads(threads)
+        return float(error)
+
     def forward(self, positions, numbers, cell, edge_index, edge_shift):
+        """The energy (eV, scalar tensor): ``phi`` summed over pairs."""
         mask = half_pairs(edge_index, edge_shift)
         r = pair_distances(positions, edge_index, edge_shift, mask)
         return self.pair_energy(r).sum()

@@ -6,9 +6,10 @@ and pbc.
 ``|x_j - x_i + S @ cell| < cutoff``, both directions, sorted by
 ``(i, j, S)``.  Same input, same bits in the same order: the pair
 distances that decide membership are computed from the given positions
-in a fixed order (no BLAS, no history such as a skin kept from an older
-search), and the search that proposes candidates only needs to find a
-superset of the pairs.
+in a fixed order (no BLAS), and the search that proposes candidates only
+needs to find a superset of the pairs, sorted.  So :class:`NeighbourList`
+can keep its candidates from an earlier search (a skin) and still return
+exactly what :func:`neighbour_list` would.
 
 The search bins atoms into cubes a fraction of the cut-off wide, over
 the atoms wrapped into the cell plus the periodic images within the
@@ -58,9 +59,61 @@ def neighbour_list(positions, cell, pbc, cutoff):
         The image ``S`` of each pair (``edge_shift = S @ cell``, summed in
         a fixed order).
     """
+    x_nc, cell, pbc, cutoff = _checked(positions, cell, pbc, cutoff)
+    return _select(x_nc, _sorted_candidates(x_nc, cell, pbc, cutoff),
+                   cutoff)
+
+
+class NeighbourList:
+    """:func:`neighbour_list` with a skin: the same bits, searched less.
+
+    Parameters
+    ----------
+    cutoff : float
+        Å.
+    skin : float
+        Å.  Candidates are searched within ``cutoff + skin`` and kept
+        while no atom has moved more than ``skin / 2`` from where they
+        were searched (and the cell, pbc and number of atoms are the
+        same); each call keeps the candidates strictly inside ``cutoff``
+        by the same exact test as :func:`neighbour_list`.  The candidates
+        are a superset of the pairs and sorted, so the result is that of
+        :func:`neighbour_list`, bit for bit, whatever the history.
+    """
+
+    def __init__(self, cutoff: float, skin: float = 1.0):
+        self.cutoff = float(cutoff)
+        self.skin = float(skin)
+        if not (math.isfinite(self.skin) and self.skin >= 0):
+            raise ValueError(f'The skin must be a non-negative length in Å, '
+                             f'got {skin!r}')
+        self._search = None   # (positions, cell bytes, pbc bytes, candidates)
+
+    def __call__(self, positions, cell, pbc):
+        """``(edge_index, edge_shift, image)`` as :func:`neighbour_list`."""
+        x_nc, cell, pbc, cutoff = _checked(positions, cell, pbc, self.cutoff)
+        search = self._search
+        if (search is None or len(search[0]) != len(x_nc)
+                or search[1] != cell.tobytes() or search[2] != pbc.tobytes()
+                or _moved_beyond(x_nc, search[0], 0.5 * self.skin)):
+            candidates = _sorted_candidates(x_nc, cell, pbc,
+                                            cutoff + self.skin)
+            search = self._search = (x_nc.copy(), cell.tobytes(),
+                                     pbc.tobytes(), candidates)
+        return _select(x_nc, search[3], cutoff)
+
+
+def _moved_beyond(x_nc, ref_nc, distance):
+    d_nc = x_nc - ref_nc
+    moved_n = d_nc[:, 0] * d_nc[:, 0] + d_nc[:, 1] * d_nc[:, 1] \
+        + d_nc[:, 2] * d_nc[:, 2]
+    return bool(moved_n.max(initial=0.0) > distance * distance)
+
+
+def _checked(positions, cell, pbc, cutoff):
     x_nc = np.ascontiguousarray(positions, dtype=np.float64)
-    cell = np.asarray(cell, dtype=np.float64).reshape(3, 3)
-    pbc = np.asarray(pbc, dtype=bool).reshape(3)
+    cell = np.ascontiguousarray(cell, dtype=np.float64).reshape(3, 3)
+    pbc = np.ascontiguousarray(pbc, dtype=bool).reshape(3)
     cutoff = float(cutoff)
     if not (math.isfinite(cutoff) and cutoff > 0):
         raise ValueError(f'The cut-off must be a positive length in Å, got '
@@ -70,25 +123,51 @@ def neighbour_list(positions, cell, pbc, cutoff):
                          f'{x_nc.shape}')
     if not np.isfinite(x_nc).all():
         raise ValueError('The positions hold NaN or infinite values.')
+    return x_nc, cell, pbc, cutoff
+
+
+def _sorted_candidates(x_nc, cell, pbc, reach):
+    """A superset of the pairs within ``reach``, without an atom paired
+    with itself in its own cell, sorted by (i, j, S): ``(i, j, S, S @
+    cell)``."""
     n = len(x_nc)
-    empty = (np.zeros((2, 0), np.int64), np.zeros((0, 3)),
-             np.zeros((0, 3), np.int64))
     if n == 0:
-        return empty
-    i_p, j_p, s_pc = _candidates(x_nc, cell, pbc, cutoff)
-    # Membership decided from the given positions only, by the distance a
-    # model computes: (x_j - x_i) + S @ cell, squared and summed in order.
-    shift_pc = _shifts(s_pc, cell)
+        return (np.zeros(0, np.int64), np.zeros(0, np.int64),
+                np.zeros((0, 3), np.int64), np.zeros((0, 3)))
+    i_p, j_p, s_pc = _candidates(x_nc, cell, pbc, reach)
+    keep_p = ~((i_p == j_p) & ~s_pc.any(axis=1))
+    i_p, j_p, s_pc = i_p[keep_p], j_p[keep_p], s_pc[keep_p]
+    order_p = _canonical_order(i_p, j_p, s_pc, n)
+    s_pc = s_pc[order_p]
+    return i_p[order_p], j_p[order_p], s_pc, _shifts(s_pc, cell)
+
+
+def _select(x_nc, candidates, cutoff):
+    """The candidates strictly inside ``cutoff``, decided from the given
+    positions only, by the distance a model computes: (x_j - x_i) + S @
+    cell, squared and summed in order.  Keeps their order."""
+    i_p, j_p, s_pc, shift_pc = candidates
     d_pc = (x_nc[j_p] - x_nc[i_p]) + shift_pc
     r2_p = d_pc[:, 0] * d_pc[:, 0] + d_pc[:, 1] * d_pc[:, 1] \
         + d_pc[:, 2] * d_pc[:, 2]
-    keep_p = (r2_p < cutoff * cutoff) & ~((i_p == j_p)
-                                          & ~s_pc.any(axis=1))
-    i_p, j_p, s_pc, shift_pc = (i_p[keep_p], j_p[keep_p], s_pc[keep_p],
-                                shift_pc[keep_p])
-    order_p = np.lexsort((s_pc[:, 2], s_pc[:, 1], s_pc[:, 0], j_p, i_p))
-    edge_index = np.stack((i_p[order_p], j_p[order_p]))
-    return edge_index, shift_pc[order_p], s_pc[order_p]
+    keep_p = r2_p < cutoff * cutoff
+    return (np.stack((i_p[keep_p], j_p[keep_p])), shift_pc[keep_p],
+            s_pc[keep_p])
+
+
+def _canonical_order(i_p, j_p, s_pc, n):
+    """The permutation sorting by (i, j, S): one sort of a combined
+    integer key where it fits in int64, else numpy's lexsort."""
+    if not len(i_p):
+        return np.zeros(0, np.int64)
+    low = s_pc.min(axis=0)
+    width = s_pc.max(axis=0) - low + 1
+    if float(n) * n * float(np.prod(width.astype(float))) < 2.0**62:
+        key = i_p * n + j_p
+        for c in range(3):
+            key = key * width[c] + (s_pc[:, c] - low[c])
+        return np.argsort(key, kind='stable')
+    return np.lexsort((s_pc[:, 2], s_pc[:, 1], s_pc[:, 0], j_p, i_p))
 
 
 def _shifts(s_pc, cell):
@@ -180,6 +259,14 @@ def _candidates(x_nc, cell, pbc, cutoff):
     first = np.repeat(start - np.cumsum(count) + count, count)
     slot = first + np.arange(total)
     k = order[slot]
+    # A first cut by the ghosts' distances (cheap, slightly inexact: the
+    # exact test follows on the survivors), with room for rounding.
+    d = ghost_k[k] - xw_nc[centre]
+    scale = np.abs(ghost_k).max(initial=0.0) + np.abs(xw_nc).max()
+    reach2 = (margin + 1e-12 * scale) ** 2
+    close = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2] \
+        < reach2
+    k, centre = k[close], centre[close]
     j = atom_k[k]
     # The true image: ghost = x_j - w_j cell + S' cell, centre = x_i - w_i
     # cell, so the pair vector is x_j - x_i + (S' - w_j + w_i) cell.

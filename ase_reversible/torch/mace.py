@@ -1,0 +1,70 @@
+"""MACE models (the ``mace-torch`` package) as TorchCalculator models.
+
+:class:`MACEModel` wraps a ``mace.modules.MACE`` (or ``ScaleShiftMACE``)
+in the ``forward(positions, numbers, cell, edge_index, edge_shift)``
+signature of :class:`~ase_reversible.torch.TorchCalculator`, so a MACE
+model runs out and back bit for bit and the reversible adjoint
+differentiates through it, weights included.  ``mace-torch`` is not a
+dependency: import this module only where it is installed.
+
+Tried here with mace-torch 0.3.16 and e3nn 0.4.4 on PyTorch 2.13.0 (CPU,
+float64, random weights; tests/test_torch.py skips without them).  Loading
+a saved MACE model with torch >= 2.6 needs
+``TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD=1`` (or ``torch.load(...,
+weights_only=False)``) for a file you trust; the model must then be made
+float64 (``model.double()``) before it is wrapped.
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+class MACEModel(torch.nn.Module):
+    """A MACE model as a TorchCalculator model.
+
+    Parameters
+    ----------
+    model : torch.nn.Module
+        A ``mace.modules.MACE`` (or subclass), float64, single head.
+    atomic_numbers : sequence of int
+        The model's elements in the order of its one-hot node attributes
+        (``model.atomic_numbers`` if omitted).
+
+    ``cutoff`` is the model's ``r_max`` (Å): give the calculator the same.
+    MACE's edges run from ``edge_index[0]`` (sender) to ``edge_index[1]``
+    (receiver) with ``x_receiver - x_sender + shift``, the convention of
+    :func:`~ase_reversible.torch.neighbour_list`.
+    """
+
+    def __init__(self, model, atomic_numbers=None):
+        super().__init__()
+        self.model = model
+        if atomic_numbers is None:
+            atomic_numbers = [int(z) for z in model.atomic_numbers]
+        self.register_buffer('atomic_numbers', torch.tensor(
+            list(atomic_numbers), dtype=torch.int64))
+        self.cutoff = float(model.r_max)
+
+    def forward(self, positions, numbers, cell, edge_index, edge_shift):
+        """The energy (eV): MACE's ``'energy'`` of the one graph."""
+        n = positions.shape[0]
+        match = numbers[:, None] == self.atomic_numbers[None, :]
+        if not bool(match.any(dim=1).all()):
+            missing = sorted(set(numbers.tolist())
+                             - set(self.atomic_numbers.tolist()))
+            raise ValueError(f'The MACE model has no element {missing}; it '
+                             f'knows {self.atomic_numbers.tolist()}.')
+        data = {
+            'positions': positions,
+            'node_attrs': match.to(positions.dtype),
+            'edge_index': edge_index,
+            'shifts': edge_shift,
+            # Integer images enter only virials and stress, not asked for.
+            'unit_shifts': torch.zeros_like(edge_shift),
+            'cell': cell.reshape(3, 3),
+            'batch': torch.zeros(n, dtype=torch.int64),
+            'ptr': torch.tensor([0, n], dtype=torch.int64),
+        }
+        out = self.model(data, training=False, compute_force=False)
+        return out['energy'].sum()
