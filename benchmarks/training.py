@@ -90,6 +90,41 @@ def _max_rss_bytes():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
+def _rss_bytes():
+    """The resident set size now (Linux; None elsewhere)."""
+    try:
+        with open('/proc/self/statm') as f:
+            return int(f.read().split()[1]) * resource.getpagesize()
+    except OSError:
+        return None
+
+
+class RssSampler:
+    """The largest resident set size seen every ``interval`` seconds while
+    it runs: unlike ``ru_maxrss``, not hidden under a peak the imports
+    left behind."""
+
+    def __init__(self, interval=0.01):
+        import threading
+        self.interval, self.peak = interval, _rss_bytes()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _sample(self):
+        while not self._stop.wait(self.interval):
+            now = _rss_bytes()
+            if now is not None and (self.peak is None or now > self.peak):
+                self.peak = now
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+
+
 # -- gradients ----------------------------------------------------------------
 
 def equilibrated_liquid(fit, steps):
@@ -270,8 +305,10 @@ def memory_worker(kind, steps):
     rdf = fit.SmoothRDF(atoms, fit.QUICK.r_max)
     target_b = rdf.values(atoms.positions)
     rss_before = _max_rss_bytes()
+    rss_now = _rss_bytes()
     t0 = time.perf_counter()
     result = {'kind': kind, 'steps': steps, 'atoms': len(atoms)}
+    sampler = RssSampler().__enter__()
     if kind == 'reversible':
         size = fit.Size(repeat=2, r_max=fit.QUICK.r_max, equilibrate=0,
                         target_steps=0, epochs=1, steps=steps,
@@ -289,6 +326,8 @@ def memory_worker(kind, steps):
         result.update(loss=loss, gradients=grads)
     else:
         raise ValueError(kind)
+    sampler.__exit__()
+    result.update(rss_before_bytes=rss_now, rss_peak_bytes=sampler.peak)
     result.update(seconds=time.perf_counter() - t0,
                   max_rss_before_bytes=rss_before,
                   max_rss_bytes=_max_rss_bytes())
@@ -363,7 +402,10 @@ def measure_memory(quick):
                 str(p['steps']): r2 + per_step * (p['steps'] - n2)
                 for p in rev},
             'reversible_largest_over_smallest':
-                rev[-1]['max_rss_bytes'] / rev[0]['max_rss_bytes']}
+                rev[-1]['max_rss_bytes'] / rev[0]['max_rss_bytes'],
+            'reversible_growth_bytes': {
+                str(p['steps']): p['rss_peak_bytes'] - p['rss_before_bytes']
+                for p in rev if p.get('rss_peak_bytes') is not None}}
 
 
 # -- time ----------------------------------------------------------------------
@@ -441,9 +483,29 @@ def run(quick=False):
             'load_average_at_end': os.getloadavg()}
 
 
+def remeasure_memory():
+    """Measure the memory points again into the stored results, saying
+    when and how (the other parts of the section keep theirs)."""
+    import os
+    from datetime import datetime
+    path = ROOT / 'docs' / 'benchmarks' / 'training.json'
+    stored = json.loads(path.read_text())
+    started = time.perf_counter()
+    memory = measure_memory(False)
+    memory['measured'] = {
+        'command': 'python benchmarks/training.py --memory-only',
+        'date': datetime.now().astimezone().isoformat(timespec='seconds'),
+        'wall_seconds': time.perf_counter() - started,
+        'load_average': os.getloadavg()}
+    stored['results']['memory'] = memory
+    path.write_text(json.dumps(stored, indent=1) + '\n')
+
+
 if __name__ == '__main__':
     if sys.argv[1:2] == ['--memory-worker']:
         memory_worker(sys.argv[2], int(sys.argv[3]))
+    elif sys.argv[1:2] == ['--memory-only']:
+        remeasure_memory()
     else:
         import run_all
         sys.exit(run_all.main(['--only', 'training'] + sys.argv[1:]))

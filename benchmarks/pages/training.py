@@ -52,17 +52,25 @@ def markdown(results) -> str:
     s = g['student']
     memory = results['memory']
     rev, auto = memory['points']['reversible'], memory['points']['autograd']
+    def growth(p):
+        if p.get('rss_peak_bytes') is None:
+            return ''
+        return f"{(p['rss_peak_bytes'] - p['rss_before_bytes']) / 2**20:.1f}"
+
     mem_rows = [(p['steps'], 'reversible retrace',
                  f"{p['max_rss_before_bytes'] / 2**20:.0f}",
-                 f"{p['max_rss_bytes'] / 2**20:.0f}",
+                 f"{p['max_rss_bytes'] / 2**20:.0f}", growth(p),
                  f"{p['seconds']:.0f}") for p in rev]
     mem_rows += [(p['steps'], 'plain autograd',
                   f"{p['max_rss_before_bytes'] / 2**20:.0f}",
-                  f"{p['max_rss_bytes'] / 2**20:.0f}",
+                  f"{p['max_rss_bytes'] / 2**20:.0f}", growth(p),
                   f"{p['seconds']:.0f}") for p in auto]
     mem_rows += [(n, 'plain autograd, extrapolated', '',
-                  f"{b / 2**20:.0f}", '')
+                  f"{b / 2**20:.0f}", '', '')
                  for n, b in memory['autograd_extrapolated_bytes'].items()]
+    measured = memory.get('measured')
+    when = (f" (measured again by `{measured['command']}`, load average "
+            f"{measured['load_average'][0]:.1f})") if measured else ''
     time_rows = [(c['student'], c['atoms'], c['steps'], c['parameters'],
                   f"{c['forward_seconds_median']:.2f}",
                   f"{c['gradient_seconds_median']:.2f}",
@@ -88,16 +96,19 @@ central differences of ASE `VelocityVerlet` runs from the same start with
 The finite differences err by about h² (truncation) plus the float runs'
 rounding over h; the smallest error over h is the agreement.
 
-**Memory** (peak resident set size of a fresh process per point, MiB;
-{memory['atoms']} atoms, rc = 5.5 Å, g(r) every 100 steps).  The
+**Memory**{when} (peak resident set size of a fresh process per point,
+MiB; {memory['atoms']} atoms, rc = 5.5 Å, g(r) every 100 steps).  The
 retrace's peak at its longest run is {memory['reversible_largest_over_smallest']:.3f}
-times its peak at its shortest.  Plain autograd grows by
+times its peak at its shortest.  The process's peak can be set by its
+imports, which would hide a smaller growth: *growth* is the largest
+resident size sampled every 10 ms during the run (forward and retrace)
+less the resident size just before it.  Plain autograd grows by
 {memory['autograd_bytes_per_step'] / 2**20:.3f} MiB per step (between its
 shortest and longest runs here); its rows marked extrapolated are that
 slope, not measured.
 
-{markdown_table(('steps', 'how', 'before the run', 'peak', 'seconds'),
-                mem_rows)}
+{markdown_table(('steps', 'how', 'peak before the run', 'peak',
+                 'growth during the run', 'seconds'), mem_rows)}
 
 ![memory]({'benchmarks/' + MEMORY_PLOT})
 
