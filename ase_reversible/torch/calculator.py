@@ -190,19 +190,9 @@ class TorchCalculator(ExactCalculator):
         nothing written).  The weights' fingerprint changes, so the
         integrators move their anchor at their next step.
         """
-        params = self._named(list(values))
-        new = {}
-        for name, value in values.items():
-            array = np.asarray(value, dtype=np.float64)
-            shape = tuple(params[name].shape)
-            if array.shape != shape:
-                raise ValueError(f'{name} must have shape {shape}, got '
-                                 f'{array.shape}')
-            if not np.isfinite(array).all():
-                raise ValueError(f'{name} holds NaN or infinite values.')
-            new[name] = array
+        params, arrays = self._checked_arrays(values, 'value')
         with torch.no_grad():
-            for name, array in new.items():
+            for name, array in arrays.items():
                 params[name].copy_(torch.from_numpy(array))
         self.reset()
 
@@ -210,19 +200,29 @@ class TorchCalculator(ExactCalculator):
         """Put ``{name: dL/dθ}`` (``Gradients.parameters`` from
         ``backpropagate``) into each parameter's ``.grad``, as a torch
         optimiser expects after ``loss.backward()``; parameters not named
-        keep theirs.  Shapes must match (ValueError, nothing written)."""
-        params = self._named(list(gradients))
-        new = {}
-        for name, value in gradients.items():
+        keep theirs.  Shapes must match and values be finite (ValueError,
+        nothing written)."""
+        params, arrays = self._checked_arrays(gradients, 'gradient')
+        for name, array in arrays.items():
+            params[name].grad = torch.from_numpy(array.copy()).to(
+                params[name].dtype)
+
+    def _checked_arrays(self, values, what):
+        """``(parameters by name, float64 arrays by name)`` for ``values``,
+        every one checked before anything is written."""
+        params = self._named(list(values))
+        arrays = {}
+        for name, value in values.items():
             array = np.asarray(value, dtype=np.float64)
             shape = tuple(params[name].shape)
             if array.shape != shape:
-                raise ValueError(f'The gradient of {name} must have shape '
+                raise ValueError(f'The {what} of {name} must have shape '
                                  f'{shape}, got {array.shape}')
-            new[name] = array
-        for name, array in new.items():
-            params[name].grad = torch.from_numpy(array.copy()).to(
-                params[name].dtype)
+            if not np.isfinite(array).all():
+                raise ValueError(f'The {what} of {name} holds NaN or '
+                                 'infinite values.')
+            arrays[name] = array
+        return params, arrays
 
     def vector_jacobian_product(self, atoms, v_nc, parameters=()):
         """``((dF/dx)^T v, {name: (dF/dθ)^T v})`` at the atoms' positions.
