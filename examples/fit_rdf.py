@@ -47,7 +47,7 @@ thermostatted run that made it).
 
 Run it::
 
-    python examples/fit_rdf.py --out DIR                # 256 atoms, 12-25 min
+    python examples/fit_rdf.py --out DIR                # 256 atoms, 10-25 min
     python examples/fit_rdf.py --out DIR --quick        # 32 atoms, < 30 s
     python examples/fit_rdf.py --out DIR --student lj   # learn ε and σ
     python examples/fit_rdf.py --out DIR --target vacf  # the VACF fit
@@ -293,11 +293,12 @@ class MLPStudent:
     Lennard-Jones pair curve of ``sigma`` (the wrong start).
 
     Adam works on the network's weights in place; the calculator sees the
-    change through its weights' fingerprint.
+    change through its weights' fingerprint.  Its rate is multiplied by
+    ``decay`` after each step, as the Lennard-Jones student's.
     """
 
     def __init__(self, cutoff, sigma=WRONG_SIGMA, learning_rate=0.003,
-                 pretrain_steps=1500):
+                 pretrain_steps=1500, decay=0.92):
         import torch
         from ase_reversible.torch import PairMLP, TorchCalculator
         self.torch = torch
@@ -309,6 +310,8 @@ class MLPStudent:
         self.names = self.calc.differentiable_parameters
         self.optimiser = torch.optim.Adam(self.model.parameters(),
                                           lr=learning_rate)
+        self.schedule = torch.optim.lr_scheduler.ExponentialLR(
+            self.optimiser, gamma=decay)
 
     def pretrain(self, sigma, steps):
         """Least squares on the pair curve from 0.8 σ to the cut-off: the
@@ -338,11 +341,9 @@ class MLPStudent:
         return self.calc
 
     def step(self, gradients):
-        torch = self.torch
-        for name, p in self.model.named_parameters():
-            p.grad = torch.as_tensor(np.asarray(gradients[name]),
-                                     dtype=torch.float64).reshape(p.shape)
+        self.calc.assign_gradients(gradients)
         self.optimiser.step()
+        self.schedule.step()
 
     def pair_energy(self, r):
         torch = self.torch
