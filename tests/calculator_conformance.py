@@ -304,6 +304,10 @@ class CalculatorConformance:
         for kwargs, error, match in self.bad_parameters:
             with pytest.raises(error, match=match):
                 self.make_calc(**kwargs)
-            # set() checks them the same way.
+            # set() checks them the same way, and a refused set changes
+            # nothing.
+            calc = self.make_calc()
+            before = dict(calc.parameters)
             with pytest.raises(error, match=match):
-                self.make_calc().set(**kwargs)
+                calc.set(**kwargs)
+            assert dict(calc.parameters) == before

@@ -116,9 +116,16 @@ class ExactCalculator(Calculator):
     def set(self, **kwargs):
         """Change parameters (``name=value``): checks them and drops cached
         results.  Returns the changed parameters (dict)."""
+        before = dict(self.parameters)
         changed = super().set(**kwargs)
         if changed:
-            self._check_parameters()
+            try:
+                self._check_parameters()
+            except (TypeError, ValueError):
+                # Refused: the calculator keeps the parameters it had.
+                self.parameters.clear()
+                self.parameters.update(before)
+                raise
             self._forget()
             # ASE's set keeps the results: they would be the old
             # parameters' at positions check_state finds unchanged.
