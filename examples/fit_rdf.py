@@ -498,10 +498,15 @@ def main(out_dir='.', quick=False, student='mlp', report=print,
                    'pair_final': learner.pair_energy(pair_r).tolist(),
                    'pair_reference': lj_pair(pair_r).tolist()})
     result.update({f'{k}_final': v for k, v in learner.summary().items()})
-    result['picture'] = os.path.join(out_dir, 'fit_rdf.png')
-    _plot(result)
+    return _finish(result, out_dir, 'fit_rdf', _plot, tic)
+
+
+def _finish(result, out_dir, name, plot, tic):
+    """Draw ``name``.png, then store the numbers in ``name``.json."""
+    result['picture'] = os.path.join(out_dir, f'{name}.png')
+    plot(result)
     result['seconds'] = time.perf_counter() - tic
-    with open(os.path.join(out_dir, 'fit_rdf.json'), 'w') as f:
+    with open(os.path.join(out_dir, f'{name}.json'), 'w') as f:
         json.dump(result, f, indent=1)
     return result
 
@@ -665,12 +670,7 @@ def fit_vacf(out_dir='.', quick=False, report=print):
         'epsilon_final': student.summary()['epsilon'],
     }
     os.makedirs(out_dir, exist_ok=True)
-    result['picture'] = os.path.join(out_dir, 'fit_vacf.png')
-    _plot_vacf(result)
-    result['seconds'] = time.perf_counter() - tic
-    with open(os.path.join(out_dir, 'fit_vacf.json'), 'w') as f:
-        json.dump(result, f, indent=1)
-    return result
+    return _finish(result, out_dir, 'fit_vacf', _plot_vacf, tic)
 
 
 def _plot_vacf(result):
