@@ -554,3 +554,63 @@ def test_without_torch_the_import_says_how_to_install_it(monkeypatch):
     monkeypatch.setitem(sys.modules, 'torch', None)   # as if not installed
     with pytest.raises(ImportError, match=r"pip install 'torch==2\.13\.0'"):
         importlib.import_module('ase_reversible.torch')
+
+
+# A run continued where torch picks other CPU kernels: torch reads
+# ATEN_CPU_CAPABILITY once, when it starts, so each leg is a process.
+TORCH_LEG = '''
+import sys, warnings
+import numpy as np
+from ase import units
+from ase.cluster import Icosahedron
+from ase.io import read
+from ase_reversible import ReversibleVerlet
+from ase_reversible.torch import PairMLP, TorchCalculator
+model = PairMLP(cutoff=7.0, seed=0).double()
+calc = TorchCalculator(model, 7.0)
+if sys.argv[1] == 'forces':
+    atoms = read('run.traj', 0)
+    atoms.calc = calc
+    print(atoms.get_forces().tobytes().hex())
+elif sys.argv[1] == 'out':
+    atoms = Icosahedron('Ar', 2, latticeconstant=5.26)
+    atoms.center(vacuum=8.0)
+    atoms.set_momenta(np.random.default_rng(0).normal(0, 0.3, (13, 3)))
+    atoms.calc = calc
+    ReversibleVerlet(atoms, 5 * units.fs, trajectory='run.traj').run(40)
+else:
+    atoms = read('run.traj', -1)
+    atoms.calc = calc
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        dyn = ReversibleVerlet(atoms, 5 * units.fs)
+    print(sorted({type(w.message).__name__ for w in caught}))
+'''
+
+
+@pytest.mark.slow
+def test_a_run_continued_with_other_torch_kernels_is_not_silent(tmp_path):
+    """PairMLP forces come out in other bits when torch starts with
+    ATEN_CPU_CAPABILITY=default (no SIMD) than with this CPU's kernels;
+    the restart record's machine section must say so on resume."""
+    import subprocess
+    import sys
+    from machines import machine_env
+    script = tmp_path / 'leg.py'
+    script.write_text(TORCH_LEG)
+
+    def leg(kind, **env):
+        done = subprocess.run(
+            [sys.executable, str(script), kind], cwd=tmp_path,
+            env={**machine_env('native'), **env}, capture_output=True,
+            text=True, timeout=300)
+        assert done.returncode == 0, done.stderr[-3000:]
+        return done.stdout.strip()
+
+    leg('out')
+    if leg('forces') == leg('forces', ATEN_CPU_CAPABILITY='default'):
+        pytest.skip("torch's kernels give the same bits here with and "
+                    'without SIMD: nothing to detect')
+    assert 'MachineChangedWarning' not in leg('back')
+    assert 'MachineChangedWarning' in leg('back',
+                                          ATEN_CPU_CAPABILITY='default')
