@@ -42,10 +42,10 @@ others.
 """
 
 from .cotangents import Cotangents, Gradients
-from .hessian import AnalyticHVP, FiniteDifferenceHVP, hvp_for
+from .hessian import AnalyticHVP, FiniteDifferenceHVP
 from .products import CalculatorProduct, HessianProduct, product_for
 from .schedule import LossSchedule
 
 __all__ = ['Cotangents', 'Gradients', 'AnalyticHVP', 'FiniteDifferenceHVP',
-           'hvp_for', 'CalculatorProduct', 'HessianProduct', 'product_for',
+           'CalculatorProduct', 'HessianProduct', 'product_for',
            'LossSchedule']

@@ -91,32 +91,3 @@ class FiniteDifferenceHVP:
         finally:
             atoms.positions = x_nc
         return (f_minus_nc - f_plus_nc) / (2 * e)
-
-
-HVP_CHOICES = ('auto', 'analytic', 'finite-difference')
-
-
-def hvp_for(calc, choice='auto'):
-    """The Hessian-vector product to use with ``calc``.
-
-    ``choice``: ``'auto'`` (analytic if the calculator has
-    ``hessian_vector_product``, else finite differences), ``'analytic'``,
-    ``'finite-difference'``, or a callable ``hvp(atoms, v_nc)``.  Returns
-    a callable ``hvp(atoms, v_nc) -> [n_atoms, 3]`` (eV/Å² x unit of
-    ``v_nc``): :class:`AnalyticHVP`, :class:`FiniteDifferenceHVP` or the
-    callable given.
-    """
-    analytic = callable(getattr(calc, 'hessian_vector_product', None))
-    if callable(choice):
-        return choice
-    if choice not in HVP_CHOICES:
-        raise ValueError(f'hvp must be one of {HVP_CHOICES} or a callable '
-                         f'hvp(atoms, v_nc) returning H v, got {choice!r}')
-    if choice == 'analytic' and not analytic:
-        raise ValueError(
-            f'{type(calc).__name__} has no hessian_vector_product method; '
-            "use hvp='finite-difference' (two force calls per product) or "
-            'pass your own hvp(atoms, v_nc).')
-    if choice == 'analytic' or (choice == 'auto' and analytic):
-        return AnalyticHVP()
-    return FiniteDifferenceHVP()

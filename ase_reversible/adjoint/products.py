@@ -32,7 +32,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.portable import dot
-from .hessian import AnalyticHVP, FiniteDifferenceHVP, HVP_CHOICES
+from .hessian import AnalyticHVP, FiniteDifferenceHVP
+
+#: The named sources of products (besides a callable).
+HVP_CHOICES = ('auto', 'analytic', 'finite-difference')
 
 
 class CalculatorProduct:
@@ -43,8 +46,6 @@ class CalculatorProduct:
     parameters : tuple of str
         Names passed through to the calculator.
     """
-
-    name = 'vector-Jacobian product'
 
     def __init__(self, parameters=()):
         self.parameters = tuple(parameters)
@@ -79,16 +80,13 @@ class HessianProduct:
     def __init__(self, hvp, parameters=()):
         self.hvp = hvp
         self.parameters = tuple(parameters)
-        self.name = getattr(hvp, 'name', 'Hessian-vector product')
 
     def __call__(self, atoms, w_nc):
         """``(-H w, {name: (dF/dtheta)^T w})`` at the atoms' positions;
         ``w_nc`` is ``[n_atoms, 3]``."""
-        # A copy: a user's product may keep or modify its argument.
+        # A copy: a user's product may keep or modify its argument.  The
+        # kick checks the shape of what comes back.
         hv_nc = np.asarray(self.hvp(atoms, w_nc.copy()), dtype=float)
-        if hv_nc.shape != w_nc.shape:
-            raise ValueError(f'The Hessian-vector product has shape '
-                             f'{hv_nc.shape}, expected {w_nc.shape}')
         dtheta = {name: dot(atoms.calc.force_parameter_derivative(atoms,
                                                                   name),
                             w_nc)

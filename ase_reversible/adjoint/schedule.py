@@ -57,7 +57,6 @@ class LossSchedule:
         #: Where the open window ends (None: no window open; 0 or below:
         #: it reaches the first state, whose cotangents are returned).
         self._end = None
-        self.calls = 0
 
     def start(self, cotangents, given):
         """Begin at state ``steps`` with the cotangents holding the
@@ -82,7 +81,6 @@ class LossSchedule:
 
     def _add(self, k):
         self.show()
-        self.calls += 1
         given = self.loss(self.atoms, k)
         if given is None:
             return
@@ -108,8 +106,8 @@ class LossSchedule:
             self._open(k)
 
 
-def checked_schedule(loss, every, window, steps):
-    """``(every, window)`` checked against each other and ``steps``."""
+def checked_schedule(loss, every, window):
+    """``(every, window)``, checked against each other."""
     if loss is not None and not callable(loss):
         raise TypeError('loss must be a callable loss(atoms, k) returning '
                         f'None or (dL/dx, dL/dp), got {type(loss).__name__}')

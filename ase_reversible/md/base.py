@@ -530,7 +530,7 @@ class ReversibleDynamics(MolecularDynamics):
         reversible, and the time step keeps its original sign.
         """
         steps = check_steps(steps)
-        every, window = checked_schedule(loss, every, window, steps)
+        every, window = checked_schedule(loss, every, window)
         self._sync()
         available = self.engine.steps_since_anchor
         if steps > available:
