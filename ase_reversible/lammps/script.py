@@ -5,9 +5,12 @@
 The script is an ordinary LAMMPS input, read line by line and handed to
 LAMMPS, with lines of one more command, ``reversible``:
 
-``reversible nve [velocity_quantum Q] [force_noise F] [sort_bin B]``
+``reversible nve [velocity_quantum Q] [force_noise F] [sort_bin B] [path P]``
     From here on, ``run N`` is an exact run (no ``fix nve``: this is the
-    integrator).  ``timestep`` (before or after this line) must be a power
+    integrator).  ``path`` is ``auto`` (default: the compiled ``fix
+    reversible/nve``, built on first use, where a C++ compiler is found,
+    else the Python path, with one line saying so), ``compiled`` or
+    ``python``; both take the same steps to the bit.  ``timestep`` (before or after this line) must be a power
     of two in LAMMPS time units when a run starts; a negative one runs
     back.  Fixes, pair styles and solvers that would make the motion depend
     on more than positions are refused here and at every run.
@@ -34,13 +37,15 @@ from .integrator import ReversibleLammps
 from .mpi import import_lammps
 
 USAGE = ('usage: mpiexec -n RANKS python -m ase_reversible.lammps INPUT '
-         '[-var NAME VALUE ...] [-log FILE] [-screen FILE]  (or -in INPUT)')
+         '[-var NAME VALUE ...] [-log FILE] [-screen FILE]  (or -in INPUT)\n'
+         '       python -m ase_reversible.lammps build [--dir DIR]  (the '
+         'compiled step, ahead of time)')
 
 #: Commands that hand control flow to LAMMPS's own reader.
 _FLOW = ('jump', 'label', 'next', 'if')
 
 _OPTIONS = {'velocity_quantum': float, 'force_noise': float,
-            'sort_bin': float}
+            'sort_bin': float, 'path': str}
 
 
 class ScriptError(Exception):
@@ -133,8 +138,8 @@ class ScriptRunner:
                 raise ScriptError('reversible nve was already given; the '
                                   'grid it chose stays for the whole script')
             self._check_step_dependence()
-            self.exact = ReversibleLammps(self.lmp, **_options(rest))
-            self.exact.hint = _hint
+            self.exact = ReversibleLammps(self.lmp, **_options(rest),
+                                          hint=_hint)
             self.on = True
         elif what in ('anchor', 'check', 'off') and self.exact is None:
             raise ScriptError(f'reversible {what} before reversible nve')
@@ -183,7 +188,7 @@ def _options(words):
         if key not in _OPTIONS:
             raise ScriptError(f'unknown reversible nve option {key!r}: '
                               + ', '.join(_OPTIONS))
-        options[key] = _number(value)
+        options[key] = _number(value) if _OPTIONS[key] is float else value
     return options
 
 
@@ -220,6 +225,9 @@ def main(argv=None, prog='python -m ase_reversible.lammps'):
         print(usage)
         print(__doc__.split('\n\n', 2)[2])
         return 0 if argv else 2
+    if argv[0] == 'build':  # not an input script: the compiled step
+        from .plugin import main as build
+        return build(argv[1:])
     path, lammps_args = _input_and_options(argv)
     if path is None:
         print(usage, file=sys.stderr)
