@@ -2,7 +2,7 @@
    ase-reversible, built on first use by ase_reversible.lammps.plugin).
 
    fix ID group reversible/nve kick NAME velocity_quantum Q
-       force_noise F extent_factor E mode M scale S1 ... Sntypes
+       force_noise F extent_factor E sort_bin B mode M scale S1 ... Sntypes
 
    The step is the one ase_reversible.lammps.integrator runs through
    fix move, fix external and fix halt, bit for bit: the same formula,
@@ -25,6 +25,7 @@ class FixReversibleNVE : public Fix {
   FixReversibleNVE(class LAMMPS *, int, char **);
   int setmask() override;
   void init() override;
+  void setup_pre_neighbor() override;
   void setup(int) override;
   void initial_integrate(int) override;
   void post_force(int) override;
@@ -46,12 +47,12 @@ class FixReversibleNVE : public Fix {
   virtual void after_kick() {}
 
   int mode, flag, forced_timeout;
-  double qv, force_noise, extent_factor;
+  double qv, force_noise, extent_factor, sort_bin;
+  bool canonical;                    // the latest setup left a canonical order
   std::vector<double> type_scale;    // index by type, [0] unused
   double scale_min, scale_max;
   bool uniform;
   int kick_index;                    // atom->darray index of the pending kick
-  std::vector<double> kbuf;          // this step's kicks, before the verdict
   double run_force, run_force_all;   // largest |F| of this segment
   int observed;                      // a clean recomputation was compared
   double observed_noise, observed_bound;
