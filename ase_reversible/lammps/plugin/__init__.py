@@ -160,10 +160,13 @@ def build(facts: dict, directory=None, *, compiler=None) -> Path:
         return target
     compiler = compiler or find_compiler()
     if compiler is None:
+        where = (f'CXX={os.environ["CXX"]} was not found'
+                 if os.environ.get('CXX') else
+                 'no C++ compiler was found (c++, g++, clang++)')
         raise PluginUnavailable(
-            'no C++ compiler was found (set CXX, or install g++; or build '
-            'the plugin where one is, into the same cache directory: python '
-            '-m ase_reversible lammps build)')
+            f'{where}: set CXX, or install g++; or build the plugin where a '
+            'compiler is, into the same cache directory: python -m '
+            'ase_reversible lammps build')
     includes = [lammps_include(), mpi_include(), source_dir()]
     target.parent.mkdir(parents=True, exist_ok=True)
     with open(target.parent / '.lock', 'w') as lock:
