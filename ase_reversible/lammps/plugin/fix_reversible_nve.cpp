@@ -205,8 +205,7 @@ void FixReversibleNVE::post_force(int /*vflag*/)
   else if (deviation > 0.5 - bound) local |= AMBIGUOUS;
   const bool setup = (mode == START || mode == REDO);
   if (setup && !sorted_canonically()) local |= NOT_CANONICAL;
-  int verdict = local;
-  if (comm->nprocs > 1) MPI_Allreduce(&local, &verdict, 1, MPI_INT, MPI_MAX, world);
+  const int verdict = reduce_verdict(local);
 
   if (verdict & OUT_OF_RANGE) {
     halt(OUT_OF_RANGE);
@@ -259,6 +258,15 @@ void FixReversibleNVE::post_force(int /*vflag*/)
     noisy_bound = bound;
     halt(AMBIGUOUS);
   }
+}
+
+/* The step's one collective: the verdict's maximum over the ranks. */
+
+int FixReversibleNVE::reduce_verdict(int local)
+{
+  int verdict = local;
+  if (comm->nprocs > 1) MPI_Allreduce(&local, &verdict, 1, MPI_INT, MPI_MAX, world);
+  return verdict;
 }
 
 void FixReversibleNVE::halt(int why)

@@ -44,6 +44,9 @@ class FixReversibleNVE : public Fix {
   // keeps its own) and what follows a kick that was taken.
   virtual double **exact_velocity();
   virtual void after_kick() {}
+  // The step's one collective, over this rank's verdict bits (a subclass
+  // may carry its own sums in it); returns the verdict of every rank.
+  virtual int reduce_verdict(int);
 
   int mode, flag, forced_timeout;
   double qv, force_noise, extent_factor;
