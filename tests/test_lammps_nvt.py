@@ -236,3 +236,16 @@ def test_samples_the_canonical_kinetic_energy_as_fix_nvt_does(tmp_path):
     mean, p = found['exact']
     assert abs(mean / 1.5 - 1) < 0.01
     assert p > 0.01
+
+
+def test_a_step_refused_after_its_drift_is_undone_exactly(tmp_path):
+    # fix addforce adds 1e300 from step 21: that step drifts, then its kick
+    # is out of range; fix_modify undo takes back the drift, the first
+    # half-kick and the thermostat's shears.
+    result = job(1, 'blowup', tmp_path, system='lj', steps=100)
+    counters = result['counters']
+    assert counters['refused'].startswith('FloatingPointError: forces at '
+                                          'step 21')
+    assert counters['stopped_at'] == 20
+    assert not np.array_equal(result['stopped_x'], result['start_x'])
+    assert_same_state(result, 'back', 'start')
