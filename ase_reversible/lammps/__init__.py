@@ -8,5 +8,6 @@ Importing this package does not import LAMMPS.
 
 from .integrator import ReversibleLammps
 from .mpi import import_lammps
+from .nose import ReversibleLammpsNose
 
-__all__ = ['ReversibleLammps', 'import_lammps']
+__all__ = ['ReversibleLammps', 'ReversibleLammpsNose', 'import_lammps']

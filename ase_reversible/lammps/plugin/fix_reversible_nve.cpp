@@ -77,12 +77,7 @@ FixReversibleNVE::FixReversibleNVE(LAMMPS *lmp, int narg, char **arg) :
     else if (key == "extent_factor") extent_factor = utils::numeric(FLERR, value, false, lmp);
     else if (key == "sort_bin") sort_bin = utils::numeric(FLERR, value, false, lmp);
     else if (key == "mode") set_mode(value);
-    else {
-      const int used = parse_keyword(iarg, narg, arg);
-      if (used == 0) error->all(FLERR, "fix {}: unknown keyword {}", style, key);
-      iarg += used;
-      continue;
-    }
+    else error->all(FLERR, "fix {}: unknown keyword {}", style, key);
     iarg += 2;
   }
   if (kick.empty()) error->all(FLERR, "fix {} needs kick NAME (a d2_ property/atom of 3 columns)", style);
@@ -245,8 +240,7 @@ void FixReversibleNVE::post_force(int /*vflag*/)
   else if (deviation > 0.5 - bound) local |= AMBIGUOUS;
   const bool setup = (mode == START || mode == REDO);
   if (setup && !canonical) local |= NOT_CANONICAL;
-  int verdict = local;
-  if (comm->nprocs > 1) MPI_Allreduce(&local, &verdict, 1, MPI_INT, MPI_MAX, world);
+  const int verdict = reduce_verdict(local);
 
   if (verdict & OUT_OF_RANGE) {
     halt(OUT_OF_RANGE);
@@ -301,6 +295,15 @@ void FixReversibleNVE::post_force(int /*vflag*/)
     noisy_bound = bound;
     halt(AMBIGUOUS);
   }
+}
+
+/* The step's one collective: the verdict's maximum over the ranks. */
+
+int FixReversibleNVE::reduce_verdict(int local)
+{
+  int verdict = local;
+  if (comm->nprocs > 1) MPI_Allreduce(&local, &verdict, 1, MPI_INT, MPI_MAX, world);
+  return verdict;
 }
 
 void FixReversibleNVE::halt(int why)

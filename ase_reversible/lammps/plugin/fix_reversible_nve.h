@@ -39,12 +39,13 @@ class FixReversibleNVE : public Fix {
   enum Mode { START, REDO, STEP, HALTED };
 
  protected:
-  // Parsed keywords that remain after this class's own (subclasses).
-  virtual int parse_keyword(int, int, char **) { return 0; }
   // The exact velocities the kick adds to (v itself here; a thermostat
   // keeps its own) and what follows a kick that was taken.
   virtual double **exact_velocity();
   virtual void after_kick() {}
+  // The step's one collective, over this rank's verdict bits (a subclass
+  // may carry its own sums in it); returns the verdict of every rank.
+  virtual int reduce_verdict(int);
 
   int mode, flag, forced_timeout;
   double qv, force_noise, extent_factor, sort_bin;

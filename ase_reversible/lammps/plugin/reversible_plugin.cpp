@@ -9,6 +9,7 @@
 
 #include "lammps.h"
 #include "fix_reversible_nve.h"
+#include "fix_reversible_nvt.h"
 
 #include <cstdio>
 
@@ -42,6 +43,11 @@ static Fix *reversible_nve_creator(LAMMPS *lmp, int narg, char **arg)
   return new FixReversibleNVE(lmp, narg, arg);
 }
 
+static Fix *reversible_nvt_creator(LAMMPS *lmp, int narg, char **arg)
+{
+  return new FixReversibleNVT(lmp, narg, arg);
+}
+
 extern "C" __attribute__((visibility("default"))) void lammpsplugin_init(void *ptr, void *handle,
                                                                   void *regfunc)
 {
@@ -62,5 +68,9 @@ extern "C" __attribute__((visibility("default"))) void lammpsplugin_init(void *p
   plugin.name = "reversible/nve";
   plugin.info = "exact reversible velocity Verlet (ase-reversible)";
   plugin.creator.v2 = reinterpret_cast<lammpsplugin_factory2 *>(&reversible_nve_creator);
+  (*register_plugin)(&plugin, lmp);
+  plugin.name = "reversible/nvt";
+  plugin.info = "exact reversible Nose dynamics, NVT (ase-reversible)";
+  plugin.creator.v2 = reinterpret_cast<lammpsplugin_factory2 *>(&reversible_nvt_creator);
   (*register_plugin)(&plugin, lmp);
 }
