@@ -64,14 +64,15 @@ def mpiexec():
     return launcher
 
 
-def launch(ranks, *args, cwd=None, timeout=300):
+def launch(ranks, *args, cwd=None, timeout=300, env=None):
     """Run ``args`` on ``ranks`` MPI processes in ``cwd`` (where the scripts
-    write their files); skip if MPI cannot start."""
+    write their files), with ``env`` added to the environment; skip if MPI
+    cannot start."""
     command = [str(mpiexec()), '-n', str(ranks), sys.executable, *map(str,
                                                                      args)]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [str(Path(__file__).resolve().parent.parent)]
-        + os.environ.get('PYTHONPATH', '').split(os.pathsep)))
+        + os.environ.get('PYTHONPATH', '').split(os.pathsep)), **(env or {}))
     done = subprocess.run(command, capture_output=True, text=True,
                           timeout=timeout, env=env, cwd=cwd)
     if done.returncode and 'MPI' in done.stderr and 'Traceback' not in \
@@ -81,12 +82,13 @@ def launch(ranks, *args, cwd=None, timeout=300):
     return done
 
 
-def job(ranks, name, tmp_path, path='compiled', **options):
+def job(ranks, name, tmp_path, path='compiled', env=None, **options):
     needs_path(path)
     needs_path(options.get('back_path'))
     out = tmp_path / f'{name}-{ranks}-{path}.npz'
     done = launch(ranks, WORKER, name, out, f'path={path}',
-                  *[f'{key}={value}' for key, value in options.items()])
+                  *[f'{key}={value}' for key, value in options.items()],
+                  env=env)
     assert done.returncode == 0, done.stderr[-3000:]
     with np.load(out) as saved:
         result = {key: saved[key] for key in saved.files}

@@ -971,8 +971,10 @@ class ReversibleLammps:
 
 
 def _quoted(reason):
-    """A reason as one line of LAMMPS's ``print`` (no double quotes)."""
-    return ' '.join(reason.replace('"', "'").split())
+    """A reason as one line of LAMMPS's ``print``: no quotes, since print
+    ends at a double quote and stops the script with "Unmatched single
+    quote" at an apostrophe (LAMMPS 22 Jul 2025)."""
+    return ' '.join(reason.replace('"', '`').replace("'", '`').split())
 
 
 def _power_above(value):
