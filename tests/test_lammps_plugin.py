@@ -12,8 +12,9 @@ import json
 
 import pytest
 
+from conftest import needs_lammps
 from test_lammps import (assert_same_state, job, launch, needs_path,
-                         write_script)
+                         small_system, write_script)
 from tiers import SLOW
 
 FALLBACK = 'exact runs take the Python path'
@@ -256,3 +257,22 @@ def test_a_failed_compile_falls_back_with_a_line_naming_its_log(failures,
     assert not any(name.startswith('failing/') and name.endswith('.so')
                    for name in results['files'])
     assert_ran_exactly_on_python(result)
+
+
+def test_a_path_that_does_not_exist_is_refused_before_anything_changes():
+    lammps = needs_lammps()
+    from ase_reversible.lammps import ReversibleLammps
+    lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
+    small_system(lmp, 'velocity all create 1.0 4928459\n'
+                 'change_box all x final 0 6.1 units box')  # off the grid
+    box = lmp.extract_box()
+    with pytest.raises(ValueError, match="path must be one of auto, "
+                       "compiled, python, got 'fast'"):
+        ReversibleLammps(lmp, path='fast')
+    assert lmp.extract_box() == box
+    exact = ReversibleLammps(lmp, path='python')
+    assert lmp.extract_box() != box  # snapped, as the refusal did not
+    with pytest.raises(ValueError, match='got .fast.'):
+        exact.path = 'fast'
+    assert exact.path == 'python'
+    lmp.close()
