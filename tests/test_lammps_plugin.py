@@ -9,6 +9,12 @@ every later instance, so each failure runs in a process of its own.
 """
 
 import json
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
 
 import pytest
 
@@ -276,3 +282,47 @@ def test_a_path_that_does_not_exist_is_refused_before_anything_changes():
         exact.path = 'fast'
     assert exact.path == 'python'
     lmp.close()
+
+
+@SLOW
+def test_the_installed_package_ships_the_sources_and_builds_from_them(
+        tmp_path):
+    # A wheel of a copy of the tree (setuptools writes build/ and egg-info
+    # where it builds), unpacked, and the plugin built from that copy alone.
+    needs_path('compiled')
+    root = Path(__file__).resolve().parent.parent
+    listed = subprocess.run(['git', 'ls-files'], cwd=root, text=True,
+                            capture_output=True)
+    if listed.returncode:
+        pytest.skip('not a git checkout')
+    tree = tmp_path / 'tree'
+    for name in listed.stdout.splitlines():
+        if (root / name).is_file():
+            (tree / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(root / name, tree / name)
+    done = subprocess.run([sys.executable, '-m', 'pip', 'wheel', '--quiet',
+                           '--no-deps', '--no-build-isolation', '-w',
+                           tmp_path / 'wheel', tree], capture_output=True,
+                          text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    (wheel,) = (tmp_path / 'wheel').glob('*.whl')
+    sources = {'fix_reversible_nve.cpp', 'fix_reversible_nve.h',
+               'reversible_plugin.cpp'}
+    with zipfile.ZipFile(wheel) as archive:
+        shipped = {name.rsplit('/', 1)[1] for name in archive.namelist()
+                   if name.startswith('ase_reversible/lammps/plugin/')}
+        assert sources <= shipped, shipped
+        archive.extractall(tmp_path / 'installed')
+    # From / with only the unpacked wheel on the path: not this checkout.
+    env = {'PYTHONPATH': str(tmp_path / 'installed')}
+    done = subprocess.run(
+        [sys.executable, '-c', 'import sys; from ase_reversible.lammps '
+         'import plugin; print(plugin.source_dir()); sys.exit(plugin.main('
+         f'["--dir", "{tmp_path / "plugins"}"]))'],
+        cwd='/', capture_output=True, text=True,
+        env=dict(os.environ, **env))
+    assert done.returncode == 0, done.stderr[-2000:]
+    source, built_line = done.stdout.strip().splitlines()[-2:]
+    assert source == str(tmp_path / 'installed' / 'ase_reversible' /
+                         'lammps' / 'plugin')
+    assert ' (built in ' in built_line
