@@ -288,10 +288,12 @@ def test_python_example_runs_out_and_back(tmp_path):
 
 
 def write_script(tmp_path, lines, path='compiled'):
+    """in.argon's system, then ``lines``, on ``path`` (None: as written)."""
     needs_path(path)
     script = tmp_path / 'in.test'
-    text = EXAMPLE.read_text().split('# The exact integrator')[0]
-    script.write_text(on_path(text + '\n'.join(lines) + '\n', path))
+    text = EXAMPLE.read_text().split('# The exact integrator')[0] + \
+        '\n'.join(lines) + '\n'
+    script.write_text(on_path(text, path) if path else text)
     return script
 
 

@@ -85,7 +85,7 @@ def test_without_a_compiler_a_script_runs_exactly_on_the_python_path(
     # Two ranks, and one line: LAMMPS prints it from rank 0.
     script = write_script(tmp_path, [
         'reversible nve', 'reversible anchor', 'run 20',
-        'timestep -0.001953125', 'run 20', 'reversible check'], 'auto')
+        'timestep -0.001953125', 'run 20', 'reversible check'], None)
     done = launch(2, '-m', 'ase_reversible.lammps', script, '-log', 'none',
                   cwd=tmp_path, env={'CXX': '/nonexistent/c++',
                                      'ASE_REVERSIBLE_CACHE': str(tmp_path)})
