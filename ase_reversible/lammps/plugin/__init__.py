@@ -192,8 +192,8 @@ def build(facts: dict, directory=None, *, compiler=None) -> Path:
             log = target.with_suffix('.log')
             log.write_text(shlex.join(command) + '\n\n' + done.stderr)
             raise PluginUnavailable(
-                f'the plugin did not compile ({compiler[0]}); the compiler\'s '
-                f'messages are in {log}')
+                f'the plugin did not compile ({compiler[0]}); the compiler '
+                f'wrote its messages to {log}')
         os.replace(partial, target)
     return target
 
