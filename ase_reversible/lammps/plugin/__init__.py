@@ -63,6 +63,7 @@ class PluginUnavailable(RuntimeError):
 
 
 def source_dir() -> Path:
+    """The directory of the plugin's C++ sources, as installed."""
     return Path(__file__).resolve().parent
 
 
