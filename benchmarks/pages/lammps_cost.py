@@ -116,7 +116,7 @@ def _atoms(case):
 
 def plot(results, figures):
     plt = pyplot()
-    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 5.5))
     cases = results['cases']
     names = exact_names(cases[0])
     colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
@@ -129,7 +129,8 @@ def plot(results, figures):
                 if not chosen:
                     continue
                 left.plot([c['natoms'] for c in chosen],
-                          [ratio(c, name) for c in chosen], marker + '-',
+                          [long_ratio(c, name) for c in chosen],
+                          marker + '-',
                           color=colours[k], lw=0.8,
                           mfc=colours[k] if fill else 'none',
                           label=f"{label(cases[0], name)}: "
@@ -141,9 +142,10 @@ def plot(results, figures):
     left.axhline(1.0, color='grey', lw=0.5)
     left.set_xscale('log')
     left.set_xlabel('number of atoms')
-    left.set_ylabel('exact / fix nve, wall time per step')
+    left.set_ylabel('exact / fix nve, CPU time per step of a long run')
     left.set_title('Time per step relative to fix nve')
-    left.legend(fontsize=6, ncol=2)
+    left.legend(fontsize=6, ncol=2, loc='lower center',
+                bbox_to_anchor=(0.5, -0.45))
 
     # Per-step time of each case, every instance, stacked by where it
     # goes, in units of fix nve's step.
