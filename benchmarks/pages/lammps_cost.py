@@ -27,6 +27,13 @@ def exact_names(case):
             if about['reference'] is not None]
 
 
+def reference_names(case):
+    """LAMMPS's own integrators of a case, which the exact ones are
+    measured against."""
+    return [name for name, about in case['integrators'].items()
+            if about['reference'] is None]
+
+
 def label(case, name):
     return case['integrators'][name]['label']
 
@@ -216,9 +223,10 @@ def cost_rows(results):
     rows = []
     for c in results['cases']:
         m = c['median']
-        row = [c['label'], c['steps'], load(c),
-               f"{_ms(m['nve']['ms_per_step'])} / "
-               f"{_ms(m['nve']['cpu_ms_per_step'])}"]
+        row = [c['label'], c['steps'], load(c)] + [
+            f"{_ms(m[name]['ms_per_step'])} / "
+            f"{_ms(m[name]['cpu_ms_per_step'])}"
+            for name in reference_names(c)]
         for name, _ in exact_names(c):
             row += [f"{_ms(m[name]['ms_per_step'])} / "
                     f"{_ms(m[name]['cpu_ms_per_step'])}",
@@ -231,8 +239,10 @@ def cost_rows(results):
 
 
 def cost_header(results):
-    header = ['case', 'M (steps per block)', 'load average',
-              'fix nve: wall / CPU (ms/step)']
+    first = results['cases'][0]
+    header = ['case', 'M (steps per block)', 'load average'] + [
+        f'{label(first, name)}: wall / CPU (ms/step)'
+        for name in reference_names(first)]
     for name, reference in exact_names(results['cases'][0]):
         header += [f'{label(results["cases"][0], name)}: wall / CPU '
                    '(ms/step)',
