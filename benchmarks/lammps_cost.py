@@ -1,34 +1,45 @@
-"""ReversibleLammps against LAMMPS's own ``fix nve``, on 1 and 2 MPI ranks.
+"""ReversibleLammps, compiled and Python paths, against LAMMPS's own
+``fix nve``, on 1 and 2 MPI ranks.
 
 A section of ``run_all.py``::
 
-    python benchmarks/run_all.py --only lammps_cost          # ~10-12 minutes
+    python benchmarks/run_all.py --only lammps_cost          # ~25 minutes
     python benchmarks/run_all.py --quick --only lammps_cost  # < 40 s
 
 Method.  Each case is one process per rank, ``mpiexec -n R python
 lammps_worker.py`` (the mpiexec of the pip ``mpich`` wheel, beside this
-Python).  The worker builds the same input twice in that process: one LAMMPS
-instance integrated by ``fix nve``, one by ``ReversibleLammps``, both at a
-time step of 2^-9 ps.  After one warm-up block each (the crystal starts on
-its perfect lattice, where the pair loop is faster than in the thermalised
-solid), they run blocks of the same number of steps, ``run M`` against
-``rev.run(M)``, alternating which goes first; a block's wall time is taken
-between two MPI barriers, so it is the slowest rank's.  Per-step times are
-medians over the blocks; ratios are ratios of those medians.  Each block's
-LAMMPS log is read back for LAMMPS's own loop time (the steps without the
-setup that starts every ``run``), its timer breakdown (average over ranks)
-and the neighbour-list builds.
+Python).  The worker builds the same input once per integrator of
+``INTEGRATORS`` in that process: one LAMMPS instance under ``fix nve``, one
+under ``ReversibleLammps(path='compiled')`` (``fix reversible/nve``), one
+under ``ReversibleLammps(path='python')``, all at a time step of 2^-9 ps.
+After one warm-up block each (the crystal starts on its perfect lattice,
+where the pair loop is faster than in the thermalised solid), they run
+blocks of the same number of steps, ``run M`` against ``rev.run(M)``,
+rotating which goes first.  Each block's wall time is taken between two
+MPI barriers, so it is the slowest rank's; its CPU time is
+``time.process_time()`` of each rank around the run, the largest over the
+ranks: on a machine shared with other work CPU time is the robust number,
+and the load average before and after each case is stored with it.
+Per-step times are medians over the blocks; ratios are ratios of those
+medians.  Each block's LAMMPS log is read back for LAMMPS's own loop time
+(the steps without the setup that starts every ``run``), its timer
+breakdown (average over ranks) and the neighbour-list builds.
 
-Then, on each instance, a ``run 0`` (the setup a clean recomputation pays:
-atom sort, neighbour lists, forces) is timed a few times, and the exact
-path's per-step collective, ``rev.world.max(0.0)`` (one MPI_Allreduce), in
-blocks of a thousand calls.
+Then blocks of one step on each instance: (median block of M - median
+block of 1) / (M - 1) is what a step of a long run costs, without the
+setup that starts every run (and the exact side's checks around it),
+which blocks of M steps pay once.  Then, on each instance, a ``run 0`` (the setup a clean recomputation pays:
+atom sort, neighbour lists, forces) is timed a few times, and one MPI
+maximum from Python, ``rev.world.max(0.0)``, in blocks of a thousand
+calls.
 
-Cases (fcc unit cells, 4 atoms each): strong scaling of argon (LJ) and
-copper (EAM) at 108,000 atoms on 1 and 2 ranks; weak scaling of argon at
-54,000 atoms per rank (30x30x15 cells per rank, stacked along z); argon at
-4,000 to 256,000 atoms on one rank.  A case serving two of these is run
-once.
+Cases (fcc unit cells, 4 atoms each): argon (LJ) and copper (EAM) at
+32,000 and 108,000 atoms on 1 and 2 ranks (strong scaling); weak scaling
+of argon at 54,000 atoms per rank (30x30x15 cells per rank, stacked along
+z); argon at 4,000 to 256,000 atoms on one rank.  A case serving two of
+these is run once.  A thermostat is measured by adding its two entries
+to lammps_worker.INTEGRATORS (LAMMPS's fix, and the exact one naming it
+as its reference) and their names to ``INTEGRATORS`` here.
 """
 
 from __future__ import annotations
@@ -36,6 +47,7 @@ from __future__ import annotations
 import common
 
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -46,18 +58,25 @@ from pathlib import Path
 WORKER = Path(__file__).resolve().parent / 'lammps_worker.py'
 TIMESTEP_PS = 0.001953125
 
-#: The goal this section checks: the exact path within this factor of
-#: ``fix nve``'s time per step from this many atoms up.
-GOAL_RATIO, GOAL_MIN_ATOMS = 1.10, 100_000
+#: The goal this section checks: the compiled exact path within this
+#: factor of ``fix nve``'s time per step from this many atoms up.
+GOAL_RATIO, GOAL_MIN_ATOMS = 1.03, 30_000
+
+#: The instances of every case: LAMMPS's own integrator first, then the
+#: exact ones measured against it (lammps_worker.INTEGRATORS).
+INTEGRATORS = ('nve', 'compiled', 'python')
 
 #: (system, cells, ranks, steps per block, warm-up steps, what it serves).
 FULL_CASES = (
-    ('argon', (10, 10, 10), 1, 500, 200, ('size',)),
-    ('argon', (20, 20, 20), 1, 100, 50, ('size',)),
+    ('argon', (10, 10, 10), 1, 300, 100, ('size',)),
+    ('argon', (20, 20, 20), 1, 100, 50, ('size', 'strong')),
+    ('argon', (20, 20, 20), 2, 100, 50, ('strong',)),
     ('argon', (30, 30, 15), 1, 60, 40, ('weak',)),
-    ('argon', (30, 30, 30), 1, 100, 40, ('size', 'strong')),
-    ('argon', (30, 30, 30), 2, 100, 40, ('strong', 'weak')),
-    ('argon', (40, 40, 40), 1, 40, 20, ('size',)),
+    ('argon', (30, 30, 30), 1, 60, 40, ('size', 'strong')),
+    ('argon', (30, 30, 30), 2, 60, 40, ('strong', 'weak')),
+    ('argon', (40, 40, 40), 1, 20, 20, ('size',)),
+    ('copper', (20, 20, 20), 1, 100, 50, ('strong',)),
+    ('copper', (20, 20, 20), 2, 100, 50, ('strong',)),
     ('copper', (30, 30, 30), 1, 50, 30, ('strong',)),
     ('copper', (30, 30, 30), 2, 50, 30, ('strong',)),
 )
@@ -67,7 +86,7 @@ QUICK_CASES = (
     ('copper', (10, 10, 10), 1, 20, 20, ('strong',)),
     ('copper', (10, 10, 10), 2, 20, 20, ('strong',)),
 )
-FULL = {'rounds': 5, 'setups': 5, 'reduce_blocks': 5, 'reduce_calls': 1000}
+FULL = {'rounds': 6, 'setups': 5, 'reduce_blocks': 5, 'reduce_calls': 1000}
 QUICK = {'rounds': 3, 'setups': 3, 'reduce_blocks': 3, 'reduce_calls': 1000}
 
 LABELS = {'argon': 'Ar LJ', 'copper': 'Cu EAM'}
@@ -103,6 +122,8 @@ def per_step_medians(blocks) -> dict:
     return {
         'ms_per_step': 1e3 * median([b['wall_seconds'] / b['steps']
                                      for b in blocks]),
+        'cpu_ms_per_step': 1e3 * median([b['cpu_seconds'] / b['steps']
+                                         for b in blocks]),
         'loop_ms_per_step': 1e3 * median([b['loop_seconds'] / b['steps']
                                           for b in blocks]),
         'outside_loop_ms_per_step': 1e3 * median(
@@ -127,6 +148,21 @@ def per_step_medians(blocks) -> dict:
     }
 
 
+def long_run_medians(blocks, singles) -> dict:
+    """What a step of a long run costs, in ms, with the cost of a run
+    besides its steps removed: (median block of M - median block of one
+    step) / (M - 1), in wall and CPU time; and that per-run cost."""
+    steps = blocks[0]['steps']
+    out = {}
+    for key in ('wall', 'cpu'):
+        many = statistics.median(b[f'{key}_seconds'] for b in blocks)
+        one = statistics.median(b[f'{key}_seconds'] for b in singles)
+        per_step = (many - one) / (steps - 1)
+        out[f'{key}_ms_per_step'] = 1e3 * per_step
+        out[f'{key}_ms_per_run'] = 1e3 * (one - per_step)
+    return out
+
+
 def run(quick):
     settings = QUICK if quick else FULL
     cases = []
@@ -134,17 +170,23 @@ def run(quick):
         for system, cells, ranks, steps, warmup, uses in (
                 QUICK_CASES if quick else FULL_CASES):
             case = {'system': system, 'cells': list(cells), 'ranks': ranks,
-                    'steps': steps, 'warmup_steps': warmup, **settings}
+                    'integrators': list(INTEGRATORS), 'steps': steps,
+                    'warmup_steps': warmup, **settings}
             natoms = 4 * cells[0] * cells[1] * cells[2]
             label = f'{LABELS[system]} {natoms}, {ranks} rank' + (
                 's' if ranks > 1 else '')
-            print(f'  {label}', flush=True)
+            load = os.getloadavg()
+            print(f'  {label} (load average {load[0]:.2f})', flush=True)
             measured = run_case(case, log_dir)
+            measured['load_average'] = [load, os.getloadavg()]
             assert measured['natoms'] == natoms and measured['ranks'] == ranks
             cases.append({
                 'label': label, 'uses': list(uses), **case, **measured,
                 'median': {name: per_step_medians(blocks) for name, blocks
-                           in measured['blocks'].items()}})
+                           in measured['blocks'].items()},
+                'long_run': {name: long_run_medians(
+                    blocks, measured['single_step_blocks'][name])
+                    for name, blocks in measured['blocks'].items()}})
     return {'cpu': common.cpu_model(),
             'cores': common.command_output(['nproc']),
             'timestep_ps': TIMESTEP_PS,

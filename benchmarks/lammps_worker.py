@@ -1,17 +1,18 @@
 """One case of benchmarks/lammps_cost.py, on every rank of ``mpiexec``.
 
 ``mpiexec -n R python lammps_worker.py CASE_JSON LOG_DIR``: builds the same
-system in two LAMMPS instances of this process, one integrated by
-``fix nve`` and one by :class:`ReversibleLammps`, runs them in alternating
-blocks of the same number of steps, then times a ``run 0`` setup on each
-and the exact integrator's MPI maximum.  Rank 0 prints one JSON line.
+system in one LAMMPS instance per integrator of ``INTEGRATORS`` named in
+the case, all in this process, runs them in rotating blocks of the same
+number of steps, then times a ``run 0`` setup on each and the exact
+integrator's MPI maximum.  Rank 0 prints one JSON line.
 
 CASE_JSON holds ``system`` ('argon' or 'copper'), ``cells`` (fcc unit
-cells along x, y, z), ``steps`` (per block), ``warmup_steps``, ``rounds``,
-``setups`` and ``reduce_blocks``/``reduce_calls``.  LOG_DIR receives a
-LAMMPS log per block (``log FILE`` around each run), read back for LAMMPS's
-loop time, its timer breakdown and the neighbour-list builds; the
-instances are started with ``-screen none -log none``.
+cells along x, y, z), ``integrators`` (names in ``INTEGRATORS``),
+``steps`` (per block), ``warmup_steps``, ``rounds``, ``setups`` and
+``reduce_blocks``/``reduce_calls``.  LOG_DIR receives a LAMMPS log per
+block (``log FILE`` around each run), read back for LAMMPS's loop time,
+its timer breakdown and the neighbour-list builds; the instances are
+started with ``-screen none -log none``.
 """
 
 from __future__ import annotations
@@ -23,13 +24,16 @@ import re
 import statistics
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Optional
 
 from ase_reversible.lammps import ReversibleLammps, import_lammps
+from ase_reversible.lammps.integrator import SORT_BIN_SPACING
 
 lammps = import_lammps()
 
-#: 2^-9 ps: a power of two, as the exact integrator needs; both instances.
+#: 2^-9 ps: a power of two, as the exact integrator needs; every instance.
 TIMESTEP = 0.001953125
 
 SYSTEMS = {
@@ -62,6 +66,64 @@ TIMER_SECTIONS = ('Pair', 'Bond', 'Kspace', 'Neigh', 'Comm', 'Output',
                   'Modify', 'Other')
 
 
+@dataclass(frozen=True)
+class Integrator:
+    """How one instance of a case is integrated.
+
+    attach : callable
+        ``attach(lmp) -> (run, rev)``: defines the integrator on a freshly
+        built instance; ``run(n)`` runs n steps, ``rev`` is the
+        :class:`ReversibleLammps` doing it (None for LAMMPS's own fixes).
+    reference : str or None
+        The LAMMPS integrator this one is measured against (a name of
+        ``INTEGRATORS``); None for a reference itself.
+    label : str
+        How tables name it.
+    """
+    attach: Callable
+    reference: Optional[str]
+    label: str
+
+
+def _lammps_fix(command):
+    def attach(lmp):
+        lmp.command(command)
+        return (lambda n: lmp.command(f'run {n}')), None
+    return attach
+
+
+def _nve_sorted_as_exact(lmp):
+    """fix nve on atoms sorted as the exact path sorts them at every setup
+    (bins of SORT_BIN_SPACING mean spacings): what the sort alone costs."""
+    box = lmp.extract_box()
+    volume = 1.0
+    for lo, hi in zip(box[0], box[1]):
+        volume *= hi - lo
+    spacing = (volume / lmp.get_natoms()) ** (1 / 3)
+    lmp.command(f'atom_modify sort 1000 {SORT_BIN_SPACING * spacing!r}')
+    return _lammps_fix('fix nve all nve')(lmp)
+
+
+def _reversible(path):
+    def attach(lmp):
+        rev = ReversibleLammps(lmp, path=path)
+        return rev.run, rev
+    return attach
+
+
+#: Every integrator a case may name.  A thermostat is one entry for
+#: LAMMPS's fix and one for the exact one, whose ``reference`` names it.
+INTEGRATORS = {
+    'nve': Integrator(_lammps_fix('fix nve all nve'), None, 'fix nve'),
+    'compiled': Integrator(_reversible('compiled'), 'nve',
+                           'exact, compiled'),
+    'python': Integrator(_reversible('python'), 'nve', 'exact, Python'),
+    # A diagnostic, not in lammps_cost's default cases.
+    'nve_exact_sort': Integrator(_nve_sorted_as_exact, None,
+                                 "fix nve, exact path's sort"),
+}
+
+
 def potential():
     return (Path(lammps.__file__).parent / 'share' / 'lammps' / 'potentials'
             / 'Cu_u3.eam')
@@ -74,7 +136,7 @@ def start(case):
             nx=nx, ny=ny, nz=nz, potential=potential()).splitlines():
         lmp.command(line)
     lmp.command(f'timestep {TIMESTEP!r}')
-    # LAMMPS's default, and what ReversibleLammps sets: said for both.
+    # LAMMPS's default, and what ReversibleLammps sets: said for every one.
     lmp.command('neigh_modify delay 0 every 1 check yes')
     return lmp
 
@@ -104,60 +166,92 @@ def read_log(path: Path) -> dict:
     }
 
 
+class Instance:
+    """One LAMMPS instance of the case and its integrator."""
+
+    def __init__(self, name, case):
+        self.name = name
+        self.lmp = start(case)
+        self.run, self.rev = INTEGRATORS[name].attach(self.lmp)
+
+    def counts(self):
+        rev = self.rev
+        return (0, 0) if rev is None else (rev.clean_recomputations,
+                                           rev.sort_retries)
+
+
 def main(case, log_dir):
     log_dir = Path(log_dir)
-    nve = start(case)
-    nve.command('fix nve all nve')
-    exact_lmp = start(case)
-    rev = ReversibleLammps(exact_lmp)
-    world, rank = rev.world, rev.rank
+    names = list(case['integrators'])
+    instances = {name: Instance(name, case) for name in names}
+    exact = [i for i in instances.values() if i.rev is not None]
+    world = exact[0].rev.world
+    rank = exact[0].rev.rank
+    paths = {i.name: i.rev.path for i in exact}
+    for name, path in paths.items():
+        # 'auto' must not stand in for what was asked: a fallback would
+        # measure the Python path twice.
+        if name in ('compiled', 'python') and path != name:
+            raise RuntimeError(f'{name} instance runs the {path} path')
 
     def sync():
         world.max(0.0)
 
-    def timed(name, lmp, run, steps):
-        """Wall seconds of one block, slowest rank's, with its log read."""
-        path = log_dir / f'{name}.log'
-        lmp.command(f'log {path}')
-        clean, retries = rev.clean_recomputations, rev.sort_retries
+    def timed(instance, steps):
+        """One block: wall seconds between barriers (the slowest rank's),
+        CPU seconds of this process during the run (the largest over the
+        ranks), and on rank 0 its LAMMPS log read back."""
+        path = log_dir / f'{instance.name}.log'
+        instance.lmp.command(f'log {path}')
+        clean, retries = instance.counts()
         sync()
-        started = time.perf_counter()
-        run(steps)
+        started, cpu_started = time.perf_counter(), time.process_time()
+        instance.run(steps)
+        cpu = time.process_time() - cpu_started
         sync()
         wall = time.perf_counter() - started
-        lmp.command('log none')
-        block = {'wall_seconds': wall, 'steps': steps,
-                 'clean_recomputations': rev.clean_recomputations - clean,
-                 'sort_retries': rev.sort_retries - retries}
+        instance.lmp.command('log none')
+        now = instance.counts()
+        block = {'wall_seconds': wall,
+                 'cpu_seconds': float(world.max(cpu)[0]), 'steps': steps,
+                 'clean_recomputations': now[0] - clean,
+                 'sort_retries': now[1] - retries}
         if rank == 0:
             block.update(read_log(path))
         return block
 
-    runners = {'nve': (nve, lambda n: nve.command(f'run {n}')),
-               'exact': (exact_lmp, rev.run)}
-    names = list(runners)
-    warmup = {name: timed(name, *runners[name], case['warmup_steps'])
+    warmup = {name: timed(instances[name], case['warmup_steps'])
               for name in names}
     blocks = {name: [] for name in names}
     for r in range(case['rounds']):
-        # The order alternates: each instance runs first in half the rounds.
-        for name in names[r % 2:] + names[:r % 2]:
-            blocks[name].append(timed(name, *runners[name], case['steps']))
+        # The order rotates: each instance leads in rounds/len(names).
+        shift = r % len(names)
+        for name in names[shift:] + names[:shift]:
+            blocks[name].append(timed(instances[name], case['steps']))
+
+    # Blocks of one step: what a run costs besides its steps (the setup
+    # and, on the exact side, the checks and fixes of rev.run), so that
+    # (block of M - block of 1) / (M - 1) is a step of a long run.
+    single = {name: [] for name in names}
+    for _ in range(case['setups']):
+        for name in names:
+            single[name].append(timed(instances[name], 1))
 
     # A LAMMPS setup, as a clean recomputation does it (sort, lists,
-    # forces); on the exact instance outside rev.run(), so its fine sort
+    # forces); on an exact instance outside rev.run(), so its fine sort
     # bins are in force and no integrator fix is defined.
     setup = {name: [] for name in names}
     for _ in range(case['setups']):
         for name in names:
-            lmp = runners[name][0]
             sync()
             started = time.perf_counter()
-            lmp.command('run 0')
+            instances[name].lmp.command('run 0')
             sync()
             setup[name].append(time.perf_counter() - started)
 
-    # The per-step collective of the exact path: one MPI maximum.
+    # The Python path's per-step collective, one MPI maximum through
+    # ctypes; the compiled fix makes the same MPI_Allreduce from C++,
+    # without the call's Python overhead.
     reduce_per_call = []
     for _ in range(case['reduce_blocks']):
         sync()
@@ -167,28 +261,34 @@ def main(case, log_dir):
         reduce_per_call.append((time.perf_counter() - started)
                                / case['reduce_calls'])
 
-    natoms = int(exact_lmp.get_natoms())
+    some = exact[0]
     result = {
-        'natoms': natoms,
+        'natoms': int(some.lmp.get_natoms()),
         'ranks': world.size,
-        'lammps_version': int(exact_lmp.version()),
-        'nlocal_rank0': int(exact_lmp.extract_setting('nlocal')),
-        'velocity_quantum': rev.velocity_quantum,
-        'position_quantum': rev.position_quantum,
-        'sort_bin': rev.sort_bin,
-        'force_noise': rev.force_noise,
-        'max_observed_noise': rev.max_observed_noise,
-        'noise_bound_at_max': rev.noise_bound_at_max,
+        'lammps_version': int(some.lmp.version()),
+        'nlocal_rank0': int(some.lmp.extract_setting('nlocal')),
+        'integrators': {name: {'label': INTEGRATORS[name].label,
+                               'reference': INTEGRATORS[name].reference,
+                               'path': paths.get(name)}
+                        for name in names},
+        'exact': {i.name: {
+            'velocity_quantum': i.rev.velocity_quantum,
+            'position_quantum': i.rev.position_quantum,
+            'sort_bin': i.rev.sort_bin,
+            'force_noise': i.rev.force_noise,
+            'max_observed_noise': i.rev.max_observed_noise,
+            'noise_bound_at_max': i.rev.noise_bound_at_max} for i in exact},
         'warmup': warmup,
         'blocks': blocks,
+        'single_step_blocks': single,
         'setup_seconds': setup,
         'setup_median_seconds': {n: statistics.median(v)
                                  for n, v in setup.items()},
         'reduce_seconds_per_call': reduce_per_call,
         'reduce_median_seconds_per_call': statistics.median(reduce_per_call),
     }
-    nve.close()
-    exact_lmp.close()
+    for instance in instances.values():
+        instance.lmp.close()
     if rank == 0:
         print(json.dumps(result), flush=True)
 

@@ -4,8 +4,9 @@
     python benchmarks/render.py --out DIR        # DIR/benchmarks.md from DIR/benchmarks/
 
 Reads ``<out>/benchmarks/<section>.json`` as written by ``run_all.py`` and
-renders every section found, in the order of ``SECTIONS``; measures
-nothing, so the page can be rebuilt (or restyled) without rerunning hours
+renders every section found, in the order of ``SECTIONS``; a section's
+page module may also own blocks of other pages in ``<out>`` (its
+``DOC_BLOCKS``), rewritten between their markers.  Measures nothing, so the page can be rebuilt (or restyled) without rerunning hours
 of measurements.
 """
 
@@ -79,14 +80,58 @@ def render_page(stored: dict) -> str:
         '## Contents\n\n' + '\n'.join(toc) + '\n\n' + '\n'.join(parts))
 
 
+def block_markers(name, block):
+    """The lines that open and close a generated block of another page."""
+    return (f'<!-- {name} {block}: written by benchmarks/render.py from '
+            f'docs/benchmarks/{name}.json; edits are overwritten -->',
+            f'<!-- end of {name} {block} -->')
+
+
+def with_blocks(text, name, blocks) -> str:
+    """``text`` with each block's markers enclosing its newly rendered
+    Markdown; a page without a block's markers is an error, not a skip, so
+    that a moved heading cannot leave old numbers standing."""
+    for block, markdown in blocks.items():
+        begin, end = block_markers(name, block)
+        if text.count(begin) != 1 or text.count(end) != 1:
+            raise ValueError(f'expected the markers of {name} {block} once '
+                             f'each: {begin} ... {end}')
+        head, rest = text.split(begin)
+        _, tail = rest.split(end)
+        text = f'{head}{begin}\n\n{markdown.strip()}\n\n{end}{tail}'
+    return text
+
+
+def doc_blocks(stored: dict) -> dict:
+    """{page file: {(section, block): Markdown}} of every stored section
+    whose page module owns blocks of other pages."""
+    pages = {}
+    for name, s in stored.items():
+        for (page, block), make in getattr(page_module(name), 'DOC_BLOCKS',
+                                           {}).items():
+            pages.setdefault(page, {})[(name, block)] = make(s)
+    return pages
+
+
+def render_blocks(text, blocks) -> str:
+    for (name, block), markdown in blocks.items():
+        text = with_blocks(text, name, {block: markdown})
+    return text
+
+
 def render(out: Path, plots=True) -> Path:
-    """Rebuild ``<out>/benchmarks.md`` (and, with ``plots``, every plot)."""
+    """Rebuild ``<out>/benchmarks.md`` (and, with ``plots``, every plot),
+    and the generated blocks of the other pages found in ``out``."""
     stored = stored_sections(out)
     if plots:
         for name, s in stored.items():
             page_module(name).plot(s['results'], out / 'benchmarks')
     page = out / 'benchmarks.md'
     page.write_text(render_page(stored))
+    for file, blocks in doc_blocks(stored).items():
+        other = out / file
+        if other.exists():
+            other.write_text(render_blocks(other.read_text(), blocks))
     return page
 
 
