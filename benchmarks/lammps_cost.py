@@ -37,9 +37,8 @@ Cases (fcc unit cells, 4 atoms each): argon (LJ) and copper (EAM) at
 32,000 and 108,000 atoms on 1 and 2 ranks (strong scaling); weak scaling
 of argon at 54,000 atoms per rank (30x30x15 cells per rank, stacked along
 z); argon at 4,000 to 256,000 atoms on one rank.  A case serving two of
-these is run once.  A thermostat is measured by adding its two entries
-to lammps_worker.INTEGRATORS (LAMMPS's fix, and the exact one naming it
-as its reference) and their names to ``INTEGRATORS`` here.
+these is run once.  Every case also runs ``reversible nvt`` against LAMMPS's ``fix nvt``
+(same target temperature and damping time): five instances per process.
 """
 
 from __future__ import annotations
@@ -61,10 +60,12 @@ TIMESTEP_PS = 0.001953125
 #: The goal this section checks: the compiled exact path within this
 #: factor of ``fix nve``'s time per step from this many atoms up.
 GOAL_RATIO, GOAL_MIN_ATOMS = 1.03, 30_000
+#: The same for ``reversible nvt`` against LAMMPS's ``fix nvt``.
+GOAL_NVT_RATIO = 1.05
 
 #: The instances of every case: LAMMPS's own integrator first, then the
 #: exact ones measured against it (lammps_worker.INTEGRATORS).
-INTEGRATORS = ('nve', 'compiled', 'python')
+INTEGRATORS = ('nve', 'compiled', 'python', 'nvt', 'exact_nvt')
 
 #: (system, cells, ranks, steps per block, warm-up steps, what it serves).
 FULL_CASES = (
@@ -191,6 +192,8 @@ def run(quick):
             'cores': common.command_output(['nproc']),
             'timestep_ps': TIMESTEP_PS,
             'goal_ratio': GOAL_RATIO, 'goal_min_atoms': GOAL_MIN_ATOMS,
+            'goal_ratios': {'compiled': GOAL_RATIO,
+                            'exact_nvt': GOAL_NVT_RATIO},
             'cases': cases}
 
 

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional
 
-from ase_reversible.lammps import ReversibleLammps, import_lammps
+from ase_reversible.lammps import (ReversibleLammps, ReversibleLammpsNose,
+                                   import_lammps)
 from ase_reversible.lammps.integrator import SORT_BIN_SPACING
 
 lammps = import_lammps()
@@ -71,8 +72,8 @@ class Integrator:
     """How one instance of a case is integrated.
 
     attach : callable
-        ``attach(lmp) -> (run, rev)``: defines the integrator on a freshly
-        built instance; ``run(n)`` runs n steps, ``rev`` is the
+        ``attach(lmp, case) -> (run, rev)``: defines the integrator on a
+        freshly built instance of ``case``; ``run(n)`` runs n steps, ``rev`` is the
         :class:`ReversibleLammps` doing it (None for LAMMPS's own fixes).
     reference : str or None
         The LAMMPS integrator this one is measured against (a name of
@@ -86,13 +87,16 @@ class Integrator:
 
 
 def _lammps_fix(command):
-    def attach(lmp):
-        lmp.command(command)
+    """LAMMPS's own fix; ``command`` may name ``{T}`` and ``{tdamp}``
+    (the case's thermostat)."""
+    def attach(lmp, case):
+        lmp.command(command.format(T=THERMOSTAT_K[case['system']],
+                                   tdamp=TDAMP_PS))
         return (lambda n: lmp.command(f'run {n}')), None
     return attach
 
 
-def _nve_sorted_as_exact(lmp):
+def _nve_sorted_as_exact(lmp, case):
     """fix nve on atoms sorted as the exact path sorts them at every setup
     (bins of SORT_BIN_SPACING mean spacings): what the sort alone costs."""
     box = lmp.extract_box()
@@ -101,14 +105,27 @@ def _nve_sorted_as_exact(lmp):
         volume *= hi - lo
     spacing = (volume / lmp.get_natoms()) ** (1 / 3)
     lmp.command(f'atom_modify sort 1000 {SORT_BIN_SPACING * spacing!r}')
-    return _lammps_fix('fix nve all nve')(lmp)
+    return _lammps_fix('fix nve all nve')(lmp, case)
 
 
 def _reversible(path):
-    def attach(lmp):
+    def attach(lmp, case):
         rev = ReversibleLammps(lmp, path=path)
         return rev.run, rev
     return attach
+
+
+def _reversible_nvt(lmp, case):
+    rev = ReversibleLammpsNose(lmp, temperature=THERMOSTAT_K[case['system']],
+                               tdamp=TDAMP_PS, path='compiled')
+    return rev.run, rev
+
+
+#: Thermostat targets, K: half the temperature the velocities are drawn
+#: at, which a lattice start shares out into the potential energy.
+THERMOSTAT_K = {'argon': 50.0, 'copper': 300.0}
+#: Thermostat damping time, ps (128 steps), for fix nvt and reversible nvt.
+TDAMP_PS = 0.25
 
 
 #: Every integrator a case may name.  A thermostat is one entry for
@@ -118,6 +135,9 @@ INTEGRATORS = {
     'compiled': Integrator(_reversible('compiled'), 'nve',
                            'exact, compiled'),
     'python': Integrator(_reversible('python'), 'nve', 'exact, Python'),
+    'nvt': Integrator(_lammps_fix('fix nvt all nvt temp {T} {T} {tdamp}'),
+                      None, 'fix nvt'),
+    'exact_nvt': Integrator(_reversible_nvt, 'nvt', 'reversible nvt'),
     # A diagnostic, not in lammps_cost's default cases.
     'nve_exact_sort': Integrator(_nve_sorted_as_exact, None,
                                  "fix nve, exact path's sort"),
@@ -172,7 +192,7 @@ class Instance:
     def __init__(self, name, case):
         self.name = name
         self.lmp = start(case)
-        self.run, self.rev = INTEGRATORS[name].attach(self.lmp)
+        self.run, self.rev = INTEGRATORS[name].attach(self.lmp, case)
 
     def counts(self):
         rev = self.rev

@@ -748,25 +748,30 @@ class ReversibleLammps:
                              f'{wanted!r}')
         if wanted == 'python':
             return 'python'
+        reason = self._load_plugin_everywhere()
+        if not reason:
+            return 'compiled'
+        if wanted == 'compiled':
+            raise RuntimeError(f'the compiled exact step is not available: '
+                               f'{reason}. To run on the Python path, '
+                               + self.hint('path', 'python'))
+        self._print(f'exact runs take the Python path (about 1.1-2x fix '
+                    f'nve per step): {_quoted(reason)}')
+        return 'python'
+
+    def _load_plugin_everywhere(self):
+        """Build and load the plugin on every rank: '' where it loaded on
+        all of them, else why not.  Collective: every rank must take the
+        same path, so one that failed sends all to Python."""
         from .plugin import PluginUnavailable, load
         reason = ''
         try:
             load(self.lmp)
         except PluginUnavailable as error:
             reason = str(error)
-        # Every rank must take the same path: one that failed sends all
-        # to Python.
-        failed = self.world.max(1.0 if reason else 0.0)[0] > 0
-        if not failed:
-            return 'compiled'
-        reason = reason or 'the plugin failed to load on another rank'
-        if wanted == 'compiled':
-            raise RuntimeError(f'the compiled exact step is not available: '
-                               f'{reason}. To run on the Python path, '
-                               + self.hint('path', 'python'))
-        self._print(f'exact runs take the Python path (about 1.2-2x fix '
-                    f'nve per step): {_quoted(reason)}')
-        return 'python'
+        if self.world.max(1.0 if reason else 0.0)[0] > 0:
+            return reason or 'the plugin failed to load on another rank'
+        return ''
 
     def _set_sort(self):
         # The compiled step sorts a setup's atoms itself, finely and then

@@ -127,18 +127,12 @@ class ReversibleLammpsNose(ReversibleLammps):
             self._state, self._quanta = state, quanta
 
     def _load_plugin(self):
-        from .plugin import PluginUnavailable, load
-        reason = ''
-        try:
-            load(self.lmp)
-        except PluginUnavailable as error:
-            reason = str(error)
-        failed = self.world.max(1.0 if reason else 0.0)[0] > 0
-        if failed:
+        reason = self._load_plugin_everywhere()
+        if reason:
             raise RuntimeError(
                 'the Nosé thermostat needs the compiled step (fix '
                 'reversible/nvt), which is not available here: '
-                f'{reason or "the plugin failed to load on another rank"}. '
+                f'{reason}. '
                 'Install a C++ compiler (g++, or set CXX), or build the '
                 'plugin ahead of time where one is, into the same cache '
                 'directory: python -m ase_reversible lammps build. Nothing '
