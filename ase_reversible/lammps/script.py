@@ -229,6 +229,9 @@ def _options(words, known=_OPTIONS, command='nve'):
                           + ', '.join(known))
     options = {}
     for key, value in zip(words[::2], words[1::2]):
+        if key == 'path' and command == 'nvt':
+            raise ScriptError('reversible nvt runs only on the compiled '
+                              'step: it takes no path option')
         if key not in known:
             raise ScriptError(f'unknown reversible {command} option '
                               f'{key!r}: ' + ', '.join(known))
