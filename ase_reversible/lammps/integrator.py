@@ -104,7 +104,8 @@ _FIX_REASONS = (
     (('nvt', 'npt', 'nph', 'press/', 'deform', 'box/relax'),
      'changes velocities or the box by a thermostat or barostat, which '
      'depends on more than positions, so the motion could not be run back; '
-     'exact runs are at constant energy and box'),
+     'exact runs keep the box, and their thermostat is reversible nvt '
+     '(ReversibleLammpsNose) in place of fix nvt'),
     (('nve', 'rigid', 'shake', 'rattle', 'move', 'nvk', 'nvl'),
      'integrates or constrains the atoms itself: they would be moved twice '
      '(reversible nve is the integrator, and constraints are not exact here)'),
