@@ -4,8 +4,10 @@ is changed or opened, with a message that says what to do."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
+from ase import units
 
 from ..core.quanta import momentum_resolution_problem
 from ..core.record import INFO_KEY
@@ -27,6 +29,48 @@ def check_timestep(timestep):
         raise ValueError(f'timestep must be finite and non-zero (ASE time '
                          f'units, e.g. 5 * ase.units.fs), got {timestep!r}')
     return dt
+
+
+#: K.  A target temperature below this is more likely ``kB T`` in eV, the
+#: unit of ASE's deprecated ``temperature`` argument (its third positional
+#: argument in ``Langevin`` and ``NVTBerendsen``): 300 K is 0.0259 eV.
+EV_LIKE_BELOW = 1.0
+
+
+def check_temperature_K(temperature_K, kwargs, dynamics):
+    """The target temperature (K) of ``dynamics`` (a class name), checked.
+
+    ASE's deprecated ``temperature`` (eV, left in ``kwargs``) is refused
+    with its translation; a value below :data:`EV_LIKE_BELOW` is warned
+    about, since a script written for ASE's positional ``temperature``
+    passes eV there and would otherwise run 11604 times colder.
+    """
+    if 'temperature' in kwargs:
+        value = kwargs['temperature']
+        hint = (f'temperature_K={value / units.kB:.6g}'
+                if isinstance(value, (int, float)) else
+                'temperature_K=temperature / ase.units.kB')
+        raise TypeError(
+            f'{dynamics} takes the temperature in kelvin: temperature= is '
+            f'ASE\'s deprecated temperature in eV. Pass {hint} instead.')
+    if temperature_K is None:
+        raise TypeError(f'{dynamics} needs temperature_K, the target '
+                        'temperature in kelvin (e.g. temperature_K=300).')
+    try:
+        value = float(temperature_K)
+    except (TypeError, ValueError):
+        raise TypeError(f'temperature_K must be a number (K), got '
+                        f'{temperature_K!r}') from None
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f'temperature_K must be positive and finite (K), '
+                         f'got {temperature_K!r}')
+    if value < EV_LIKE_BELOW:
+        warnings.warn(
+            f'temperature_K={value:g} K is below {EV_LIKE_BELOW:g} K. If it '
+            f'is kB T in eV (the unit of ASE\'s deprecated positional '
+            f'temperature), pass temperature_K={value / units.kB:.6g}.',
+            UserWarning, stacklevel=3)
+    return value
 
 
 def check_steps(steps):

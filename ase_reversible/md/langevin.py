@@ -44,7 +44,8 @@ from ..core import portable
 from ..core.plans import SubStep
 from ..errors import RetraceLimitError, UnsupportedConstraintError
 from .base import ReversibleDynamics
-from .checks import check_energy_watch, check_timestep
+from .checks import (check_energy_watch, check_temperature_K,
+                     check_timestep)
 from .hamiltonian import largest_kick
 from .machine import frame_section
 from .watch import SystemWatch
@@ -284,7 +285,9 @@ class ReversibleLangevin(ReversibleDynamics):
     timestep : float
         ASE time units (``5 * ase.units.fs``).
     temperature_K : float
-        Target temperature, K.
+        Target temperature, K (required; ASE's deprecated ``temperature``
+        in eV is refused with its value in K, and a value below 1 K is
+        warned about as likely eV).
     friction : float
         Friction coefficient, 1 / ASE time unit (``0.01 / ase.units.fs``);
         ``friction * |timestep|`` may be at most 11 (``c >= 2**-16``).
@@ -336,9 +339,10 @@ class ReversibleLangevin(ReversibleDynamics):
 
     record_sections = ('langevin',)
 
-    def __init__(self, atoms, timestep, temperature_K, friction, fixcm=True,
-                 *, seed=None, buffer=None, trajectory=None, logfile=None,
-                 loginterval=1, position_quantum=None, momentum_quantum=None,
+    def __init__(self, atoms, timestep, temperature_K=None, friction=None,
+                 fixcm=True, *, seed=None, buffer=None, trajectory=None,
+                 logfile=None, loginterval=1, position_quantum=None,
+                 momentum_quantum=None,
                  force_purity='auto', force_noise=None,
                  energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
                  **kwargs):
@@ -348,8 +352,12 @@ class ReversibleLangevin(ReversibleDynamics):
                 'generator, so the way back can draw it again: pass seed='
                 '<int> instead of rng.')
         timestep = check_timestep(timestep)
-        self._temperature_K = _checked_positive(temperature_K,
-                                                'temperature_K', 'K')
+        self._temperature_K = check_temperature_K(
+            temperature_K, kwargs, 'ReversibleLangevin')
+        if friction is None:
+            raise TypeError(
+                'ReversibleLangevin needs friction, 1 / ASE time unit (e.g. '
+                'friction=0.01 / ase.units.fs, as for ASE\'s Langevin).')
         self._friction = _checked_friction(friction, timestep)
         self._fixcm = bool(fixcm)
         energy_check, energy_tolerance = check_energy_watch(
