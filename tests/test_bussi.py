@@ -1,0 +1,534 @@
+"""ReversibleBussi: exact reversal of stochastic velocity rescaling, its
+buffer, its draws and its contract.
+
+Every reversal case compares positions and momenta with np.array_equal
+against the state right after the constructor, checks the run went
+somewhere, and that the buffer (states, stacks, ratios) is empty again.
+"""
+
+import json
+import math
+import warnings
+
+import numpy as np
+import pytest
+from ase import units
+from ase.constraints import FixAtoms, FixCartesian, FixCom, FixedLine
+from ase.io import Trajectory, read
+from ase.md.bussi import Bussi
+from hypothesis import assume, given, settings, strategies as st
+
+from ase_reversible import (AnchorMovedWarning, LennardJones,
+                            RetraceLimitError, ReversibleBussi,
+                            UnsupportedConstraintError)
+from ase_reversible.core.noise import step_key
+from ase_reversible.md.bussi import (N_MAX, N_MIN, RATIO_BITS, BussiDraws,
+                                     ScalingBuffer)
+
+from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS,
+                      THERMOSTAT_CASES, argon_bulk, argon_cluster,
+                      copper_bulk)
+from exactness import assert_same_state, forward_and_back, snapshot
+from machines import run_leg
+from tiers import SLOW, tiered
+
+TAUT = 100 * units.fs
+D = 1 << RATIO_BITS
+
+
+def bussi(atoms, dt_fs=5, temperature_K=300, **kwargs):
+    kwargs.setdefault('seed', 1)
+    kwargs.setdefault('taut', TAUT)
+    return ReversibleBussi(atoms, dt_fs * units.fs,
+                           temperature_K=temperature_K, **kwargs)
+
+
+def ar13(temperature_K=60):
+    atoms = argon_cluster(2, temperature_K)
+    atoms.calc = CALCULATORS['ase-lj']()
+    return atoms
+
+
+def assert_buffers_empty(dyn):
+    buffers = dyn.rescale_step.buffers.values()
+    assert buffers and all(b.is_empty() for b in buffers)
+
+
+# -- the buffer ---------------------------------------------------------------
+
+counts = st.lists(st.integers(-2**52, 2**52), min_size=1, max_size=12)
+ratios = st.lists(st.integers(N_MIN, N_MAX - 1)
+                  | st.integers(D - 3000, D + 3000), min_size=1, max_size=40)
+
+
+@settings(max_examples=150, deadline=None)
+@given(counts, ratios, st.integers(0, 2**32))
+def test_scaling_is_undone_bit_for_bit_for_ratios_on_both_sides_of_one(
+        xs, ns, seed):
+    """Any sequence of ratios, below and above 1, out and back: the counts
+    and the buffer are what they were; each product is within n counts of
+    x n / 2**20, which needs the reserve below an empty stack for n > d."""
+    buffer = ScalingBuffer(len(xs), step_key(seed, 1.0))
+    x = np.array(xs, dtype=np.int64)
+    path = [x]
+    for n in ns:
+        new = buffer.scale(path[-1], n)
+        exact = path[-1].astype(object) * n
+        assert all(-n * D < int(a) * D - int(e) < n * D
+                   for a, e in zip(new, exact))
+        path.append(new)
+    for previous in reversed(path[:-1]):
+        assert np.array_equal(buffer.unscale(path.pop()), previous)
+    assert buffer.is_empty()
+
+
+@settings(max_examples=60, deadline=None)
+@given(counts, st.integers(N_MIN, N_MAX - 1), st.integers(0, 2**32),
+       st.data())
+def test_every_buffer_state_and_count_has_a_preimage(xs, n, seed, data):
+    """Surjective too: from any states in [2**20, 2**36) and any counts
+    whose preimage is in range (below 2**53, as every count is), undoing
+    a ratio and doing it again comes back (with the injectivity above: a
+    bijection on (counts, buffer) for every ratio)."""
+    assume(max(abs(x) for x in xs) * D < 2**53 * n)
+    size = len(xs)
+    buffer = ScalingBuffer(size, step_key(seed, 1.0))
+    buffer.state_k = np.array(data.draw(st.lists(
+        st.integers(2**20, 2**36 - 1), min_size=size, max_size=size)),
+        dtype=np.int64)
+    buffer.top_k = np.array(data.draw(st.lists(
+        st.integers(-3, 3), min_size=size, max_size=size)), dtype=np.int64)
+    buffer._reserve(-4)
+    buffer._room(4)
+    state, top = buffer.state_k.copy(), buffer.top_k.copy()
+    words = buffer.words_jk.copy()
+    buffer._push_ratio(n)
+    x = np.array(xs, dtype=np.int64)
+    back = buffer.unscale(x)
+    assert np.array_equal(buffer.scale(back, n), x)
+    assert np.array_equal(buffer.state_k, state)
+    assert np.array_equal(buffer.top_k, top)
+    # The stacks' contents (rows below each pointer) are as they were.
+    held = np.arange(len(words))[:, None] < top + buffer.base
+    assert np.array_equal(buffer.words_jk[:len(words)][held], words[held])
+
+
+def test_a_masked_coordinate_and_its_buffer_stay_put():
+    buffer = ScalingBuffer(3, step_key(1, 1.0))
+    x = np.array([10**12, 7, -10**12], dtype=np.int64)
+    mask = np.array([True, False, True])
+    out = buffer.scale(x, 3 * D // 2, mask)
+    assert out[1] == 7 and buffer.state_k[1] == D and buffer.top_k[1] == 0
+    assert np.array_equal(buffer.unscale(out, mask), x)
+    assert buffer.is_empty()
+
+
+# -- the draws ----------------------------------------------------------------
+
+def test_the_chi_squared_draws_have_their_distribution():
+    """S of 2000 steps against chi-squared with N_f - 1 degrees of freedom
+    (Kolmogorov-Smirnov), R against the standard normal."""
+    stats = pytest.importorskip('scipy.stats', reason='scipy for the KS test')
+    key = step_key(5, 1.0)
+    for dof in (3, 765):
+        draws = BussiDraws(dof)
+        r, s = np.array([draws(key, k) for k in range(2000)]).T
+        assert stats.kstest(s, stats.chi2(dof - 1).cdf).pvalue > 1e-3
+        assert stats.kstest(r, 'norm').pvalue > 1e-3
+
+
+# -- exact reversal -----------------------------------------------------------
+
+@pytest.mark.parametrize('case', tiered(list(THERMOSTAT_CASES),
+                                        quick=['Ar13 ase-lj']))
+def test_round_trip_is_exact(case):
+    build, calc, dt_fs, steps = THERMOSTAT_CASES[case]
+    atoms = build()
+    atoms.calc = CALCULATORS[calc]()
+    dyn = bussi(atoms, dt_fs)
+    start, moved = forward_and_back(dyn, steps)
+    assert moved
+    assert_same_state(atoms, start)
+    assert_buffers_empty(dyn)
+    assert dyn.get_time() == 0.0
+
+
+@pytest.mark.parametrize('start_K, target_K, seed', [
+    (5, 300, 2),      # heats: ratios above 1 take reserve words
+    (2000, 40, 3),    # cools: ratios below 1 push words
+    (60, 60, 4)])
+def test_heating_and_cooling_runs_come_back_exactly(start_K, target_K, seed):
+    atoms = ar13(start_K)
+    dyn = bussi(atoms, temperature_K=target_K, seed=seed, taut=20 * units.fs)
+    start = snapshot(atoms)
+    dyn.run(150)
+    temperature = atoms.get_temperature()
+    buffer = dyn.rescale_step.buffer_for(dyn.dt)
+    if target_K > start_K:
+        assert temperature > 10 * start_K and buffer.top_k.min() < 0
+    elif target_K < start_K:
+        # The coordinates' buffers grew (by about 3 bits each here).
+        assert temperature < start_K / 10
+        assert buffer.bits - 32 * buffer.count > len(atoms) * 3
+    dyn.reverse().run(150)
+    assert_same_state(atoms, start)
+    assert_buffers_empty(dyn)
+
+
+@SLOW
+@pytest.mark.parametrize('start_K, target_K, seed', [
+    (50, 900, 11), (1500, 100, 12), (600, 600, 13)])
+def test_asap3_copper_heats_or_cools_and_comes_back(start_K, target_K, seed):
+    atoms = copper_bulk((3, 3, 3), start_K, seed=seed)
+    atoms.calc = CALCULATORS['asap-emt']()
+    dyn = bussi(atoms, temperature_K=target_K, seed=seed,
+                taut=50 * units.fs)
+    start, moved = forward_and_back(dyn, 1000)
+    assert moved
+    assert_same_state(atoms, start)
+    assert_buffers_empty(dyn)
+
+
+@pytest.mark.parametrize('constraint', ['FixAtoms', 'FixCartesian', 'FixCom'])
+def test_constraints_are_kept_and_reversal_is_exact(constraint):
+    atoms = ar13()
+    frozen = np.zeros((len(atoms), 3), bool)
+    if constraint == 'FixAtoms':
+        atoms.set_constraint(FixAtoms(indices=[0, 5]))
+        frozen[[0, 5]] = True
+    elif constraint == 'FixCartesian':
+        atoms.set_constraint(FixCartesian(3, mask=(True, False, True)))
+        frozen[3, [0, 2]] = True
+    else:
+        atoms.set_constraint(FixCom())
+    dyn = bussi(atoms)
+    start = snapshot(atoms)
+    dyn.run(100)
+    assert not np.any(atoms.get_momenta()[frozen])
+    if constraint == 'FixCom':
+        assert not np.any(dyn.state.ip_nc.sum(axis=0))
+    dyn.reverse().run(100)
+    assert_same_state(atoms, start)
+    assert_buffers_empty(dyn)
+
+
+def test_degrees_of_freedom_are_ases():
+    for constraint, removed in ((None, 0), (FixCom(), 3),
+                                (FixAtoms(indices=[1]), 3)):
+        atoms = ar13()
+        if constraint is not None:
+            atoms.set_constraint(constraint)
+        dyn = bussi(atoms)
+        assert dyn.rescale_step._draws.dof == 3 * len(atoms) - removed \
+            == atoms.get_number_of_degrees_of_freedom()
+
+
+def test_going_back_past_the_anchor_is_refused_at_a_valid_state():
+    atoms = ar13()
+    dyn = bussi(atoms)
+    start = snapshot(atoms)
+    dyn.run(30)
+    dyn.reverse().run(30)
+    with pytest.raises(RetraceLimitError, match='run forward'):
+        dyn.run(1)
+    assert_same_state(atoms, start)
+    assert_buffers_empty(dyn)
+    dyn.reverse().run(30)
+    assert not np.array_equal(atoms.positions, start[0])
+
+
+def test_back_and_forth_is_one_trajectory():
+    straight = ar13()
+    bussi(straight).run(120)
+    wandering = ar13()
+    dyn = bussi(wandering)
+    dyn.run(80)
+    dyn.reverse().run(50)
+    dyn.reverse().run(90)
+    assert_same_state(wandering, snapshot(straight))
+
+
+def test_the_seed_decides_the_run():
+    runs = {}
+    for seed in (3, 3, 4):
+        atoms = ar13()
+        bussi(atoms, seed=seed).run(40)
+        runs.setdefault(seed, []).append(atoms.get_momenta())
+    assert np.array_equal(*runs[3])
+    assert not np.array_equal(runs[3][0], runs[4][0])
+
+
+def test_a_new_temperature_moves_the_anchor_and_reversal_leads_there():
+    atoms = ar13()
+    dyn = bussi(atoms)
+    dyn.run(30)
+    with pytest.warns(AnchorMovedWarning, match='temperature'):
+        dyn.set_temperature(500)
+    here = snapshot(atoms)
+    dyn.run(30)
+    dyn.reverse()
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', AnchorMovedWarning)
+        dyn.run(30)
+    assert_same_state(atoms, here)
+    with pytest.raises(RetraceLimitError):
+        dyn.run(1)
+
+
+def test_a_changed_time_step_can_be_retraced_after_setting_it_back():
+    atoms = ar13()
+    dyn = bussi(atoms)
+    start = snapshot(atoms)
+    dyn.run(30)
+    with pytest.warns(AnchorMovedWarning):
+        dyn.dt = 3 * units.fs
+    dyn.run(20)
+    dyn.reverse().run(20)
+    with pytest.raises(RetraceLimitError):
+        dyn.run(1)  # the 3 fs steps are undone; the 5 fs ones need 5 fs
+    dyn.dt = -5 * units.fs
+    dyn.run(30)
+    assert_same_state(atoms, start)
+
+
+# -- the contract -------------------------------------------------------------
+
+def test_ases_usual_call_works_with_the_class_name_swapped():
+    atoms = ar13()
+    dyn = ReversibleBussi(atoms, 5 * units.fs, temperature_K=300,
+                          taut=100 * units.fs)
+    dyn.run(5)
+    assert dyn.taut == 100 * units.fs and dyn.temperature_K == 300
+
+
+@pytest.mark.parametrize('kwargs, error, match', [
+    ({'rng': np.random.default_rng(1)}, TypeError, 'seed='),
+    ({'taut': 0.0}, ValueError, 'taut must be positive'),
+    ({'taut': -5 * units.fs}, ValueError, 'taut must be positive'),
+    ({'taut': 'long'}, TypeError, 'taut must be a number'),
+    ({'temperature_K': -1}, ValueError, 'temperature_K must be positive'),
+])
+def test_bad_arguments_are_refused_before_anything_changes(kwargs, error,
+                                                           match):
+    atoms = ar13()
+    before = snapshot(atoms)
+    with pytest.raises(error, match=match):
+        bussi(atoms, **kwargs)
+    assert_same_state(atoms, before)
+
+
+def test_zero_momenta_and_a_line_constraint_are_refused():
+    atoms = ar13()
+    atoms.set_momenta(np.zeros((len(atoms), 3)))
+    with pytest.raises(ValueError, match='MaxwellBoltzmannDistribution'):
+        bussi(atoms)
+    atoms = ar13()
+    atoms.set_constraint(FixedLine(0, (0, 0, 1)))
+    with pytest.raises(UnsupportedConstraintError,
+                       match='ReversibleBussi supports.*rescaling'):
+        bussi(atoms)
+
+
+def test_a_factor_out_of_range_stops_before_the_step_and_loses_nothing():
+    """Momenta 1e-6 of thermal would need alpha near 300: refused, the
+    state as before and still reversible to its anchor."""
+    atoms = ar13()
+    dyn = bussi(atoms)
+    start = snapshot(atoms)
+    dyn.run(10)
+    here = snapshot(atoms)
+    atoms.set_momenta(atoms.get_momenta() * 1e-6)
+    with pytest.warns(AnchorMovedWarning):
+        with pytest.raises(ValueError, match=r'factors in \[2\*\*-16'):
+            dyn.run(1)
+    cold = snapshot(atoms)
+    assert np.array_equal(cold[0], here[0])
+    dyn.set_temperature(1e-7)
+    dyn.run(3)
+    dyn.reverse().run(3)
+    assert_same_state(atoms, cold)
+    assert not np.array_equal(cold[1], start[1])
+
+
+def test_energy_minus_heat_is_conserved():
+    atoms = argon_cluster(3, 40)
+    atoms.calc = CALCULATORS['ase-lj']()
+    e0 = atoms.get_total_energy()
+    dyn = bussi(atoms, temperature_K=120, taut=50 * units.fs)
+    dyn.run(200)
+    drift = atoms.get_total_energy() - dyn.heat - e0
+    assert dyn.heat > 0.1  # the thermostat heated the cluster
+    assert abs(drift) < 1e-3 * dyn.heat
+
+
+def test_trajectory_frames_and_the_log_work_as_for_ase(tmp_path):
+    atoms = ar13()
+    log, traj = tmp_path / 'md.log', tmp_path / 'md.traj'
+    dyn = bussi(atoms, trajectory=str(traj), logfile=str(log),
+                loginterval=10)
+    dyn.run(50)
+    dyn.close()
+    frames = read(str(traj), ':')
+    assert len(frames) == 6
+    assert np.array_equal(frames[-1].positions, atoms.positions)
+    assert len(log.read_text().splitlines()) == 7
+    with Trajectory(str(traj)) as t:
+        assert t.description['taut'] == TAUT
+
+
+# -- restarts -----------------------------------------------------------------
+
+def test_a_frame_and_its_buffer_continue_bit_for_bit_and_run_back_through(
+        tmp_path):
+    traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
+    atoms = ar13(5)  # heats: the saved buffer holds reserve words
+    dyn = bussi(atoms, seed=9, trajectory=str(traj))
+    start = dyn.state
+    dyn.run(60)
+    assert dyn.rescale_step.buffer_for(dyn.dt).top_k.min() < 0
+    dyn.write_buffer(saved)
+    dyn.run(40)
+    straight = dyn.state
+    dyn.close()
+
+    frame = read(str(traj), 60)
+    frame.calc = CALCULATORS['ase-lj']()
+    resumed = ReversibleBussi(frame, 5 * units.fs, 300, TAUT, buffer=saved)
+    assert resumed.seed == 9 and resumed.step_index == 60
+    resumed.run(40)
+    assert np.array_equal(resumed.state.ix_nc, straight.ix_nc)
+    assert np.array_equal(resumed.state.ip_nc, straight.ip_nc)
+    resumed.reverse().run(100)
+    assert np.array_equal(resumed.state.ix_nc, start.ix_nc)
+    assert np.array_equal(resumed.state.ip_nc, start.ip_nc)
+    assert_buffers_empty(resumed)
+    with pytest.raises(RetraceLimitError):
+        resumed.run(1)
+
+
+def test_a_frame_alone_resumes_the_draws_but_not_the_way_back(tmp_path):
+    traj = tmp_path / 'md.traj'
+    atoms = ar13()
+    dyn = bussi(atoms, seed=4, trajectory=str(traj))
+    dyn.run(30)
+    dyn.close()
+    frame = read(str(traj), -1)
+    frame.calc = CALCULATORS['ase-lj']()
+    here = snapshot(frame)
+    resumed = ReversibleBussi(frame, 5 * units.fs, 300, TAUT)
+    assert resumed.seed == 4 and resumed.step_index == 30
+    forward_and_back(resumed, 20)
+    assert_same_state(frame, here)
+    with pytest.raises(RetraceLimitError):
+        resumed.run(1)
+
+
+def test_a_buffer_file_from_another_state_is_refused(tmp_path):
+    traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
+    atoms = ar13()
+    dyn = bussi(atoms, trajectory=str(traj))
+    dyn.run(20)
+    dyn.write_buffer(saved)
+    dyn.close()
+    frame = read(str(traj), 10)
+    frame.calc = CALCULATORS['ase-lj']()
+    with pytest.raises(ValueError, match='step 20 of another'):
+        ReversibleBussi(frame, 5 * units.fs, 300, TAUT, buffer=saved)
+
+
+# -- across machines ------------------------------------------------------------
+
+LEGS = f'''
+import hashlib, json, sys
+import numpy as np
+from ase import units
+from ase.io import read
+from ase_reversible import LennardJones, ReversibleBussi
+from ase_reversible.app.systems import argon_cluster
+from ase_reversible.core.noise import step_key
+from ase_reversible.md.bussi import BussiDraws, alpha_ratio
+
+def lj():
+    return LennardJones(sigma={AR_SIGMA!r}, epsilon={AR_EPSILON!r},
+                        rc={AR_RC!r})
+
+leg = sys.argv[1] if len(sys.argv) > 1 else LEG
+if leg == 'write':
+    atoms = argon_cluster(3, 20)
+    atoms.calc = lj()
+    dyn = ReversibleBussi(atoms, 5 * units.fs, 300, 40 * units.fs, seed=8,
+                          trajectory='run.traj', loginterval=40)
+    dyn.run(40)
+    dyn.write_buffer('buffer.npz')
+    dyn.close()
+    print('{{}}')
+else:
+    draws = BussiDraws(165)
+    key = step_key(8, 5 * units.fs)
+    bits = [alpha_ratio(1.0 + k / 7, 0.0258, 0.9, *draws(key, k))
+            for k in range(300)]
+    first, frame = read('run.traj', 0), read('run.traj', -1)
+    frame.calc = lj()
+    dyn = ReversibleBussi(frame, 5 * units.fs, 300, 40 * units.fs,
+                          buffer='buffer.npz')
+    dyn.run(40)
+    h = hashlib.sha256(dyn.state.ix_nc.tobytes() + dyn.state.ip_nc.tobytes())
+    dyn.reverse().run(80)
+    back = bool(np.array_equal(frame.positions, first.positions)
+                and np.array_equal(frame.get_momenta(), first.get_momenta()))
+    print(json.dumps({{'ratios': bits, 'ahead': h.hexdigest(),
+                      'back': back}}))
+'''
+
+
+def test_the_same_bits_on_another_machine(tmp_path):
+    """Leg 1 (native) writes a heating run's frame and buffer; legs on
+    'native' and 'sse4' each compute 300 ratios from the draws, continue
+    40 steps and run back 80 to the start: the same bits on both."""
+    run_leg('native', "LEG = 'write'\n" + LEGS, tmp_path)
+    out = {m: json.loads(run_leg(m, "LEG = 'go'\n" + LEGS,
+                                 tmp_path).strip().splitlines()[-1])
+           for m in ('native', 'sse4')}
+    assert out['native'] == out['sse4']
+    assert out['native']['back']
+    assert len(set(out['native']['ratios'])) > 250
+
+
+# -- sampling -----------------------------------------------------------------
+
+@SLOW
+def test_canonical_kinetic_energy_for_argon_and_copper_as_ases_bussi():
+    """Ar256 liquid and Cu256 crystal: the kinetic energy after equilibration
+    against Gamma(N_f / 2, kT) by KS on decorrelated samples, the mean
+    temperature within 4 standard errors, for ReversibleBussi and ASE's
+    Bussi alike (benchmarks/thermostat.py reports the numbers)."""
+    stats = pytest.importorskip('scipy.stats', reason='scipy for the KS test')
+    asap3 = pytest.importorskip('asap3', reason='asap3 for 256 atoms')
+    for build, calc, dt, temperature in (
+            (lambda: argon_bulk((4, 4, 4), 120, seed=1),
+             lambda: asap3.LennardJones([18], [AR_EPSILON], [AR_SIGMA],
+                                        rCut=AR_RC, modified=True), 10, 120),
+            (lambda: copper_bulk((4, 4, 4), 600, seed=1), asap3.EMT, 5,
+             600)):
+        for kind in ('reversible', 'ase'):
+            atoms = build()
+            atoms.calc = calc()
+            if kind == 'reversible':
+                dyn = ReversibleBussi(atoms, dt * units.fs, temperature,
+                                      100 * units.fs, seed=21)
+            else:
+                dyn = Bussi(atoms, dt * units.fs, temperature,
+                            100 * units.fs, rng=np.random.default_rng(21))
+            dyn.run(300)
+            kinetic = []
+            dyn.attach(lambda: kinetic.append(atoms.get_kinetic_energy()))
+            dyn.run(4000)
+            kinetic = np.array(kinetic)
+            kT = units.kB * temperature
+            dof = atoms.get_number_of_degrees_of_freedom()
+            thinned = kinetic[::20]
+            p = stats.kstest(thinned, stats.gamma(dof / 2, scale=kT).cdf)
+            blocks = kinetic[:4000].reshape(20, -1).mean(axis=1)
+            error = blocks.std(ddof=1) / math.sqrt(20)
+            assert p.pvalue > 1e-3, (kind, p.pvalue)
+            assert abs(blocks.mean() - dof * kT / 2) < 4 * error, kind
