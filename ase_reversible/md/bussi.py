@@ -182,8 +182,8 @@ class ScalingBuffer:
         return self.base, self.words_jk[:depth + self.base]
 
     def load(self, state_k, top_k, base, words_jk, ratios):
-        """Take what :meth:`used_rows`, :attr:`state_k`, :attr:`top_k` and
-        the used :attr:`ratios` of a buffer of the same size were."""
+        """Take what :meth:`used_rows`, ``state_k``, ``top_k`` and the used
+        ``ratios`` of a buffer of the same size were."""
         state_k = np.asarray(state_k, dtype=np.int64)
         top_k = np.asarray(top_k, dtype=np.int64)
         base = int(base)
