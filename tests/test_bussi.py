@@ -21,9 +21,9 @@ from hypothesis import assume, given, settings, strategies as st
 from ase_reversible import (AnchorMovedWarning, LennardJones,
                             RetraceLimitError, ReversibleBussi,
                             UnsupportedConstraintError)
-from ase_reversible.core.noise import step_key
+from ase_reversible.core.noise import portable_log, step_key
 from ase_reversible.md.bussi import (N_MAX, N_MIN, RATIO_BITS, BussiDraws,
-                                     ScalingBuffer)
+                                     ScalingBuffer, _log)
 
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS,
                       THERMOSTAT_CASES, argon_bulk, argon_cluster,
@@ -126,15 +126,20 @@ def test_a_masked_coordinate_and_its_buffer_stay_put():
 # -- the draws ----------------------------------------------------------------
 
 def test_the_chi_squared_draws_have_their_distribution():
-    """S of 2000 steps against chi-squared with N_f - 1 degrees of freedom
+    """S of 1000 steps against chi-squared with N_f - 1 degrees of freedom
     (Kolmogorov-Smirnov), R against the standard normal."""
-    stats = pytest.importorskip('scipy.stats', reason='scipy for the KS test')
     key = step_key(5, 1.0)
     for dof in (3, 765):
         draws = BussiDraws(dof)
-        r, s = np.array([draws(key, k) for k in range(2000)]).T
-        assert stats.kstest(s, stats.chi2(dof - 1).cdf).pvalue > 1e-3
-        assert stats.kstest(r, 'norm').pvalue > 1e-3
+        r, s = np.array([draws(key, k) for k in range(1000)]).T
+        assert gamma_ks_pvalue(s, (dof - 1) / 2, 2.0) > 1e-3
+        assert gamma_ks_pvalue(r * r, 0.5, 2.0) > 1e-3  # chi-squared, 1
+        assert abs(np.mean(r > 0) - 0.5) < 0.04  # and symmetric
+
+
+def test_the_scalar_logarithm_has_the_bits_of_the_portable_one():
+    x = np.random.default_rng(0).random(20_000) * 4.0 + 1e-12
+    assert np.array_equal([_log(float(v)) for v in x], portable_log(x))
 
 
 # -- exact reversal -----------------------------------------------------------
@@ -330,24 +335,22 @@ def test_zero_momenta_and_a_line_constraint_are_refused():
 
 
 def test_a_factor_out_of_range_stops_before_the_step_and_loses_nothing():
-    """Momenta 1e-6 of thermal would need alpha near 300: refused, the
-    state as before and still reversible to its anchor."""
+    """A target of 1e9 K from 60 K would need alpha near 1e3 in the first
+    step: refused, the state as before, and the run goes on and back."""
     atoms = ar13()
     dyn = bussi(atoms)
-    start = snapshot(atoms)
     dyn.run(10)
-    here = snapshot(atoms)
-    atoms.set_momenta(atoms.get_momenta() * 1e-6)
     with pytest.warns(AnchorMovedWarning):
-        with pytest.raises(ValueError, match=r'factors in \[2\*\*-16'):
-            dyn.run(1)
-    cold = snapshot(atoms)
-    assert np.array_equal(cold[0], here[0])
-    dyn.set_temperature(1e-7)
-    dyn.run(3)
-    dyn.reverse().run(3)
-    assert_same_state(atoms, cold)
-    assert not np.array_equal(cold[1], start[1])
+        dyn.set_temperature(1e9)
+    here = snapshot(atoms)
+    with pytest.raises(ValueError, match=r'factors in \[2\*\*-16'):
+        dyn.run(1)
+    assert_same_state(atoms, here)
+    assert dyn.rescale_step.buffer_for(dyn.dt).is_empty()
+    dyn.set_temperature(300)
+    dyn.run(20)
+    dyn.reverse().run(20)
+    assert_same_state(atoms, here)
 
 
 def test_energy_minus_heat_is_conserved():
@@ -445,7 +448,7 @@ from ase import units
 from ase.io import read
 from ase_reversible import LennardJones, ReversibleBussi
 from ase_reversible.app.systems import argon_cluster
-from ase_reversible.core.noise import step_key
+from ase_reversible.core.noise import portable_log, step_key
 from ase_reversible.md.bussi import BussiDraws, alpha_ratio
 
 def lj():
@@ -496,39 +499,123 @@ def test_the_same_bits_on_another_machine(tmp_path):
 
 # -- sampling -----------------------------------------------------------------
 
+def gamma_cdf(x, shape, scale):
+    """The regularized lower incomplete gamma P(shape, x / scale): its
+    power series below shape + 1, Legendre's continued fraction (by
+    Lentz's method) above."""
+    z = x / scale
+    if z <= 0:
+        return 0.0
+    front = math.exp(shape * math.log(z) - z - math.lgamma(shape))
+    if z < shape + 1:
+        term = total = 1.0 / shape
+        k = shape
+        while term > 1e-17 * total:
+            k += 1
+            term *= z / k
+            total += term
+        return front * total
+    tiny = 1e-300
+    b = z + 1 - shape
+    c, d = 1 / tiny, 1 / b
+    h = d
+    for i in range(1, 10_000):
+        a = -i * (i - shape)
+        b += 2
+        d = a * d + b
+        d = tiny if abs(d) < tiny else d
+        c = b + a / c
+        c = tiny if abs(c) < tiny else c
+        d = 1 / d
+        h *= d * c
+        if abs(d * c - 1) < 1e-16:
+            break
+    return 1.0 - front * h
+
+
+def gamma_ks_pvalue(samples, shape, scale, own=False):
+    """Kolmogorov-Smirnov p-value of ``samples`` against Gamma(shape,
+    scale): scipy.stats where present (and not ``own``), else the
+    statistic with Stephens' small-sample correction and Kolmogorov's
+    series."""
+    try:
+        from scipy import stats
+    except ImportError:
+        own = True
+    if not own:
+        return float(stats.kstest(samples, 'gamma',
+                                  args=(shape, 0, scale)).pvalue)
+    x = np.sort(np.asarray(samples, float))
+    n = len(x)
+    f = np.array([gamma_cdf(v, shape, scale) for v in x])
+    d = max((np.arange(1, n + 1) / n - f).max(),
+            (f - np.arange(n) / n).max())
+    t = (math.sqrt(n) + 0.12 + 0.11 / math.sqrt(n)) * d
+    return float(min(1.0, max(0.0, 2 * sum(
+        (-1) ** (k - 1) * math.exp(-2 * k * k * t * t)
+        for k in range(1, 101)))))
+
+
+def test_the_own_ks_test_agrees_with_scipy():
+    """The fallback used where scipy is missing, against scipy here."""
+    stats = pytest.importorskip('scipy.stats', reason='scipy to compare')
+    rng = np.random.default_rng(3)
+    for shape in (1.5, 382.5):
+        assert gamma_cdf(shape * 1.1, shape, 2.0) == pytest.approx(
+            stats.gamma(shape, scale=2.0).cdf(shape * 1.1), rel=1e-10)
+        for bias in (1.0, 1.02):
+            samples = rng.gamma(shape * bias, 2.0, size=300)
+            assert gamma_ks_pvalue(samples, shape, 2.0, own=True) == \
+                pytest.approx(gamma_ks_pvalue(samples, shape, 2.0),
+                              rel=0.1, abs=1e-3)
+
+
+def liquid_argon():
+    """256 Ar atoms at 1.37 g/cm3, drawn at 600 K: a liquid once a
+    thermostat has cooled it to 90 K (rms displacement 3.8 A in 10 ps,
+    measured; benchmarks/thermostat.py uses the same system)."""
+    atoms = argon_bulk((4, 4, 4), 600, seed=1)
+    atoms.set_cell(atoms.cell * 1.10, scale_atoms=True)
+    return atoms
+
+
 @SLOW
-def test_canonical_kinetic_energy_for_argon_and_copper_as_ases_bussi():
-    """Ar256 liquid and Cu256 crystal: the kinetic energy after equilibration
-    against Gamma(N_f / 2, kT) by KS on decorrelated samples, the mean
-    temperature within 4 standard errors, for ReversibleBussi and ASE's
-    Bussi alike (benchmarks/thermostat.py reports the numbers)."""
-    stats = pytest.importorskip('scipy.stats', reason='scipy for the KS test')
+def test_canonical_kinetic_energy_for_liquid_argon_and_copper_as_ases():
+    """Liquid Ar256 and crystalline Cu256 (asap3), both thermostats with
+    FixCom (3N - 3 degrees of freedom, which both count): after
+    equilibration the kinetic energy against Gamma((3N - 3) / 2, kT) by
+    KS on every 20th of 4000 steps, and the mean within 4 standard errors
+    (20 blocks), for ReversibleBussi and ASE's Bussi alike."""
     asap3 = pytest.importorskip('asap3', reason='asap3 for 256 atoms')
-    for build, calc, dt, temperature in (
-            (lambda: argon_bulk((4, 4, 4), 120, seed=1),
-             lambda: asap3.LennardJones([18], [AR_EPSILON], [AR_SIGMA],
-                                        rCut=AR_RC, modified=True), 10, 120),
-            (lambda: copper_bulk((4, 4, 4), 600, seed=1), asap3.EMT, 5,
-             600)):
+    cases = ((liquid_argon,
+              lambda: asap3.LennardJones([18], [AR_EPSILON], [AR_SIGMA],
+                                         rCut=AR_RC, modified=True),
+              10, 90, 1e-13),
+             (lambda: copper_bulk((4, 4, 4), 600, seed=1), asap3.EMT, 5,
+              600, None))
+    for build, calc, dt, temperature, force_noise in cases:
         for kind in ('reversible', 'ase'):
             atoms = build()
+            atoms.set_constraint(FixCom())
             atoms.calc = calc()
             if kind == 'reversible':
                 dyn = ReversibleBussi(atoms, dt * units.fs, temperature,
-                                      100 * units.fs, seed=21)
+                                      100 * units.fs, seed=21,
+                                      force_noise=force_noise)
             else:
                 dyn = Bussi(atoms, dt * units.fs, temperature,
                             100 * units.fs, rng=np.random.default_rng(21))
-            dyn.run(300)
+            dyn.run(1000)
             kinetic = []
             dyn.attach(lambda: kinetic.append(atoms.get_kinetic_energy()))
             dyn.run(4000)
-            kinetic = np.array(kinetic)
+            kinetic = np.array(kinetic[:4000])
             kT = units.kB * temperature
             dof = atoms.get_number_of_degrees_of_freedom()
-            thinned = kinetic[::20]
-            p = stats.kstest(thinned, stats.gamma(dof / 2, scale=kT).cdf)
-            blocks = kinetic[:4000].reshape(20, -1).mean(axis=1)
+            assert dof == 3 * len(atoms) - 3
+            p = gamma_ks_pvalue(kinetic[::20], dof / 2, kT)
+            blocks = kinetic.reshape(20, -1).mean(axis=1)
             error = blocks.std(ddof=1) / math.sqrt(20)
-            assert p.pvalue > 1e-3, (kind, p.pvalue)
-            assert abs(blocks.mean() - dof * kT / 2) < 4 * error, kind
+            assert p > 1e-3, (kind, temperature, p)
+            assert abs(blocks.mean() - dof * kT / 2) < 4 * error, \
+                (kind, temperature)
