@@ -145,7 +145,8 @@ def test_the_scalar_logarithm_has_the_bits_of_the_portable_one():
 # -- exact reversal -----------------------------------------------------------
 
 @pytest.mark.parametrize('case', tiered(list(THERMOSTAT_CASES),
-                                        quick=['Ar13 ase-lj']))
+                                        quick=['Ar13 ase-lj', 'Cu55 ase-emt',
+                                               'Cu108 asap-emt']))
 def test_round_trip_is_exact(case):
     build, calc, dt_fs, steps = THERMOSTAT_CASES[case]
     atoms = build()
@@ -351,6 +352,17 @@ def test_a_factor_out_of_range_stops_before_the_step_and_loses_nothing():
     dyn.run(20)
     dyn.reverse().run(20)
     assert_same_state(atoms, here)
+
+
+def test_backpropagate_is_refused_before_anything_changes():
+    atoms = ar13()
+    dyn = bussi(atoms)
+    dyn.run(5)
+    here = snapshot(atoms)
+    with pytest.raises(NotImplementedError, match='ReversibleLangevin'):
+        dyn.backpropagate(5, np.zeros((13, 3)), np.zeros((13, 3)))
+    assert_same_state(atoms, here)
+    dyn.reverse().run(5)
 
 
 def test_energy_minus_heat_is_conserved():

@@ -462,6 +462,8 @@ def alpha_ratio(two_k, kT, c, r, s):
     draws ``R``, ``S``; IEEE operations in a fixed order only."""
     e = (1.0 - c) * kT / two_k
     alpha2 = c + e * (s + r * r) + 2.0 * r * math.sqrt(c * e)
+    if not alpha2 < N_MAX * N_MAX / _D**2:  # also inf and NaN
+        return N_MAX
     return round(math.sqrt(max(alpha2, 0.0)) * _D)
 
 
@@ -579,16 +581,18 @@ class Rescale(SubStep):
             buffer.rollback()
 
     def adjoint(self, cotangents, ch):
-        raise NotImplementedError(
-            'ReversibleBussi has no adjoint yet (its factor depends on the '
-            'kinetic energy): backpropagate is available with '
-            'ReversibleLangevin, ReversibleNose and ReversibleVerlet.')
+        raise NotImplementedError(_NO_ADJOINT)
 
     def _free(self):
         free_nc = np.ones(self.shape)
         self.system.project(free_nc)
         return free_nc
 
+
+_NO_ADJOINT = (
+    'ReversibleBussi has no adjoint yet (its factor depends on the kinetic '
+    'energy): backpropagate is available with ReversibleLangevin, '
+    'ReversibleNose and ReversibleVerlet. Nothing was changed.')
 
 _ZERO_MOMENTA = (
     'ReversibleBussi rescales the momenta, and they are all zero: there is '
@@ -783,6 +787,11 @@ class ReversibleBussi(ReversibleDynamics):
         return {'bussi': {'seed': self._seed,
                           'step': self.engine.step_index,
                           'timestep': abs(self.engine.dt)}}
+
+    def backpropagate(self, *args, **kwargs):
+        """Not available yet: raises NotImplementedError before anything
+        is changed (the factor's adjoint depends on the kinetic energy)."""
+        raise NotImplementedError(_NO_ADJOINT)
 
     def write_buffer(self, path):
         """Write what reversal through this point needs to ``path`` (NumPy
