@@ -66,15 +66,16 @@ ratios = st.lists(st.integers(N_MIN, N_MAX - 1)
 def test_scaling_is_undone_bit_for_bit_for_ratios_on_both_sides_of_one(
         xs, ns, seed):
     """Any sequence of ratios, below and above 1, out and back: the counts
-    and the buffer are what they were; each product is within n counts of
-    x n / 2**20, which needs the reserve below an empty stack for n > d."""
+    and the buffer are what they were; each product is within
+    max(1, n / 2**20) counts of x n / 2**20 (ratios above one need the
+    reserve below an empty stack)."""
     buffer = ScalingBuffer(len(xs), step_key(seed, 1.0))
     x = np.array(xs, dtype=np.int64)
     path = [x]
     for n in ns:
         new = buffer.scale(path[-1], n)
         exact = path[-1].astype(object) * n
-        assert all(-n * D < int(a) * D - int(e) < n * D
+        assert all(-D < int(a) * D - int(e) < n
                    for a, e in zip(new, exact))
         path.append(new)
     for previous in reversed(path[:-1]):

@@ -31,7 +31,9 @@ with ``-h`` undoes it).  Kicks and drifts are the exact shears of
   would);
 * the momentum counts are multiplied by ``n / 2**20`` through an
   information buffer (:class:`ScalingBuffer`) that keeps the digits a
-  ratio below one drops and supplies those a ratio above one needs;
+  ratio below one drops and supplies those a ratio above one needs; the
+  product is within one count of ``n x / 2**20`` (``n / 2**20`` counts
+  above one);
 * the ratio ``n`` of each step is kept too (32 bits a step), since the
   way back cannot recompute it: ``alpha`` depends on the kinetic energy
   before the step, which the way back reaches only after undoing it.
@@ -94,19 +96,23 @@ class ScalingBuffer:
     buffer serves every ratio, above one as well as below.  With
     ``d = 2**20``, one step maps ``(x, s)`` to ``(x', s')``:
 
-    * ``z = s d + (x mod d)``, ``s' = z div n``,
-      ``x' = (x div d) n + (z mod n)``: push ``x``'s low ``d``-ary digit
-      onto the state and pop an ``n``-ary one, a bijection of ``(x, s)``;
+    * pop an ``n``-ary digit ``a = s mod n`` from the state, form
+      ``y = x n + a``, keep ``x' = y div d`` and push ``y mod d``:
+      ``s' = (s div n) d + (y mod d)``, a bijection of ``(x, s)``;
     * before it, the state is brought where the result lands in
-      ``[L, 2**16 L)`` (``L = 2**20``): for ``n < d`` a state
-      ``s >= 2**16 L n / d`` first spills its low word onto the stack;
-      for ``n > d`` a state ``s < L n / d`` first takes a word from it.
+      ``[L, 2**16 L)`` (``L = d``): for ``n < d`` a state
+      ``s >= 2**16 n`` first spills its low word onto the stack; for
+      ``n > d`` a state ``s < n`` first takes a word from it.
 
-    The way back computes ``z = s' n + (x' mod n)`` and so ``s``; a state
-    below ``L`` (``n < d``) or at or above ``2**16 L`` (``n > d``) is one
-    whose word moved, which is moved back.  Both tests are exact because
-    ``L n / d`` is a whole number for every ``n``.  ``x'`` differs from
-    ``n x / d`` by less than ``n`` counts.
+    The way back splits ``s'`` into ``s div n`` and ``y mod d`` (``d`` is
+    a power of two), rebuilds ``y = x' d + (y mod d)``, so ``x`` and
+    ``s``; a state below ``L`` (``n < d``) or at or above ``2**16 L``
+    (``n > d``) is one whose word moved, which is moved back.  Popping
+    before pushing puts the digit below the product, so ``x'`` differs
+    from ``n x / d`` by less than ``max(1, n / d)`` counts (the other
+    order, push first, errs by up to ``n`` counts: a 2**20-th of a count
+    here instead of a few percent of a thermal momentum where the force
+    provider coarsens the momentum quantum to about 2**-24).
 
     A ratio above one takes information, which an empty buffer does not
     hold.  So below the bottom of each stack lie reserve words, drawn on
@@ -231,10 +237,12 @@ class ScalingBuffer:
                 top[cols] = below
                 s[cols] = (s[cols] << _WORD_BITS) \
                     | self.words_jk[below + self.base, cols]
-        z = s << RATIO_BITS
-        z |= x_k & (_D - 1)
-        s_new, digit = np.divmod(z, n)
-        out = (x_k >> RATIO_BITS) * n + digit
+        s_high, digit = np.divmod(s, n)
+        # x n + digit = (x div d) d n + t: t below 2**48, no overflow.
+        t = (x_k & (_D - 1)) * n
+        t += digit
+        out = (x_k >> RATIO_BITS) * n + (t >> RATIO_BITS)
+        s_new = (s_high << RATIO_BITS) | (t & (_D - 1))
         if mask_k is not None:
             s_new = np.where(mask_k, s_new, self.state_k)
             out = np.where(mask_k, out, x_k)
@@ -250,11 +258,13 @@ class ScalingBuffer:
             raise IndexError('no ratio held')
         n = int(self.ratios[self.count - 1])
         x_k = np.asarray(x_k, dtype=np.int64)
-        high, digit = np.divmod(x_k, n)
-        z = self.state_k * n
-        z += digit
-        s = z >> RATIO_BITS
-        out = (high << RATIO_BITS) | (z & (_D - 1))
+        s_low = self.state_k & (_D - 1)
+        high, low = np.divmod(x_k, n)
+        # x' d + r = (x' div n) n d + t: t below 2**48 again.
+        t = (low << RATIO_BITS) | s_low
+        quotient, digit = np.divmod(t, n)
+        out = (high << RATIO_BITS) + quotient
+        s = (self.state_k >> RATIO_BITS) * n + digit
         top = self.top_k.copy()
         if n < _D:
             move = s < _LOW
