@@ -124,6 +124,25 @@ def test_a_masked_coordinate_and_its_buffer_stay_put():
     assert buffer.is_empty()
 
 
+def test_a_rolled_back_step_leaves_the_buffer_as_at_its_checkpoint():
+    """The engine's rollback of a failed step: the states, pointers and
+    ratio count return, and the way back still leads to the start (also
+    after the failed step drew reserve rows)."""
+    rng = np.random.default_rng(2)
+    x0 = rng.integers(-2**40, 2**40, 30)
+    buffer = ScalingBuffer(30, step_key(3, 1.0))
+    x1 = buffer.scale(x0, 3 * D)        # takes reserve words
+    buffer.checkpoint()
+    state, top = buffer.state_k.copy(), buffer.top_k.copy()
+    buffer.scale(x1, 5 * D)             # one rescaling a step
+    buffer.rollback()
+    assert np.array_equal(buffer.state_k, state)
+    assert np.array_equal(buffer.top_k, top) and buffer.count == 1
+    x2 = buffer.scale(x1, D // 3)
+    assert np.array_equal(buffer.unscale(buffer.unscale(x2)), x0)
+    assert buffer.is_empty()
+
+
 # -- the draws ----------------------------------------------------------------
 
 def test_the_chi_squared_draws_have_their_distribution():
