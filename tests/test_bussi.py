@@ -18,8 +18,8 @@ from ase.io import Trajectory, read
 from ase.md.bussi import Bussi
 from hypothesis import assume, given, settings, strategies as st
 
-from ase_reversible import (AnchorMovedWarning, LennardJones,
-                            RetraceLimitError, ReversibleBussi,
+from ase_reversible import (AnchorMovedWarning, RetraceLimitError,
+                            ReversibleBussi, UnstableIntegrationError,
                             UnsupportedConstraintError)
 from ase_reversible.core.noise import portable_log, step_key
 from ase_reversible.md.bussi import (N_MAX, N_MIN, RATIO_BITS, BussiDraws,
@@ -394,6 +394,23 @@ def test_energy_minus_heat_is_conserved():
     drift = atoms.get_total_energy() - dyn.heat - e0
     assert dyn.heat > 0.1  # the thermostat heated the cluster
     assert abs(drift) < 1e-3 * dyn.heat
+
+
+def test_the_energy_watch_checks_energy_minus_heat_and_loses_nothing():
+    """A tolerance below the time-step error stops the run at a check with
+    the watched quantity named; the state is valid and runs back."""
+    atoms = ar13()
+    dyn = bussi(atoms, energy_check=5, energy_tolerance=1e-9)
+    start = snapshot(atoms)
+    with pytest.raises(UnstableIntegrationError,
+                       match='minus the heat the thermostat added'):
+        dyn.run(100)
+    taken = dyn.engine.step_index
+    assert 0 < taken < 100
+    dyn.energy_check = 0
+    dyn.reverse().run(taken)
+    assert_same_state(atoms, start)
+    assert_buffers_empty(dyn)
 
 
 def test_trajectory_frames_and_the_log_work_as_for_ase(tmp_path):
