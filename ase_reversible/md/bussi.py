@@ -593,18 +593,39 @@ class Rescale(SubStep):
             buffer.rollback()
 
     def adjoint(self, cotangents, ch):
-        raise NotImplementedError(_NO_ADJOINT)
+        """Pull ``a = dL/dp'`` back through ``p' = alpha(K(p)) p``:
+        ``alpha a + (dalpha/dK) (a . p) p / m``, the rounding of ``alpha``
+        and of the counts taken as the identity (as the kicks' rounding
+        is).  ``alpha`` is the stored ratio of the step being undone,
+        ``dalpha/dK`` that of the formula at ``p = p' / alpha`` with the
+        step's draws."""
+        cotangents.flush()
+        temperature_K, taut, seed = self.settings()
+        n = self.buffer_for(ch).last_ratio()
+        if n is None:
+            return  # undoing the step raises RetraceLimitError
+        ratio = n / _D
+        kT, c = units.kB * temperature_K, decay(ch, taut)
+        s = self.system
+        p_nc = s.p.floats / ratio
+        two_k = s.momentum_square() / (ratio * ratio)
+        r, chi = self._draws(step_key(seed, ch), self.step_of())
+        e = (1.0 - c) * kT / two_k
+        alpha = math.sqrt(c + e * (chi + r * r) + 2.0 * r * math.sqrt(c * e))
+        # K = two_k / 2, dalpha/dK = d(alpha**2)/dK / (2 alpha).
+        slope = -(2.0 * e / two_k) * (chi + r * r + r * math.sqrt(c / e)) \
+            / (2.0 * alpha)
+        a_nc = cotangents['momentum']
+        free_nc = self._free() != 0
+        projected = float(np.sum(np.where(free_nc, a_nc * p_nc, 0.0)))
+        a_nc[...] = np.where(free_nc, ratio * a_nc, a_nc) \
+            + (slope * projected) * p_nc / s.m_n1
 
     def _free(self):
         free_nc = np.ones(self.shape)
         self.system.project(free_nc)
         return free_nc
 
-
-_NO_ADJOINT = (
-    'ReversibleBussi has no adjoint yet (its factor depends on the kinetic '
-    'energy): backpropagate is available with ReversibleLangevin, '
-    'ReversibleNose and ReversibleVerlet. Nothing was changed.')
 
 _ZERO_MOMENTA = (
     'ReversibleBussi rescales the momenta, and they are all zero: there is '
@@ -799,11 +820,6 @@ class ReversibleBussi(ReversibleDynamics):
         return {'bussi': {'seed': self._seed,
                           'step': self.engine.step_index,
                           'timestep': abs(self.engine.dt)}}
-
-    def backpropagate(self, *args, **kwargs):
-        """Not available yet: raises NotImplementedError before anything
-        is changed (the factor's adjoint depends on the kinetic energy)."""
-        raise NotImplementedError(_NO_ADJOINT)
 
     def write_buffer(self, path):
         """Write what reversal through this point needs to ``path`` (NumPy
