@@ -729,3 +729,22 @@ def test_canonical_kinetic_energy_for_liquid_argon_and_copper_as_ases():
             assert p > 1e-3, (kind, temperature, p)
             assert abs(blocks.mean() - dof * kT / 2) < 4 * error, \
                 (kind, temperature)
+
+
+def test_the_thermostat_page_holds_the_numbers_the_stored_results_render():
+    """docs/thermostats.md's Bussi block is what benchmarks/render.py makes
+    of docs/benchmarks/thermostat.json, and it holds numbers."""
+    import re
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    sys.path.insert(0, str(root / 'benchmarks'))
+    import render
+    stored = render.stored_sections(render.DOCS)
+    assert 'bussi' in stored['thermostat']['results']
+    blocks = render.doc_blocks({'thermostat': stored['thermostat']})
+    page = (render.DOCS / 'thermostats.md').read_text()
+    assert render.render_blocks(page, blocks['thermostats.md']) == page
+    begin, end = render.block_markers('thermostat', 'bussi')
+    inside = page.split(begin)[1].split(end)[0]
+    assert re.search(r'p = \d', inside) and 'state equal' in inside
