@@ -723,6 +723,12 @@ class ReversibleBussi(ReversibleDynamics):
                 'ReversibleBussi draws its random numbers from a '
                 'counter-based generator, so the way back can draw them '
                 'again: pass seed=<int> instead of rng.')
+        if 'fixcm' in kwargs:
+            raise TypeError(
+                'ReversibleBussi has no fixcm, as ASE\'s Bussi has none: one '
+                'factor scales every momentum, so a zero total momentum '
+                'stays zero but for rounding. To hold it at exactly zero, '
+                'add the constraint ase.constraints.FixCom.')
         timestep = check_timestep(timestep)
         self._temperature_K = _checked_positive(temperature_K,
                                                 'temperature_K', 'K')
