@@ -550,7 +550,7 @@ def test_a_buffer_file_from_another_state_is_refused(tmp_path):
         ReversibleBussi(frame, 5 * units.fs, 300, TAUT, buffer=saved)
 
 
-# -- across machines ------------------------------------------------------------
+# -- across machines ---------------------------------------------------------
 
 LEGS = f'''
 import hashlib, json, sys

@@ -11,9 +11,10 @@ momenta by one factor ``alpha``,
 ``K`` the kinetic energy, ``R`` a standard normal and ``S`` a chi-squared
 variate with ``N_f - 1`` degrees of freedom, so that ``K`` follows the
 canonical distribution's stochastic dynamics with time constant ``taut``
-(``alpha`` the positive root, as ASE takes it).  Here the rescaling sits between the two half drifts of a velocity Verlet
-step (kick, drift, rescale, drift, kick: a palindrome, so the step run
-with ``-h`` undoes it).  Kicks and drifts are the exact shears of
+(``alpha`` the positive root, as ASE takes it).  Here the rescaling sits
+between the two half drifts of a velocity Verlet step (kick, drift,
+rescale, drift, kick: a palindrome, so the step run with ``-h`` undoes
+it).  Kicks and drifts are the exact shears of
 :mod:`.hamiltonian`; the rescaling is made exact in three parts:
 
 * ``alpha`` is rounded to the ratio ``n / 2**20`` nearest to it (its

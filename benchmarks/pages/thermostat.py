@@ -475,13 +475,16 @@ def bussi_buffer_table(bussi):
 
 
 def bussi_round_trips(bussi):
-    return '\n'.join(
-        f"- {s['system']} {s['n_atoms']}: {s['round_trip']['steps_each_way']:,}"
-        f" steps out and back, state equal and buffer empty: "
-        f"{yes(s['round_trip']['state_equal'] and s['round_trip']['buffer_empty'])}"
-        f" ({s['round_trip']['forward_seconds']:.0f} s out with the sampling"
-        f" observer, {s['round_trip']['back_seconds']:.0f} s back)."
-        for s in bussi['systems'])
+    out = []
+    for s in bussi['systems']:
+        rt = s['round_trip']
+        out.append(f"- {s['system']} {s['n_atoms']}: "
+                   f"{rt['steps_each_way']:,} steps out and back, state "
+                   'equal and buffer empty: '
+                   f"{yes(rt['state_equal'] and rt['buffer_empty'])} "
+                   f"({rt['forward_seconds']:.0f} s out with the sampling "
+                   f"observer, {rt['back_seconds']:.0f} s back).")
+    return '\n'.join(out)
 
 
 def bussi_speed_table(bussi):
