@@ -3,17 +3,18 @@
 :class:`~.base.ReversibleDynamics` is the thin base (ASE's run loop, the
 change contract, the clock, ``backpropagate``);
 :class:`~.verlet.ReversibleVerlet` declares NVE on it,
-:class:`~.langevin.ReversibleLangevin` and :class:`~.nose.ReversibleNose`
-NVT.  :mod:`.hamiltonian` holds the drift and kick, :mod:`.watch` what is
-checked around a run, :mod:`.constraints` the exact constraint
-projections.
+:class:`~.langevin.ReversibleLangevin`, :class:`~.bussi.ReversibleBussi`
+and :class:`~.nose.ReversibleNose` NVT.  :mod:`.hamiltonian` holds the
+drift and kick, :mod:`.watch` what is checked around a run,
+:mod:`.constraints` the exact constraint projections.
 """
 
 from .base import ReversibleDynamics
 from .state import FixedPointState
 from .langevin import ReversibleLangevin
+from .bussi import ReversibleBussi
 from .nose import ReversibleNose
 from .verlet import ReversibleVerlet
 
 __all__ = ['ReversibleDynamics', 'ReversibleVerlet', 'ReversibleLangevin',
-           'ReversibleNose', 'FixedPointState']
+           'ReversibleBussi', 'ReversibleNose', 'FixedPointState']

@@ -607,14 +607,15 @@ def _checked_seed(seed):
     return int(seed) % 2**64
 
 
-def _refuse_projections(atoms):
+def _refuse_projections(atoms, name='ReversibleLangevin',
+                        what='the friction and noise'):
     centred = any(isinstance(c, FixCom) for c in atoms.constraints)
     for c in atoms.constraints:
         if isinstance(c, (FixedPlane, FixedLine)):
             raise UnsupportedConstraintError(
-                f'ReversibleLangevin supports FixAtoms, FixCartesian and '
-                f'FixCom; {type(c).__name__} would need the friction and '
-                'noise projected onto it, which is not done yet. Use '
+                f'{name} supports FixAtoms, FixCartesian and '
+                f'FixCom; {type(c).__name__} would need {what} '
+                'projected onto it, which is not done yet. Use '
                 'FixCartesian where the constraint is along an axis, or '
                 'ReversibleNose (constant temperature) or ReversibleVerlet '
                 '(constant energy), which support it'

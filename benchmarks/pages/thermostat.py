@@ -1,7 +1,9 @@
-"""ReversibleLangevin against ASE's Langevin: sampling, exact reversal,
-information buffer, cost per step.
+"""ReversibleLangevin against ASE's Langevin, ReversibleBussi against ASE's
+Bussi: sampling, exact reversal, information buffer, cost per step.
 
 Measured by benchmarks/thermostat.py, whose docstring gives the method.
+Besides its section of docs/benchmarks.md this module writes the Bussi
+numbers of docs/thermostats.md (``DOC_BLOCKS``).
 """
 
 from __future__ import annotations
@@ -17,6 +19,13 @@ PLOT = 'thermostat_kinetic_energy.png'
 
 THERMOSTATS = (('reversible_langevin', 'ReversibleLangevin'),
                ('ase_langevin', 'ASE Langevin'))
+BUSSI_PLOT = 'thermostat_bussi_kinetic_energy.png'
+BUSSI_THERMOSTATS = (('reversible_bussi', 'ReversibleBussi'),
+                     ('ase_bussi', 'ASE Bussi'))
+BUSSI_SPEED_COLUMNS = (('reversible_bussi', 'ReversibleBussi'),
+                       ('ase_bussi', 'ASE Bussi'),
+                       ('reversible_langevin', 'ReversibleLangevin'),
+                       ('velocity_verlet', 'ASE VelocityVerlet'))
 SPEED_COLUMNS = (('reversible_langevin', 'ReversibleLangevin'),
                  ('ase_langevin', 'ASE Langevin'),
                  ('velocity_verlet', 'ASE VelocityVerlet'),
@@ -34,6 +43,9 @@ def gamma_density(x, shape, scale):
 
 def plot(results, figures):
     histograms(results['systems'], THERMOSTATS, figures / PLOT)
+    if 'bussi' in results:
+        histograms(results['bussi']['systems'], BUSSI_THERMOSTATS,
+                   figures / BUSSI_PLOT)
 
 
 def histograms(systems, thermostats, path):
@@ -422,4 +434,115 @@ VelocityVerlet contestant, `get_forces()` repeated:
 ### Goals
 
 {goal_lines(results)}
+
+{bussi_markdown(results) if 'bussi' in results else ''}
 """
+
+
+# -- Bussi -------------------------------------------------------------------
+
+def bussi_sampling_lines(bussi):
+    """One line per system and thermostat: T_kin, KS p."""
+    out = []
+    for s in bussi['systems']:
+        for key, label in BUSSI_THERMOSTATS:
+            r = s['sampling'][key]
+            t, ks = r['temperature_K'], r['ks']
+            out.append(
+                f"- {label}, {s['system']} {s['n_atoms']} "
+                f"({s['calculator']}, {s['temperature_K']:g} K): T_kin "
+                f"{t['mean']:.2f} ± {t['standard_error']:.2f} K "
+                f"({deviation_in_errors(s, key):+.1f} SE), "
+                f"Kolmogorov-Smirnov p = {ks['p_value']:.2g} against "
+                f"Gamma({s['dof']}/2, kT) ({ks['samples']:,} samples, every "
+                f"{ks['stride']}th step of {r['samples']:,}).")
+    return '\n'.join(out)
+
+
+def bussi_buffer_table(bussi):
+    rows = []
+    for s in bussi['systems']:
+        for c in s['buffer_checkpoints']:
+            rows.append([f"{s['system']} {s['n_atoms']}", f"{c['steps']:,}",
+                         f"{c['ratio_bits']:,.0f}",
+                         f"{c['coordinate_bits_per_coordinate']:+.2f}",
+                         f"{c['lowest_stack_pointer']} / "
+                         f"{c['highest_stack_pointer']}",
+                         size(c['nbytes'])])
+    return markdown_table(
+        ['system', 'steps', 'ratio bits', 'coordinates: bits each',
+         'stack pointers low / high', 'memory'], rows)
+
+
+def bussi_round_trips(bussi):
+    out = []
+    for s in bussi['systems']:
+        rt = s['round_trip']
+        out.append(f"- {s['system']} {s['n_atoms']}: "
+                   f"{rt['steps_each_way']:,} steps out and back, state "
+                   'equal and buffer empty: '
+                   f"{yes(rt['state_equal'] and rt['buffer_empty'])} "
+                   f"({rt['forward_seconds']:.0f} s out with the sampling "
+                   f"observer, {rt['back_seconds']:.0f} s back).")
+    return '\n'.join(out)
+
+
+def bussi_speed_table(bussi):
+    return speed_table({'speed': bussi['speed']}, BUSSI_SPEED_COLUMNS,
+                       'ase_bussi')
+
+
+def bussi_markdown(results):
+    bussi = results['bussi']
+    load = results['load_average']
+    return f"""\
+### Bussi: ReversibleBussi against ASE Bussi
+
+Both with taut = {bussi['taut_fs']:g} fs and the `FixCom` constraint (both
+then count 3N − 3 degrees of freedom), the same seed; liquid argon (the
+fcc lattice expanded by 1.10, drawn at 600 K and melted while the
+thermostat cools it to 90 K) and the copper crystal above. After
+{bussi['lengths']['equilibration']:,} steps of equilibration every step of
+{bussi['lengths']['steps']:,} is sampled, analysed as above.
+
+![Histogram of the internal kinetic energy against the analytic Gamma \
+density, both Bussi thermostats](benchmarks/{BUSSI_PLOT})
+
+{bussi_sampling_lines(bussi)}
+
+Exact reversal (the sampling run, then as many steps back):
+
+{bussi_round_trips(bussi)}
+
+The buffer: each step stores its ratio (32 bits); the coordinates' part
+(`buffer_bits` less the ratios, per coordinate) random-walks and follows
+log2 of the factor the thermostat took off the momenta since the start
+(negative: reserve words were taken).
+
+{bussi_buffer_table(bussi)}
+
+Cost per step (interleaved as above; load average
+{load.get('before_bussi', load['end'])[0]:.2f} before this part):
+
+{bussi_speed_table(bussi)}
+"""
+
+
+def bussi_doc_block(stored):
+    """The numbers of docs/thermostats.md's ReversibleBussi section."""
+    results = stored['results']
+    if 'bussi' not in results:
+        return 'Not measured yet: run `python benchmarks/run_all.py --only ' \
+            'thermostat`.'
+    bussi = results['bussi']
+    return (f"*Measured {stored['date'][:10]} by `{stored['command']}`"
+            + (' (quick mode)' if stored['quick'] else '') + '.*\n\n'
+            + bussi_sampling_lines(bussi) + '\n\n'
+            + bussi_round_trips(bussi) + '\n\n'
+            + bussi_buffer_table(bussi) + '\n\n'
+            + bussi_speed_table(bussi))
+
+
+#: Blocks of other pages this module writes: render.py replaces what lies
+#: between the block's markers.
+DOC_BLOCKS = {('thermostats.md', 'bussi'): bussi_doc_block}

@@ -1,0 +1,962 @@
+"""ReversibleBussi: stochastic velocity rescaling that runs back exactly.
+
+The thermostat of G. Bussi, D. Donadio and M. Parrinello ("Canonical
+sampling through velocity rescaling", J. Chem. Phys. 126, 014101 (2007)),
+with ASE's update (:class:`ase.md.bussi.Bussi`): every step multiplies all
+momenta by one factor ``alpha``,
+
+    alpha**2 = c + e (S + R**2) + 2 R sqrt(c e),
+    c = exp(-h / taut),  e = (1 - c) kT / (2 K),
+
+``K`` the kinetic energy, ``R`` a standard normal and ``S`` a chi-squared
+variate with ``N_f - 1`` degrees of freedom, so that ``K`` follows the
+canonical distribution's stochastic dynamics with time constant ``taut``
+(``alpha`` the positive root, as ASE takes it).  Here the rescaling sits
+between the two half drifts of a velocity Verlet step (kick, drift,
+rescale, drift, kick: a palindrome, so the step run with ``-h`` undoes
+it).  Kicks and drifts are the exact shears of
+:mod:`.hamiltonian`; the rescaling is made exact in three parts:
+
+* ``alpha`` is rounded to the ratio ``n / 2**20`` nearest to it (its
+  relative error at most ``2**-21``, so that of ``alpha**2``, the factor
+  on ``K``, at most ``2**-20 = 9.5e-7`` per step and as often up as
+  down), computed from quantities with the same bits on every CPU: ``K``
+  from the exact momentum counts in a fixed order of summation, ``c`` by
+  the software exponential of :mod:`ase_reversible.core.portable`, ``R``
+  and ``S`` from the counter-based generator of
+  :mod:`ase_reversible.core.noise` keyed by the seed, the time step and
+  the step's index, ``S`` as ``2 Gamma((N_f - 1) / 2)`` by
+  Marsaglia and Tsang's method (``+ - * /``, ``sqrt`` and the portable
+  logarithm on Python floats, :class:`BussiDraws`: its cost does not grow
+  with the number of atoms, as a sum of ``N_f - 1`` squared normals
+  would);
+* the momentum counts are multiplied by ``n / 2**20`` through an
+  information buffer (:class:`ScalingBuffer`) that keeps the digits a
+  ratio below one drops and supplies those a ratio above one needs; the
+  product is within one count of ``n x / 2**20`` (``n / 2**20`` counts
+  above one);
+* the ratio ``n`` of each step is kept too (32 bits a step), since the
+  way back cannot recompute it: ``alpha`` depends on the kinetic energy
+  before the step, which the way back reaches only after undoing it.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+
+import numpy as np
+from ase import units
+
+from ..core.compositions import composition_for
+from ..core.engine import Engine, InvariantCheck
+from ..core.noise import step_key
+from ..core import portable
+from ..core.plans import SubStep
+from ..errors import RetraceLimitError
+from .base import ReversibleDynamics
+from .checks import check_energy_watch, check_timestep
+from .hamiltonian import largest_kick
+from .langevin import (_checked_positive, _checked_seed, _digest,
+                       _refuse_projections)
+from .machine import frame_section
+from .watch import SystemWatch
+
+DRIFT, KICK, RESCALE = 'drift', 'kick', 'rescale'
+
+#: Velocity Verlet with the rescaling in the middle: a palindrome.
+SCHEME = ((KICK, 0.5), (DRIFT, 0.5), (RESCALE, 1.0), (DRIFT, 0.5),
+          (KICK, 0.5))
+
+#: Default steps between checks of the energy balance.
+ENERGY_CHECK_INTERVAL = 100
+
+#: ``alpha`` is applied as ``n / 2**RATIO_BITS``.
+RATIO_BITS = 20
+_D = 1 << RATIO_BITS
+_WORD_BITS = 16
+_WORD = 1 << _WORD_BITS
+#: The buffer's states lie in ``[_LOW, _HIGH)``; ``_LOW`` a multiple of
+#: ``2**RATIO_BITS`` makes the bounds between moved and kept words exact
+#: for every ratio (see :class:`ScalingBuffer`).
+_LOW = _D
+_HIGH = _LOW << _WORD_BITS
+#: The ratios applied: ``alpha`` in ``[2**-16, 2**7)``.  One word moves
+#: per step at most, which bounds the ratio to ``2**+-16``; ``n < 2**27``
+#: keeps every product below ``2**63`` and a stored ratio in 32 bits.
+N_MIN, N_MAX = 1 << (RATIO_BITS - _WORD_BITS), 1 << 27
+
+
+class ScalingBuffer:
+    """Exact multiplication of integer counts by ``n / 2**20`` for any
+    ``n`` in ``[2**4, 2**27)``, the digits kept, one buffer a coordinate.
+
+    As :class:`~ase_reversible.core.infobuffer.InformationBuffer` (its
+    docstring has the idea and its sources), a coordinate's buffer is a
+    range-coder state ``s`` and a stack of 16-bit words; here the same
+    buffer serves every ratio, above one as well as below.  With
+    ``d = 2**20``, one step maps ``(x, s)`` to ``(x', s')``:
+
+    * pop an ``n``-ary digit ``a = s mod n`` from the state, form
+      ``y = x n + a``, keep ``x' = y div d`` and push ``y mod d``:
+      ``s' = (s div n) d + (y mod d)``, a bijection of ``(x, s)``;
+    * before it, the state is brought where the result lands in
+      ``[L, 2**16 L)`` (``L = d``): for ``n < d`` a state
+      ``s >= 2**16 n`` first spills its low word onto the stack; for
+      ``n > d`` a state ``s < n`` first takes a word from it.
+
+    The way back splits ``s'`` into ``s div n`` and ``y mod d`` (``d`` is
+    a power of two), rebuilds ``y = x' d + (y mod d)``, so ``x`` and
+    ``s``; a state below ``L`` (``n < d``) or at or above ``2**16 L``
+    (``n > d``) is one whose word moved, which is moved back.  Popping
+    before pushing puts the digit below the product, so ``x'`` differs
+    from ``n x / d`` by less than ``max(1, n / d)`` counts.  Pushing
+    first, as ``InformationBuffer`` does, errs by up to ``n`` counts: with
+    ``n`` near ``2**20`` and the momentum quantum of ``2**-24`` the force
+    provider picks for asap3, a 1.4% rms change of every thermal momentum
+    every step (measured on Cu256).
+
+    A ratio above one takes information, which an empty buffer does not
+    hold.  So below the bottom of each stack lie reserve words, drawn on
+    demand from the counter-based generator keyed by ``key`` and the
+    depth: the same words every time, so the buffer stays a bijection
+    that never runs dry; the stack pointer may go negative (the buffer
+    then holds less than it started with).
+
+    Parameters
+    ----------
+    size : int
+        Coordinates (``3 n_atoms``).
+    key : numpy.ndarray
+        Philox key of the reserve words (two uint64).
+
+    Attributes
+    ----------
+    state_k : int64 ``[size]``
+        Range-coder states in ``[2**20, 2**36)``.
+    top_k : int64 ``[size]``
+        Stack pointers (depth of the next free word; 0 when empty).
+    ratios : int32 ``[capacity]``
+        The ratio ``n`` of each step applied, ``count`` of them in use.
+    """
+
+    def __init__(self, size: int, key):
+        self.size = int(size)
+        self.key = np.asarray(key, dtype=np.uint64)
+        self._columns = np.arange(self.size)
+        self._generator = np.random.Philox(key=[0, 0])
+        self.clear()
+
+    def clear(self):
+        """Empty every buffer and forget the ratios."""
+        self.state_k = np.full(self.size, _LOW, dtype=np.int64)
+        self.top_k = np.zeros(self.size, dtype=np.int64)
+        # Row j of words_jk is depth j - base.
+        self.base = 0
+        self.words_jk = np.zeros((16, self.size), dtype=np.uint16)
+        self.ratios = np.zeros(64, dtype=np.int32)
+        self.count = 0
+        self._saved = (self.state_k.copy(), self.top_k.copy(), 0)
+
+    # -- what it holds ----------------------------------------------------
+
+    @property
+    def bits(self) -> float:
+        """Information held beyond the empty buffer, summed over the
+        coordinates, bits (negative when reserve words were taken), plus
+        32 bits a stored ratio."""
+        return float(np.log2(self.state_k / _LOW).sum()
+                     + _WORD_BITS * self.top_k.sum()) + 32.0 * self.count
+
+    @property
+    def nbytes(self) -> int:
+        """Memory of the states, pointers, word rows and ratios, bytes."""
+        return (self.state_k.nbytes + self.top_k.nbytes
+                + self.words_jk.nbytes + 4 * self.count)
+
+    def is_empty(self) -> bool:
+        """Whether every coordinate is at the empty state with no ratio."""
+        return (self.count == 0 and not self.top_k.any()
+                and bool(np.all(self.state_k == _LOW)))
+
+    def used_rows(self):
+        """``(base, words)``: the word rows from the lowest depth drawn to
+        the highest in use, and the depth of the first row is ``-base``."""
+        depth = int(self.top_k.max(initial=0))
+        return self.base, self.words_jk[:depth + self.base]
+
+    def load(self, state_k, top_k, base, words_jk, ratios):
+        """Take what :meth:`used_rows`, ``state_k``, ``top_k`` and the used
+        ``ratios`` of a buffer of the same size were."""
+        state_k = np.asarray(state_k, dtype=np.int64)
+        top_k = np.asarray(top_k, dtype=np.int64)
+        base = int(base)
+        if state_k.shape != (self.size,) or top_k.shape != (self.size,) \
+                or not np.all((state_k >= _LOW) & (state_k < _HIGH)) \
+                or words_jk.shape[1:] != (self.size,) \
+                or int(top_k.min(initial=0)) < -base \
+                or int(top_k.max(initial=0)) > len(words_jk) - base:
+            raise ValueError('The saved buffer does not fit these atoms '
+                             '(another number of atoms, or damaged).')
+        self.state_k, self.top_k, self.base = state_k, top_k, base
+        self.words_jk = np.zeros((max(16, 2 * len(words_jk)), self.size),
+                                 dtype=np.uint16)
+        self.words_jk[:len(words_jk)] = words_jk
+        ratios = np.asarray(ratios, dtype=np.int32)
+        self.ratios = np.zeros(max(64, 2 * len(ratios)), dtype=np.int32)
+        self.ratios[:len(ratios)] = ratios
+        self.count = len(ratios)
+        self.checkpoint()
+
+    # -- the two moves ----------------------------------------------------
+
+    def scale(self, x_k, n, mask_k=None):
+        """``x n / 2**20`` exactly (int64 ``[size]``), ``n`` stored.
+        ``mask_k`` (bool) leaves other coordinates and their buffers as
+        they are."""
+        x_k = np.asarray(x_k, dtype=np.int64)
+        s, top = self.state_k.copy(), self.top_k.copy()
+        if n < _D:
+            move = s >= (n << _WORD_BITS)
+            if mask_k is not None:
+                move &= mask_k
+            if move.any():
+                cols = self._columns[move]
+                self._room(int(top[cols].max()))
+                # Above every pointer: a word no checkpoint relies on.
+                self.words_jk[top[cols] + self.base, cols] = \
+                    s[cols] & (_WORD - 1)
+                top[cols] += 1
+                s[cols] >>= _WORD_BITS
+        elif n > _D:
+            move = s < n
+            if mask_k is not None:
+                move &= mask_k
+            if move.any():
+                cols = self._columns[move]
+                below = top[cols] - 1
+                self._reserve(int(below.min()))
+                top[cols] = below
+                s[cols] = (s[cols] << _WORD_BITS) \
+                    | self.words_jk[below + self.base, cols]
+        s_high, digit = np.divmod(s, n)
+        # x n + digit = (x div d) d n + t: t below 2**48, no overflow.
+        t = (x_k & (_D - 1)) * n
+        t += digit
+        out = (x_k >> RATIO_BITS) * n + (t >> RATIO_BITS)
+        s_new = (s_high << RATIO_BITS) | (t & (_D - 1))
+        if mask_k is not None:
+            s_new = np.where(mask_k, s_new, self.state_k)
+            out = np.where(mask_k, out, x_k)
+        self._push_ratio(n)
+        self.state_k, self.top_k = s_new, top
+        return out
+
+    def unscale(self, x_k, mask_k=None):
+        """The inverse of the last :meth:`scale` still held: ``x 2**20 / n``
+        exactly for its ``n``, the ratio taken off.  Raises IndexError,
+        with nothing changed, if no ratio is held."""
+        if self.count == 0:
+            raise IndexError('no ratio held')
+        n = int(self.ratios[self.count - 1])
+        x_k = np.asarray(x_k, dtype=np.int64)
+        s_low = self.state_k & (_D - 1)
+        high, low = np.divmod(x_k, n)
+        # x' d + r = (x' div n) n d + t: t below 2**48 again.
+        t = (low << RATIO_BITS) | s_low
+        quotient, digit = np.divmod(t, n)
+        out = (high << RATIO_BITS) + quotient
+        s = (self.state_k >> RATIO_BITS) * n + digit
+        top = self.top_k.copy()
+        if n < _D:
+            move = s < _LOW
+        elif n > _D:
+            move = s >= _HIGH
+        else:
+            move = None
+        if move is not None and mask_k is not None:
+            move &= mask_k
+        if move is not None and move.any():
+            cols = self._columns[move]
+            if n < _D:
+                below = top[cols] - 1
+                self._reserve(int(below.min()))
+                top[cols] = below
+                s[cols] = (s[cols] << _WORD_BITS) \
+                    | self.words_jk[below + self.base, cols]
+            else:
+                self._room(int(top[cols].max()))
+                self.words_jk[top[cols] + self.base, cols] = \
+                    s[cols] & (_WORD - 1)
+                top[cols] += 1
+                s[cols] >>= _WORD_BITS
+        if mask_k is not None:
+            s = np.where(mask_k, s, self.state_k)
+            out = np.where(mask_k, out, x_k)
+        self.count -= 1
+        self.state_k, self.top_k = s, top
+        return out
+
+    def last_ratio(self):
+        """The ratio ``n`` of the last step held (None if none)."""
+        return int(self.ratios[self.count - 1]) if self.count else None
+
+    # -- storage ----------------------------------------------------------
+
+    def _push_ratio(self, n):
+        if self.count == len(self.ratios):
+            self.ratios = np.concatenate([self.ratios,
+                                          np.zeros_like(self.ratios)])
+        self.ratios[self.count] = n
+        self.count += 1
+
+    def _room(self, depth):
+        """Make row ``depth`` exist above the stacks."""
+        rows = len(self.words_jk)
+        if depth + self.base >= rows:
+            grown = np.zeros((2 * rows, self.size), dtype=np.uint16)
+            grown[:rows] = self.words_jk
+            self.words_jk = grown
+
+    def _reserve(self, depth):
+        """Make the reserve rows down to ``depth`` (negative) exist.  A row
+        below every depth ever reached was never written, so drawing it
+        now gives the same words as at any other time."""
+        if depth + self.base >= 0:
+            return
+        new_base = max(2 * self.base, 16, -depth)
+        rows = [self._reserve_row(d) for d in range(-new_base, -self.base)]
+        self.words_jk = np.concatenate([np.array(rows, dtype=np.uint16),
+                                        self.words_jk])
+        self.base = new_base
+
+    def _reserve_row(self, depth):
+        generator = self._generator
+        generator.state = {
+            'bit_generator': 'Philox',
+            'state': {'counter': np.array([0, 0, depth % 2**64, 1],
+                                          dtype=np.uint64),
+                      'key': self.key},
+            'buffer': np.zeros(4, dtype=np.uint64), 'buffer_pos': 4,
+            'has_uint32': 0, 'uinteger': 0}
+        raw = generator.random_raw((self.size + 3) // 4)
+        # Four words a draw, by shifts: no dependence on byte order.
+        words = [(raw >> np.uint64(16 * i)) & np.uint64(_WORD - 1)
+                 for i in range(4)]
+        return np.stack(words, axis=1).reshape(-1)[:self.size]
+
+    # -- step checkpoint (side state of the engine) -----------------------
+
+    def checkpoint(self):
+        """Remember states, pointers and the ratio count: one step pushes
+        words above the pointers only and pops without writing, so rows
+        need no copy."""
+        saved_s, saved_top, _ = self._saved
+        np.copyto(saved_s, self.state_k)
+        np.copyto(saved_top, self.top_k)
+        self._saved = (saved_s, saved_top, self.count)
+
+    def rollback(self):
+        """Return to the last :meth:`checkpoint`."""
+        saved_s, saved_top, count = self._saved
+        self.state_k = saved_s.copy()
+        self.top_k = saved_top.copy()
+        self.count = count
+
+
+class BussiDraws:
+    """The normal ``R`` and the chi-squared ``S`` of a step, the same bits
+    on every CPU and both ways (module docstring).
+
+    Python floats throughout: a handful of deviates a step, where numpy's
+    per-call overhead would cost ten times the arithmetic (340 µs against
+    about 25 µs a step, measured under load).  Each operation is an IEEE
+    754 ``+ - * /`` or ``sqrt``, correctly rounded on every CPU, and the
+    logarithm is :func:`~ase_reversible.core.noise.portable_log`'s series
+    on a scalar.  Raw words come from NumPy's Philox keyed as the step's
+    noise (:func:`~ase_reversible.core.noise.step_key`), counter
+    ``[0, 0, step, 2]``: the normals by Marsaglia's polar method, ``S``
+    as ``2 Gamma((N_f - 1) / 2)`` by Marsaglia and Tsang's method (one
+    normal and one uniform a candidate; accepted with probability above
+    0.95 for shapes of at least 1).
+
+    Parameters
+    ----------
+    dof : int
+        ``N_f``; ``S`` has ``N_f - 1`` degrees of freedom.
+    """
+
+    def __init__(self, dof):
+        self.dof = int(dof)
+        self._generator = np.random.Philox(key=[0, 0])
+        shape = 0.5 * (self.dof - 1)
+        self._d = shape - 1.0 / 3.0
+        self._c = 1.0 / math.sqrt(9.0 * self._d) if shape >= 1 else None
+
+    def __call__(self, key, step):
+        """``(R, S)`` for step ``step`` under ``key``."""
+        words = self._words(key, step)
+        r = _normal(words)
+        if self.dof <= 2:  # shapes 0 and 1/2: no squares, or one
+            if self.dof < 2:
+                return r, 0.0
+            x = _normal(words)
+            return r, x * x
+        d, c = self._d, self._c
+        while True:
+            x = _normal(words)
+            v = 1.0 + c * x
+            if v <= 0.0:
+                continue
+            v = v * v * v
+            u = ((next(words) >> 11) + 0.5) * _UNIT
+            if _log(u) < 0.5 * x * x + d * (1.0 - v + _log(v)):
+                return r, 2.0 * d * v
+
+    def _words(self, key, step):
+        """The step's raw 64-bit words as Python ints, drawn 16 at a
+        time."""
+        generator = self._generator
+        generator.state = {
+            'bit_generator': 'Philox',
+            'state': {'counter': np.array([0, 0, step % 2**64, 2],
+                                          dtype=np.uint64),
+                      'key': key},
+            'buffer': np.zeros(4, dtype=np.uint64), 'buffer_pos': 4,
+            'has_uint32': 0, 'uinteger': 0}
+        while True:
+            yield from generator.random_raw(16).tolist()
+
+
+_UNIT = 2.0**-53
+_LN2 = 0.6931471805599453
+_SQRT_HALF = 0.7071067811865476
+_ODD_RECIPROCALS = tuple(1.0 / (2 * j + 1) for j in range(8, 0, -1))
+
+
+def _log(s):
+    """``ln s`` of a positive float, the operations of
+    :func:`~ase_reversible.core.noise.portable_log` on one number."""
+    m, e = math.frexp(s)
+    if m < _SQRT_HALF:
+        m, e = 2.0 * m, e - 1
+    f = (m - 1.0) / (m + 1.0)
+    w = f * f
+    series = _ODD_RECIPROCALS[0]
+    for c in _ODD_RECIPROCALS[1:]:
+        series = series * w + c
+    series = series * w + 1.0
+    return e * _LN2 + 2.0 * f * series
+
+
+def _normal(words):
+    """A standard normal from ``words`` by Marsaglia's polar method (the
+    second of the pair is dropped: one state, no cache to roll back)."""
+    while True:
+        u = (next(words) >> 11) * (2.0 * _UNIT) - 1.0
+        v = (next(words) >> 11) * (2.0 * _UNIT) - 1.0
+        s = u * u + v * v
+        if 0.0 < s < 1.0:
+            return u * math.sqrt(-2.0 * _log(s) / s)
+
+
+# The software exp costs 4 us idle (19 us loaded); the way back asks at
+# every step.
+@functools.lru_cache(maxsize=16)
+def decay(h, taut):
+    """``c = exp(-|h| / taut)``, the same bits on every CPU."""
+    return portable.exp(-abs(h) / taut)
+
+
+def alpha_ratio(two_k, kT, c, r, s):
+    """The numerator ``n`` of ``alpha`` as ``n / 2**20`` (module
+    docstring), from ``2K = sum p**2 / m`` (eV), ``kT`` (eV), ``c`` and the
+    draws ``R``, ``S``; IEEE operations in a fixed order only."""
+    e = (1.0 - c) * kT / two_k
+    alpha2 = c + e * (s + r * r) + 2.0 * r * math.sqrt(c * e)
+    if not alpha2 < N_MAX * N_MAX / _D**2:  # also inf and NaN
+        return N_MAX
+    return round(math.sqrt(max(alpha2, 0.0)) * _D)
+
+
+class Rescale(SubStep):
+    """The rescaling of the momentum counts, exact (module docstring).
+
+    Parameters
+    ----------
+    system : Hamiltonian
+        Its ``'momentum'`` variable is updated.
+    settings : callable
+        ``settings() -> (temperature_K, taut, seed)`` (K, ASE time units,
+        int), read when the step is prepared.
+    step_of : callable
+        ``step_of() -> int``: the index of the step being taken (the one
+        before it going forward), for the draws.
+
+    Attributes
+    ----------
+    heat : float
+        Kinetic energy the rescaling added since the anchor (eV).
+    buffers : dict of float to ScalingBuffer
+        One per size of time step used since the anchor.
+    """
+
+    def __init__(self, system, settings, step_of):
+        self.system = system
+        self.settings = settings
+        self.step_of = step_of
+        self.shape = system.p.ints.shape
+        self.size = math.prod(self.shape)
+        self._ones_n = np.ones(self.shape[0], dtype=np.int64)
+        self.buffers = {}
+        self._draws = None
+        self.heat = self._saved_heat = 0.0
+
+    def forget(self):
+        """Empty the buffers and zero the heat: the anchor moved here."""
+        for buffer in self.buffers.values():
+            buffer.clear()
+        self.heat = self._saved_heat = 0.0
+
+    def buffer_for(self, h):
+        """The buffer of steps of size ``|h|`` (made if new)."""
+        h = abs(h)
+        buffer = self.buffers.get(h)
+        if buffer is None:
+            temperature_K, taut, seed = self.settings()
+            buffer = self.buffers[h] = ScalingBuffer(self.size,
+                                                     step_key(seed, h))
+        return buffer
+
+    def prepare(self, ch):
+        temperature_K, taut, seed = self.settings()
+        s = self.system
+        dof = s.atoms.get_number_of_degrees_of_freedom()
+        if self._draws is None or self._draws.dof != dof:
+            self._draws = BussiDraws(dof)
+        free_k = self._free().reshape(-1) != 0
+        held = None
+        if s.centre is not None:
+            # FixCom: every free coordinate but one per component is
+            # scaled; that one is minus the others' sum, which keeps the
+            # total exactly zero and stays a bijection.
+            held = [(order[0], c) for c, order in enumerate(s.centre.order_c)
+                    if len(order)]
+            for i, c in held:
+                free_k[3 * i + c] = False
+        mass_k = np.repeat(s.m_n1[:, 0], 3)
+        return (ch > 0, self.buffer_for(ch), None if free_k.all() else free_k,
+                units.kB * temperature_K, decay(ch, taut), step_key(seed, ch),
+                1.0 / mass_k, held)
+
+    def apply(self, prepared):
+        forward, buffer, mask_k, kT, c, key, inverse_mass_k, held = prepared
+        p = self.system.p
+        x_k = p.ints.reshape(-1)
+        if forward:
+            two_k = self.system.momentum_square()
+            r, s = self._draws(key, self.step_of())
+            n = _checked_ratio(two_k, kT, c, r, s) if two_k > 0 else None
+            if n is None:
+                raise ValueError(_ZERO_MOMENTA)
+            new_k = buffer.scale(x_k, n, mask_k)
+        else:
+            try:
+                new_k = buffer.unscale(x_k, mask_k)
+            except IndexError:
+                raise RetraceLimitError(
+                    'ReversibleBussi can only retrace steps it has taken: '
+                    'this one goes back past the anchor of reversal, where '
+                    'no rescaling was applied that could be undone. The '
+                    'step was not taken; run forward (positive dt) from '
+                    'here.') from None
+        if held is not None:
+            new_nc = new_k.reshape(self.shape)
+            total_c = np.dot(self._ones_n, new_nc)
+            for i, c in held:
+                new_nc[i, c] -= total_c[c]
+        r_k = (new_k - x_k).astype(np.float64)
+        # The kinetic energy the step adds, sum (x'^2 - x^2) q^2 / 2m.
+        both_k = (new_k + x_k).astype(np.float64)
+        both_k *= inverse_mass_k
+        self.heat += 0.5 * (p.quantum * p.quantum) * portable.dot(both_k, r_k)
+        p.add_integers(r_k.reshape(self.shape))
+
+    def checkpoint(self):
+        self._saved_heat = self.heat
+        for buffer in self.buffers.values():
+            buffer.checkpoint()
+
+    def rollback(self):
+        self.heat = self._saved_heat
+        for buffer in self.buffers.values():
+            buffer.rollback()
+
+    def adjoint(self, cotangents, ch):
+        """Pull ``a = dL/dp'`` back through ``p' = alpha(K(p)) p``:
+        ``alpha a + (dalpha/dK) (a . p) p / m``, the rounding of ``alpha``
+        and of the counts taken as the identity (as the kicks' rounding
+        is).  ``alpha`` is the stored ratio of the step being undone,
+        ``dalpha/dK`` that of the formula at ``p = p' / alpha`` with the
+        step's draws."""
+        cotangents.flush()
+        temperature_K, taut, seed = self.settings()
+        n = self.buffer_for(ch).last_ratio()
+        if n is None:
+            return  # undoing the step raises RetraceLimitError
+        ratio = n / _D
+        kT, c = units.kB * temperature_K, decay(ch, taut)
+        s = self.system
+        p_nc = s.p.floats / ratio
+        two_k = s.momentum_square() / (ratio * ratio)
+        r, chi = self._draws(step_key(seed, ch), self.step_of())
+        e = (1.0 - c) * kT / two_k
+        alpha = math.sqrt(c + e * (chi + r * r) + 2.0 * r * math.sqrt(c * e))
+        # K = two_k / 2, dalpha/dK = d(alpha**2)/dK / (2 alpha).
+        slope = -(2.0 * e / two_k) * (chi + r * r + r * math.sqrt(c / e)) \
+            / (2.0 * alpha)
+        a_nc = cotangents['momentum']
+        free_nc = self._free() != 0
+        projected = float(np.sum(np.where(free_nc, a_nc * p_nc, 0.0)))
+        a_nc[...] = np.where(free_nc, ratio * a_nc, a_nc) \
+            + (slope * projected) * p_nc / s.m_n1
+
+    def _free(self):
+        free_nc = np.ones(self.shape)
+        self.system.project(free_nc)
+        return free_nc
+
+
+_ZERO_MOMENTA = (
+    'ReversibleBussi rescales the momenta, and they are all zero: there is '
+    'nothing to rescale. Give the atoms momenta first, e.g. with '
+    'ase.md.velocitydistribution.MaxwellBoltzmannDistribution(atoms, '
+    'temperature_K=...). The step was not taken.')
+
+
+def _checked_ratio(two_k, kT, c, r, s):
+    n = alpha_ratio(two_k, kT, c, r, s)
+    if not N_MIN <= n < N_MAX:
+        temperature = two_k / kT  # K / (kT / 2) over all coordinates
+        raise ValueError(
+            f'ReversibleBussi would rescale the momenta by {n / _D:.3g} in '
+            f'one step (the kinetic energy is {temperature:.3g} times kT/2 '
+            f'summed over coordinates); factors in [2**-16, 2**7) are '
+            'supported. Start from momenta near the target temperature '
+            '(ase.md.velocitydistribution.MaxwellBoltzmannDistribution) '
+            'or use a longer taut. The step was not taken; the state is '
+            'valid and reverse() leads back exactly.')
+    return n
+
+
+class ReversibleBussi(ReversibleDynamics):
+    """Stochastic velocity rescaling (NVT) in fixed point that runs back
+    exactly.
+
+    A drop-in for :class:`ase.md.bussi.Bussi`: the same thermostat (all
+    momenta multiplied by one random factor a step, so that the kinetic
+    energy samples the canonical distribution), with the rescaling between
+    the half drifts of a velocity Verlet step.  After ``run(n)``,
+    :meth:`reverse` and ``run(n)`` positions, momenta and the buffer are
+    bitwise those right after the constructor (module docstring); the way
+    back goes no further (:class:`~ase_reversible.RetraceLimitError`).
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        With a calculator attached and momenta not all zero.
+    timestep : float
+        ASE time units (``5 * ase.units.fs``).
+    temperature_K : float
+        Target temperature, K.
+    taut : float
+        Time constant of the coupling, ASE time units (``100 *
+        ase.units.fs``); positive.
+    seed : int, optional
+        Key of the random draws, stored as :attr:`seed`.  Default: the seed
+        in the atoms' restart record if it was written at this time step,
+        else drawn from the operating system.
+    buffer : str or path, optional
+        A file :meth:`write_buffer` wrote together with the frame these
+        atoms come from: the run then goes on bit for bit as the one that
+        wrote it, and runs back past this point.  Without it, a frame goes
+        on with the same draws but a fresh buffer, whose digits enter the
+        rescaling's rounding: the same statistics, not the same bits, and
+        no way back past it.
+    trajectory, logfile, loginterval
+        As for :class:`ase.md.bussi.Bussi`.
+    position_quantum, momentum_quantum, force_purity, force_noise
+        As for :class:`~ase_reversible.ReversibleVerlet`.
+    energy_check : int
+        As for :class:`~ase_reversible.ReversibleVerlet`, for the total
+        energy minus the heat the thermostat added since the anchor
+        (:attr:`heat`).
+    energy_tolerance : float, optional
+        eV; default as for :class:`~ase_reversible.ReversibleVerlet`.
+
+    The degrees of freedom are ASE's count,
+    ``atoms.get_number_of_degrees_of_freedom()``: ``3N`` less those
+    constraints remove (3 for ``FixCom``, which holds the total momentum
+    at exactly zero here).  ASE's ``rng`` is refused: the draws come from
+    a counter-based generator that the way back can start again.
+
+    Raises
+    ------
+    TypeError
+        ``rng`` given, or a setting that is not a number.
+    ValueError
+        ``taut`` or ``temperature_K`` not positive, momenta all zero.
+    UnsupportedConstraintError
+        A constraint other than FixAtoms, FixCartesian and FixCom.
+    """
+
+    record_sections = ('bussi',)
+
+    def __init__(self, atoms, timestep, temperature_K, taut, *, seed=None,
+                 buffer=None, trajectory=None, logfile=None, loginterval=1,
+                 position_quantum=None, momentum_quantum=None,
+                 force_purity='auto', force_noise=None,
+                 energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
+                 **kwargs):
+        if 'rng' in kwargs:
+            raise TypeError(
+                'ReversibleBussi draws its random numbers from a '
+                'counter-based generator, so the way back can draw them '
+                'again: pass seed=<int> instead of rng.')
+        if 'fixcm' in kwargs:
+            raise TypeError(
+                'ReversibleBussi has no fixcm, as ASE\'s Bussi has none: one '
+                'factor scales every momentum, so a zero total momentum '
+                'stays zero but for rounding. To hold it at exactly zero, '
+                'add the constraint ase.constraints.FixCom.')
+        timestep = check_timestep(timestep)
+        self._temperature_K = _checked_positive(temperature_K,
+                                                'temperature_K', 'K')
+        self._taut = _checked_positive(taut, 'taut',
+                                       'ASE time units, e.g. 100 * units.fs')
+        energy_check, energy_tolerance = check_energy_watch(
+            energy_check, energy_tolerance)
+        _refuse_projections(atoms, 'ReversibleBussi', 'the rescaling')
+        momenta = atoms.get_momenta()
+        if not np.any(momenta):
+            raise ValueError(_ZERO_MOMENTA.replace(' The step was not '
+                                                   'taken.', ''))
+        system, record = self._hamiltonian(
+            atoms, largest_kick(SCHEME, composition_for(2, None), timestep,
+                                KICK),
+            position_quantum, momentum_quantum,
+            force_purity, force_noise)
+        resumed = _resumed_draws(record, timestep)
+        if seed is None and resumed is not None:
+            seed = resumed['seed']
+        self._seed = _checked_seed(seed)
+        step = resumed['step'] if resumed is not None else 0
+        saved = None if buffer is None else _read_buffer(
+            buffer, system, self._seed, timestep, step)
+        if saved is not None and self._resumed_machine is None \
+                and 'machine' in saved:
+            self._resumed_machine = json.loads(str(saved['machine']))
+        rescale = Rescale(system, self._settings, self._step_of)
+        substep = {KICK: system.kick, DRIFT: system.drift, RESCALE: rescale}
+        invariant = InvariantCheck(
+            energy_check, energy_tolerance, self._balance,
+            self._explain_drift, trigger=self._balance_trigger)
+        engine = Engine(system.variables,
+                        tuple((substep[k], c) for k, c in SCHEME),
+                        composition_for(2, None), timestep,
+                        invariant=invariant)
+        self.rescale_step = rescale
+        # The draws go on from the step the record was written at.
+        engine.step_index = engine.anchor_index = step
+        if saved is not None:
+            engine.anchor_index = saved['anchor_step']
+            engine.anchor = {name: saved[f'anchor_{name}']
+                             for name in engine.variables}
+            rescale.buffer_for(timestep).load(
+                saved['buffer_state'], saved['buffer_top'],
+                saved['buffer_base'], saved['buffer_words'],
+                saved['buffer_ratios'])
+        time0 = record['time'] - engine.elapsed() if record else 0.0
+        self._attach(system, engine, (force_purity, force_noise), time0)
+        super().__init__(atoms, timestep, trajectory=trajectory,
+                         logfile=logfile, loginterval=loginterval, **kwargs)
+        self._start(SystemWatch(atoms))
+
+    # -- what the rescaling reads ------------------------------------------
+
+    def _settings(self):
+        return self._temperature_K, self._taut, self._seed
+
+    def _step_of(self):
+        engine = self.engine
+        return engine.step_index if engine.direction > 0 \
+            else engine.step_index - 1
+
+    def _balance(self):
+        energy, proposed = self.system.energy()
+        return energy - self.rescale_step.heat, proposed
+
+    def _balance_trigger(self):
+        return self.system.kinetic_energy() - self.rescale_step.heat
+
+    def _explain_drift(self, number, drift, tolerance):
+        return (
+            f'The total energy minus the heat the thermostat added has '
+            f'changed by {drift:.4g} eV since the anchor of reversal '
+            f'(tolerance {tolerance:.4g} eV) after step {number}: the '
+            'integration is unstable. Use a smaller time step (now '
+            f'{abs(self.dt) / units.fs:g} fs). The step was not taken; the '
+            'state is valid and reverse() leads back exactly. If the change '
+            'is expected, raise energy_tolerance or pass energy_check=0.')
+
+    def _ready(self):
+        self.system.kick.forces()
+
+    def _take_changes(self, changes):
+        _refuse_projections(self.atoms, 'ReversibleBussi',
+                            'the rescaling')
+        return super()._take_changes(changes)
+
+    def _install(self, counts):
+        # Steps before the new anchor cannot be retraced: their digits go.
+        self.rescale_step.forget()
+        super()._install(counts)
+
+    def _record_sections(self):
+        return {'bussi': {'seed': self._seed,
+                          'step': self.engine.step_index,
+                          'timestep': abs(self.engine.dt)}}
+
+    def write_buffer(self, path):
+        """Write what reversal through this point needs to ``path`` (NumPy
+        ``.npz``): the buffer with its ratios, the anchor of reversal and
+        the step, tied to the present state by a digest.
+
+        A frame written now and this file make a restart that continues
+        bit for bit and runs back past the restart point to the anchor:
+        ``ReversibleBussi(frame, dt, T, taut, buffer=path)``.
+        """
+        self._sync()
+        engine, step = self.engine, self.engine.step_index
+        if engine.other_step_sizes:
+            raise ValueError(
+                'Steps with another time step are on the way back to the '
+                'anchor; write the buffer after retracing them, or from a '
+                'run at one time step.')
+        b = self.rescale_step.buffer_for(engine.dt)
+        base, words = b.used_rows()
+        arrays = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
+                  'step': step, 'anchor_step': engine.anchor_index,
+                  'digest': _digest(engine.snapshot()),
+                  'machine': json.dumps(self._buffer_machine_section()),
+                  'buffer_state': b.state_k, 'buffer_top': b.top_k,
+                  'buffer_base': base, 'buffer_words': words,
+                  'buffer_ratios': b.ratios[:b.count]}
+        for name, counts in engine.anchor.items():
+            arrays[f'anchor_{name}'] = counts
+        with open(path, 'wb') as f:
+            np.savez(f, **arrays)
+
+    def _buffer_machine_section(self):
+        section = frame_section(self.system, self.atoms.calc,
+                                self.system.purity.mode)
+        if 'forces' not in section and 'kick' not in section \
+                and self.system.purity.mode != 'guarded':
+            self.system.kick.forces()
+            section = frame_section(self.system, self.atoms.calc,
+                                    self.system.purity.mode)
+        return section
+
+    # -- the thermostat's settings -----------------------------------------
+
+    @property
+    def temperature_K(self) -> float:
+        """Target temperature, K (change it with :meth:`set_temperature`)."""
+        return self._temperature_K
+
+    @property
+    def taut(self) -> float:
+        """Time constant of the coupling, ASE time units."""
+        return self._taut
+
+    @property
+    def seed(self) -> int:
+        """The key of the random draws (fixed at construction)."""
+        return self._seed
+
+    @property
+    def heat(self) -> float:
+        """Kinetic energy the thermostat added since the anchor, eV."""
+        return self.rescale_step.heat
+
+    @property
+    def buffer_bits(self) -> float:
+        """Information the buffers hold beyond empty ones, bits (all
+        coordinates and the stored ratios; the coordinates' part is
+        negative when the rescaling took more than it gave)."""
+        return sum(b.bits for b in self.rescale_step.buffers.values())
+
+    def set_temperature(self, temperature_K):
+        """Use ``temperature_K`` (K) from the next step on; the anchor
+        moves here (:class:`~ase_reversible.AnchorMovedWarning` if steps
+        were taken)."""
+        value = _checked_positive(temperature_K, 'temperature_K', 'K')
+        self._change_setting('temperature', lambda: setattr(
+            self, '_temperature_K', value))
+
+    def set_taut(self, taut):
+        """Use ``taut`` (ASE time units) from the next step on; the anchor
+        moves here, as for :meth:`set_temperature`."""
+        value = _checked_positive(taut, 'taut', 'ASE time units')
+        self._change_setting('taut', lambda: setattr(self, '_taut', value))
+
+    def todict(self):
+        """ASE's description plus the thermostat's settings and the
+        quanta."""
+        return {**super().todict(), 'temperature_K': self._temperature_K,
+                'taut': self._taut, 'seed': self._seed,
+                **self.system.grid.todict(),
+                'force_purity': self.force_purity.mode}
+
+
+def _resumed_draws(record, timestep):
+    """The record's ``{'seed', 'step'}`` if it was written at this size of
+    time step, else None."""
+    section = record.get('bussi') if record else None
+    try:
+        if section is not None and float(section['timestep']) == abs(
+                timestep):
+            return {'seed': int(section['seed']), 'step': int(section['step'])}
+    except (KeyError, TypeError, ValueError):
+        pass
+    return None
+
+
+def _read_buffer(path, system, seed, timestep, step):
+    """The arrays of a buffer file, refused unless written at this very
+    state, seed, time step and step."""
+    with np.load(path) as f:
+        saved = {key: f[key] for key in f.files}
+    if 'buffer_ratios' not in saved:
+        raise ValueError(f'{path} is not a ReversibleBussi buffer file '
+                         '(written by another dynamics).')
+    state = {'position': system.x.ints, 'momentum': system.p.ints}
+    problems = []
+    if int(saved['seed']) != seed:
+        problems.append(f'it was written with seed {int(saved["seed"])}, '
+                        f'not {seed}')
+    if float(saved['timestep']) != abs(timestep):
+        problems.append('its time step is '
+                        f'{float(saved["timestep"]) / units.fs:g} fs')
+    if int(saved['step']) != step or str(saved['digest']) != _digest(state):
+        problems.append(f'it was written at step {int(saved["step"])} of '
+                        'another state (these atoms are at step '
+                        f'{step} by their restart record)')
+    if problems:
+        raise ValueError(
+            f'The buffer file {path} does not belong to these atoms: '
+            + '; '.join(problems) + '. Pass the frame that was written '
+            'together with it (the last one before write_buffer), or no '
+            'buffer to go on without the way back.')
+    return saved
