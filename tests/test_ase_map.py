@@ -51,6 +51,15 @@ MAP = {
         'loginterval': (2, TAKEN),
         'append_trajectory': (True, TAKEN),
     }),
+    'Bussi': ('ase.md.bussi', 'ReversibleBussi', {
+        'temperature_K': (300.0, TAKEN),
+        'taut': (100 * units.fs, TAKEN),
+        'rng': (np.random.default_rng(1), 'seed='),
+        'trajectory': ('file', TAKEN),
+        'logfile': ('file', TAKEN),
+        'loginterval': (2, TAKEN),
+        'append_trajectory': (True, TAKEN),
+    }),
 }
 
 #: Parameters that are two ways of giving one value: ASE takes exactly one.
