@@ -274,3 +274,22 @@ def test_a_long_run_goes_out_and_back():
     dyn = npt(atoms, pdamp=200 * units.fs)
     out_and_back(dyn, 2500)
     assert dyn.force_purity.mode in ('sorted', 'guarded', 'trust')
+
+
+def test_guarded_roundings_recompute_cleanly_and_stay_exact(monkeypatch):
+    # A wide guard band and a fine quantum of p_lambda: the kicks and the
+    # piston's kicks come near a tie often, and each is then recomputed
+    # from a clean neighbour list.
+    from ase_reversible.md import npt as module
+    monkeypatch.setattr(module, 'TARGET_CLEAN_RATE', 1e9)
+    cleaned = []
+    clean = module.ScaledKick.clean_stress_trace
+    monkeypatch.setattr(module.ScaledKick, 'clean_stress_trace',
+                        lambda kick: cleaned.append(1) or clean(kick))
+    atoms = copper_bulk((2, 2, 2), 300)
+    atoms.calc = asap_emt()
+    dyn = npt(atoms, force_purity='guarded', force_noise=2.0**-30,
+              momentum_quantum=2.0**-32)
+    out_and_back(dyn, 30)
+    assert len(cleaned) > 0
+    assert dyn.force_purity.clean_recomputations > len(cleaned)

@@ -79,6 +79,7 @@ from ..core.engine import Engine, InvariantCheck
 from ..core.plans import SubStep
 from ..core.record import read_record
 from ..core.variables import ExactVariable
+from ..purity.settings import TARGET_CLEAN_RATE
 from ..errors import (AnchorMovedWarning, UnstableIntegrationError,
                       UnsupportedConstraintError)
 from .base import ReversibleDynamics
@@ -369,11 +370,13 @@ class VirialKick(SubStep):
 
     Under guarded rounding the increment is a rounding like the kick's: if
     it lies within the stress's noise bound of a tie, the stress is
-    recomputed from a clean neighbour list.
+    recomputed from a clean neighbour list.  The rounded increment is kept
+    for the next half step at the same positions and cell.
     """
 
     def __init__(self, system):
         self.system = system
+        self._key = self._r = None
 
     def prepare(self, ch):
         return ch / self.system.p_lam.quantum
@@ -386,28 +389,49 @@ class VirialKick(SubStep):
 
     def apply(self, scale):
         s = self.system
-        kick = s.kick
-        y = scale * self.force(kick.stress_trace())
-        purity = s.purity
-        if purity.mode == 'guarded' and not kick.stress_is_clean():
-            bound = abs(scale) * self.noise_bound()
-            if abs(y - round(y)) > 0.5 - bound:
-                y = scale * self.force(kick.clean_stress_trace())
-        _add_rounded(s.p_lam, y)
+        key = (s.x.label, s.lam.label, scale)
+        if self._key != key:
+            self._key = None
+            kick = s.kick
+            y = scale * self.force(kick.stress_trace())
+            if s.purity.mode == 'guarded' and not kick.stress_is_clean():
+                bound = abs(scale) * virial_noise(s.atoms, s.purity,
+                                                  kick.forces(),
+                                                  s.lam_value())
+                if abs(y - round_odd(y)) > 0.5 - bound:
+                    y = scale * self.force(kick.clean_stress_trace())
+            self._r = np.array([round_odd(y)])
+            self._key = key
+        s.p_lam.add_integers(self._r, abs(float(self._r[0])))
 
-    def noise_bound(self):
-        """Bound on the history noise of ``G`` (eV): ``lambda**2 V0
-        tr(sigma)`` is ``V tr(sigma) / lambda``, a sum over atoms of a
-        distance times a force, each below the cell's longest row sum
-        times the forces' noise bound."""
-        s = self.system
-        atoms = s.atoms
-        f_nc = s.kick.forces()
-        reach = float(np.abs(atoms.cell.array).sum(axis=1).max()) \
-            + float(np.abs(atoms.positions).max(initial=0.0))
-        return 9.0 * len(atoms) * reach * s.purity.noise_bound(atoms, f_nc) \
-            / s.lam_value()
+    def rollback(self):
+        self._key = None
 
+
+def virial_noise(atoms, purity, f_nc, lam):
+    """Bound on the history noise of ``lambda**2 V0 tr(sigma) = V
+    tr(sigma) / lambda`` (eV) under guarded rounding: a sum over atoms of
+    a distance times a force, each below the cell's longest row sum (plus
+    the farthest coordinate) times the forces' noise bound."""
+    reach = float(np.abs(atoms.cell.array).sum(axis=1).max()) \
+        + float(np.abs(atoms.positions).max(initial=0.0))
+    return 9.0 * len(atoms) * reach * purity.noise_bound(atoms, f_nc) / lam
+
+
+def p_lambda_quantum(atoms, purity, spread, max_kick):
+    """The quantum of ``p_lambda`` (eV ASE time): ``2**-P_LAMBDA_BITS`` of
+    its thermal spread, raised under guarded rounding so that a clean
+    recomputation of the stress is needed in at most
+    ``TARGET_CLEAN_RATE`` of the piston's kicks of up to ``max_kick``
+    (ASE time units)."""
+    q = math.ldexp(_power_of_two_below(spread), -P_LAMBDA_BITS)
+    if purity.mode != 'guarded':
+        return q
+    # A rounding comes within the bound b (in quanta) of a tie with a
+    # chance of about 2b.
+    noise = virial_noise(atoms, purity, atoms.get_forces(md=True), 1.0)
+    floor = 2.0 * noise * max_kick / TARGET_CLEAN_RATE
+    return max(q, math.ldexp(1.0, math.frexp(floor)[1]))
 
 
 class KineticKick(SubStep):
@@ -609,8 +633,10 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         kT = units.kB * temperature_K
         spread = math.sqrt(barostat_mass(len(atoms), kT, pdamp) * kT)
         quanta = {LAMBDA: LAMBDA_QUANTUM,
-                  P_LAMBDA: math.ldexp(_power_of_two_below(spread),
-                                       -P_LAMBDA_BITS)}
+                  P_LAMBDA: p_lambda_quantum(
+                      atoms, system.purity, spread,
+                      largest_kick(SCHEME, composition_for(2, None),
+                                   timestep, VIRIAL))}
         cell0, counts, section = self._barostat_start(system, record,
                                                       quanta)
         system.set_barostat(cell0, counts, quanta, temperature_K,
