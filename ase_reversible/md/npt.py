@@ -208,6 +208,7 @@ class NPTHamiltonian(Hamiltonian):
         return self.cell0 * self.lam_value()
 
     def show_cell(self):
+        """Write ``lambda cell0`` into the atoms' cell."""
         np.multiply(self.cell0, self.lam_value(),
                     out=self.atoms.cell.array)
 
@@ -382,6 +383,7 @@ class VirialKick(SubStep):
         return ch / self.system.p_lam.quantum
 
     def force(self, trace):
+        """``G`` (eV) for the stress trace ``trace`` (eV/Å**3)."""
         s = self.system
         lam = s.lam_value()
         return (-(lam * lam) * s.V0 * (trace + 3.0 * s.pressure)
