@@ -45,6 +45,7 @@ def assert_back(dyn, state, seen, emptied=True):
         assert np.array_equal(a, b)
     if emptied:  # back at the anchor: the friction's digits all returned
         assert not dyn.friction_step.active_buffers()
+        assert not dyn.friction_step.piston.active_buffers()
 
 
 def out_and_back(dyn, steps):
@@ -233,6 +234,35 @@ def test_a_cell_set_between_runs_is_refused_and_put_back():
     dyn.reverse()
     dyn.run(4)
     assert dyn.get_time() == 0.0
+
+
+def test_momenta_set_between_runs_are_taken_with_the_cell_kept():
+    dyn = npt(copper())
+    dyn.run(4)
+    cell = dyn.atoms.cell.array.copy()
+    dyn.atoms.set_momenta(dyn.atoms.get_momenta() * 0.5)
+    with pytest.warns(AnchorMovedWarning, match='Positions or momenta'):
+        dyn.run(3)
+    state, seen = dyn.engine.snapshot(), shown(dyn.atoms)
+    assert not np.array_equal(seen[2], cell)
+    dyn.run(10)
+    dyn.reverse()
+    dyn.run(10)
+    assert_back(dyn, state, seen, emptied=False)
+
+
+def test_a_calculator_without_stress_set_between_runs_is_refused():
+    from ase_reversible import SoftenedGravity
+    dyn = npt(copper())
+    dyn.run(2)
+    state, seen = dyn.engine.snapshot(), shown(dyn.atoms)
+    emt = dyn.atoms.calc
+    dyn.atoms.calc = SoftenedGravity()
+    with pytest.raises(ValueError, match='needs the stress'):
+        dyn.run(1)
+    dyn.atoms.calc = emt
+    dyn.run(0)
+    assert_back(dyn, state, seen, emptied=False)
 
 
 def test_a_collapsing_cell_stops_the_run_at_a_reversible_state():
