@@ -281,11 +281,59 @@ def test_a_collapsing_cell_stops_the_run_at_a_reversible_state():
     assert_back(dyn, state, seen)
 
 
-def test_backpropagate_refuses_clearly():
+class WholeRun:
+    """L(x0, p0) = <a, x_T> + <b, p_T> over a fresh run of ``steps``."""
+
+    def __init__(self, steps, seed=5):
+        self.steps = steps
+        self.a_nc, self.b_nc = np.random.default_rng(seed).normal(
+            size=(2, 32, 3))
+
+    def dynamics(self, dx_nc=0.0, dp_nc=0.0):
+        atoms = copper()
+        atoms.positions = atoms.positions + dx_nc
+        atoms.set_momenta(atoms.get_momenta() + dp_nc)
+        # Fine quanta: a finite difference of a whole run sees the
+        # rounding as noise.
+        return npt(atoms, energy_check=0, position_quantum=2.0**-44,
+                   momentum_quantum=2.0**-46)
+
+    def __call__(self, dx_nc=0.0, dp_nc=0.0):
+        dyn = self.dynamics(dx_nc, dp_nc)
+        dyn.run(self.steps)
+        atoms = dyn.atoms
+        return float(np.sum(self.a_nc * atoms.positions)
+                     + np.sum(self.b_nc * atoms.get_momenta()))
+
+
+def test_gradients_match_whole_run_finite_differences():
+    loss = WholeRun(steps=3)
+    dyn = loss.dynamics()
+    start, seen = dyn.engine.snapshot(), shown(dyn.atoms)
+    dyn.run(loss.steps)
+    grads = dyn.backpropagate(loss.steps, loss.a_nc, loss.b_nc)
+    # The retrace ends at the start, bit for bit.
+    assert_back(dyn, start, seen)
+    assert set(grads.thermostat) == {'lambda', 'p_lambda'}
+    assert grads.products == 2 * loss.steps
+    u_nc, v_nc = np.random.default_rng(6).normal(size=(2, 32, 3))
+    # The step is large against the jitter of the piston's friction (its
+    # buffer's digits, 2**-20 of the spread of p_lambda a step), small
+    # against the curvature.
+    e = 1e-3
+    zero = np.zeros((32, 3))
+    for grad, dx, dp, w in ((grads.positions, u_nc, zero, u_nc),
+                            (grads.momenta, zero, v_nc, v_nc)):
+        fd = (loss(e * dx, e * dp) - loss(-e * dx, -e * dp)) / (2 * e)
+        assert float(np.sum(grad * w)) == pytest.approx(fd, rel=1e-4)
+
+
+def test_parameter_gradients_are_refused():
     dyn = npt(copper())
     dyn.run(2)
-    with pytest.raises(NotImplementedError, match='not available'):
-        dyn.backpropagate(2, grad_positions=np.ones((32, 3)))
+    with pytest.raises(NotImplementedError, match='potential parameters'):
+        dyn.backpropagate(2, grad_positions=np.ones((32, 3)),
+                          parameters=('sigma',))
 
 
 def test_conserved_energy_is_conserved():

@@ -73,6 +73,17 @@ moving by a few per cent).
 
 Only fully periodic cells are supported: for a cluster ``-dU/dlambda``
 would be the virial ``sum x.F / lambda``, and ``V`` has no meaning.
+
+Gradients.  Each sub-step has its adjoint rule.  The piston's push ``G``
+needs its derivative in ``rho``, the stress's derivative in the
+positions, which no calculator offers; but ``dG/d rho = -d2U/(d rho d
+lambda) = d(lambda F)/d lambda``, so it is the central difference of
+``lambda F`` in ``lambda`` (positions and cell scaled together), which
+also gives the kick's derivative in ``lambda``; the same two calls give
+``dG/d lambda`` from the stress.  The O step's noise scales with
+``lambda``: its derivative ``n`` (the noise at ``lambda = 1``) enters
+``a_lambda``.  The friction's rounding (the buffer's digits) is left out,
+as for :class:`~ase_reversible.ReversibleLangevin`.
 """
 
 from __future__ import annotations
@@ -87,7 +98,9 @@ from ase.calculators.calculator import PropertyNotImplementedError
 
 from ..core.codec import encode, round_odd
 from ..core.compositions import composition_for
+from ..adjoint.hessian import DEFAULT_FD_STEP
 from ..core.engine import Engine, InvariantCheck
+from ..core.portable import dot
 from ..core.infobuffer import BufferUnderflowError, InformationBuffer
 from ..core.noise import StepNoise
 from ..core.plans import SubStep
@@ -126,9 +139,13 @@ ENERGY_CHECK_INTERVAL = 100
 #: and leaves 2**9 of range.
 LAMBDA_QUANTUM = 2.0**-44
 #: Bits of ``sqrt(W kT)`` (the spread of ``p_lambda``) below its quantum:
-#: 32 leave ``p_lambda`` a range of 2**21 spreads, for the far from
+#: 36 leave ``p_lambda`` a range of 2**17 spreads, for the far from
 #: equilibrium start of a run at a pressure far from the system's own.
-P_LAMBDA_BITS = 32
+#: The piston's friction moves ``p_lambda`` by up to ``2**16`` quanta from
+#: ``c p_lambda`` (the information buffer's digits mixed in), a jitter of
+#: ``2**-20`` spreads a step, beside noise of 0.3 spreads at ``|dt| /
+#: pdamp = 1/20``.
+P_LAMBDA_BITS = 36
 #: ``lambda`` below this stops the run: the volume would have fallen to
 #: under 1/64 of the construction volume, a collapse, not a fluctuation.
 LAMBDA_MIN = 0.25
@@ -288,6 +305,17 @@ class ScaledDrift(Drift):
         self._drift(prepared, (s.p.label, s.lam.label, prepared[0]),
                     1.0 / (lam * lam))
 
+    def adjoint(self, cotangents, ch):
+        """``a_pi += c h a_rho / (m lambda**2)``; ``a_lambda -= 2 c h
+        a_rho . pi / (m lambda**3)``."""
+        cotangents.flush()
+        s = self.system
+        lam = s.lam_value()
+        w_nc = np.divide(cotangents['position'], s.m_n1)
+        cotangents[LAMBDA] -= 2.0 * ch / (lam * lam * lam) * dot(
+            w_nc, s.p.floats)
+        cotangents['momentum'] += (ch / (lam * lam)) * w_nc
+
 
 class ScaledKick(Kick):
     """``pi += round_odd(c h lambda F(lambda rho) / q_p)``; the forces and
@@ -297,6 +325,7 @@ class ScaledKick(Kick):
     def forget(self):
         super().forget()
         self._stress = self._saved_stress = self._applied = None
+        self._second = None  # (key, lambda_derivatives())
 
     def _key(self):
         s = self.system
@@ -360,6 +389,51 @@ class ScaledKick(Kick):
             self._r_key = (key[0], effective)
             self._applied = key
         self._r_max = s.p.add_integers(self._r_nc, self._r_max)
+
+    def lambda_derivatives(self):
+        """``(D, dS)``: the derivatives in ``lambda`` at fixed ``rho`` of
+        ``lambda F`` (``[n_atoms, 3]``, eV/Å) and of ``S = -lambda**2 V0
+        tr(sigma)`` (eV), by central differences (two calls for forces
+        and stress, positions and cell put back bit for bit).  ``D`` is
+        also ``dG / d rho`` (``G`` the piston's force), the two mixed
+        second derivatives of ``U`` being equal."""
+        key = self._key()
+        if self._second is not None and self._second[0] == key:
+            return self._second[1]
+        s = self.system
+        atoms, lam, rho_nc = s.atoms, s.lam_value(), s.x.floats.copy()
+        d = DEFAULT_FD_STEP / max(1.0, float(np.abs(rho_nc).max()))
+        values = []
+        try:
+            for at in (lam + d, lam - d):
+                np.multiply(s.cell0, at, out=atoms.cell.array)
+                atoms.positions = rho_nc * at
+                f_nc = atoms.get_forces(apply_constraint=False)
+                sigma = atoms.get_stress(voigt=True, apply_constraint=False)
+                trace = float(sigma[0]) + float(sigma[1]) + float(sigma[2])
+                values.append((at * f_nc, -(at * at) * s.V0 * trace))
+        finally:
+            s.show_cell()
+            s.show_positions()
+        (f_plus, s_plus), (f_minus, s_minus) = values
+        derivatives = ((f_plus - f_minus) / (2 * d),
+                       (s_plus - s_minus) / (2 * d))
+        self._second = (key, derivatives)
+        return derivatives
+
+    def adjoint(self, cotangents, ch):
+        """``a_rho += c h lambda**2 (dF/dx)^T a_pi`` (one product) and
+        ``a_lambda += c h a_pi . d(lambda F)/d lambda``."""
+        cotangents.flush()
+        s = self.system
+        w_nc = np.array(cotangents['momentum'])
+        if not w_nc.any():
+            return
+        lam = s.lam_value()
+        dx_nc, _ = cotangents.product(s.atoms, w_nc)
+        cotangents.products += 1
+        cotangents['position'] += (ch * lam * lam) * dx_nc
+        cotangents[LAMBDA] += ch * dot(w_nc, self.lambda_derivatives()[0])
 
     def stress_is_clean(self):
         """Whether the stress held was taken right after a clean
@@ -430,6 +504,20 @@ class VirialKick(SubStep):
     def rollback(self):
         self._key = None
 
+    def adjoint(self, cotangents, ch):
+        """``a_rho += c h a_p_lambda dG/d rho``, ``a_lambda += c h
+        a_p_lambda dG/d lambda`` (:meth:`ScaledKick.lambda_derivatives`)."""
+        cotangents.flush()
+        a = float(cotangents[P_LAMBDA][0])
+        if a == 0.0:
+            return
+        s = self.system
+        lam = s.lam_value()
+        d_nc, d_s = s.kick.lambda_derivatives()
+        cotangents['position'] += (ch * a) * d_nc
+        cotangents[LAMBDA] += ch * a * (
+            d_s - 6.0 * s.pressure * s.V0 * lam - 2.0 * s.kT / (lam * lam))
+
 
 def virial_noise(atoms, purity, f_nc, lam):
     """Bound on the history noise of ``lambda**2 V0 tr(sigma) = V
@@ -477,6 +565,21 @@ class KineticKick(SubStep):
             self._key = key
         _add_rounded(s.p_lam, scale * self._force)
 
+    def adjoint(self, cotangents, ch):
+        """``a_pi += c h a_p_lambda 2 pi / (m lambda**3)``; ``a_lambda -=
+        3 c h a_p_lambda sum pi**2 / (m lambda**4)``."""
+        cotangents.flush()
+        a = float(cotangents[P_LAMBDA][0])
+        if a == 0.0:
+            return
+        s = self.system
+        lam = s.lam_value()
+        lam3 = lam * lam * lam
+        cotangents[LAMBDA] -= 3.0 * ch * a * s.momentum_square() / (
+            lam3 * lam)
+        cotangents['momentum'] += (2.0 * ch * a / lam3) * (
+            s.p.floats / s.m_n1)
+
 
 class Piston(SubStep):
     """``lambda += round_odd(c h p_lambda / W / q)``; the atoms then show
@@ -510,6 +613,10 @@ class Piston(SubStep):
         s = self.system
         s.show_cell()
         s.show_positions()
+
+    def adjoint(self, cotangents, ch):
+        """``a_p_lambda += c h a_lambda / W``."""
+        cotangents[P_LAMBDA] += ch / self.system.W * cotangents[LAMBDA]
 
 
 class ScaledFriction(Friction):
@@ -563,7 +670,21 @@ class ScaledFriction(Friction):
             self.piston.rollback()
 
     def adjoint(self, cotangents, ch):
-        raise NotImplementedError(_NO_GRADIENTS)
+        """``pi' = c pi + lambda n`` (``n`` the noise for the mass ``m``,
+        the same both ways): ``a_lambda += a_pi' . n``, then ``a_pi = c
+        a_pi'``; the piston's ``a_p_lambda *= c_piston``."""
+        cotangents.flush()
+        s = self.system
+        atoms_part, piston_part = self.prepare(ch)
+        sigma_k, key, zero_sum = atoms_part[3], atoms_part[4], atoms_part[5]
+        n_k = s.p.quantum * sigma_k * self.noise.normals(key, self.step_of())
+        n_nc = n_k.reshape(self.shape)
+        if zero_sum is not None:
+            n_nc = n_nc - zero_sum[0] * n_nc.sum(axis=0)
+        cotangents[LAMBDA] += dot(cotangents['momentum'], n_nc)
+        cotangents['momentum'] *= exact_ratio(self.settings()[0], ch)[1]
+        if piston_part is not None:
+            cotangents[P_LAMBDA] *= exact_ratio(self.piston.friction, ch)[1]
 
 
 class _OneMoreNormal(StepNoise):
@@ -655,14 +776,6 @@ class PistonFriction:
         self.heat = self._saved_heat
         for buffer in self.buffers.values():
             buffer.rollback()
-
-
-_NO_GRADIENTS = (
-    'backpropagate is not available for ReversibleIsotropicNPT yet: the '
-    'adjoint of the barostat\'s sub-steps (which needs the derivative of '
-    'the stress with respect to positions) is not written. Differentiate '
-    'through a fixed-cell run (ReversibleLangevin, ReversibleNose, '
-    'ReversibleVerlet) instead.')
 
 
 def _digest(counts):
@@ -1070,10 +1183,82 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
 
     # -- gradients ----------------------------------------------------------
 
-    def backpropagate(self, steps, *args, **kwargs):
-        """Not available yet for constant pressure (raises
-        NotImplementedError, changing nothing)."""
-        raise NotImplementedError(_NO_GRADIENTS)
+    #: The labels of the state the last backpropagate ended at.
+    _retrace_end = None
+
+    def backpropagate(self, steps, grad_positions=None, grad_momenta=None,
+                      *, hvp='auto', parameters=(), carry=None, loss=None,
+                      every=1, window=None):
+        """Gradients of a loss with respect to the state ``steps`` steps
+        ago, as for :meth:`ase_reversible.ReversibleLangevin.backpropagate`
+        (the atoms' positions and momenta, at a fixed scale of the cell).
+
+        The returned :class:`~ase_reversible.Gradients` has in
+        ``.thermostat`` the gradients with respect to the barostat's
+        ``'lambda'`` (at fixed positions and momenta) and ``'p_lambda'``.
+        Each step of the retrace costs, besides the product of each kick,
+        two calls for forces and stress (the derivatives in ``lambda`` by
+        central differences).  Potential parameters are not offered: the
+        piston would need the stress's derivative with respect to them.
+        """
+        if parameters:
+            raise NotImplementedError(
+                'ReversibleIsotropicNPT gives no gradients with respect to '
+                'potential parameters: the piston would need the '
+                "stress's derivative with respect to them. Use "
+                'parameters=() here, or a fixed-cell run.')
+        return super().backpropagate(
+            steps, grad_positions, grad_momenta, hvp=hvp, carry=carry,
+            loss=loss, every=every, window=window)
+
+    def _cotangents_of(self, ax_nc, ap_nc, carry):
+        # The user's gradients are on (x, p) at fixed (lambda, p_lambda);
+        # the exact variables are (rho, pi, lambda, p_lambda) with x =
+        # lambda rho and p = pi / lambda.
+        here = self._retrace_key()
+        if carry is None and here == self._retrace_end:
+            raise ValueError(
+                'The atoms are where the last backpropagate ended. To go on '
+                'with a loss on several states, pass what it returned as '
+                'carry= (the barostat carries part of the gradient from one '
+                'segment to the next); to start a new loss here, pass '
+                'carry=False.')
+        if carry and here != self._retrace_end:
+            raise ValueError(
+                'carry= goes on from where the last backpropagate ended, '
+                'but the state has changed since: pass carry=False or none.')
+        barostat = carry.thermostat if carry else {}
+        added = self._loss_cotangents(ax_nc, ap_nc)
+        return {'position': added['position'],
+                'momentum': added['momentum'],
+                LAMBDA: added[LAMBDA] + float(barostat.get('lambda', 0.0)),
+                P_LAMBDA: np.array([float(barostat.get('p_lambda', 0.0))])}
+
+    def _loss_cotangents(self, ax_nc, ap_nc):
+        s = self.system
+        lam = s.lam_value()
+        n = s.x.ints.shape
+        ax_nc = np.zeros(n) if ax_nc is None else np.asarray(ax_nc, float)
+        ap_nc = np.zeros(n) if ap_nc is None else np.asarray(ap_nc, float)
+        return {'position': lam * ax_nc, 'momentum': ap_nc / lam,
+                LAMBDA: np.array([dot(ax_nc, s.x.floats)
+                                  - dot(ap_nc, s.p.floats) / (lam * lam)])}
+
+    def _gradients_of(self, cotangents):
+        # Back to (x, p) at fixed lambda: dL/dx = a_rho / lambda, dL/dp =
+        # lambda a_pi, and dL/dlambda at fixed (x, p) = a_lambda - a_rho .
+        # rho / lambda + a_pi . pi / lambda.
+        s = self.system
+        lam = s.lam_value()
+        a_rho, a_pi = cotangents['position'], cotangents['momentum']
+        a_lam = (float(cotangents[LAMBDA][0]) - dot(a_rho, s.x.floats) / lam
+                 + dot(a_pi, s.p.floats) / lam)
+        self._retrace_end = self._retrace_key()
+        return (a_rho / lam, a_pi * lam,
+                {'lambda': a_lam, 'p_lambda': float(cotangents[P_LAMBDA][0])})
+
+    def _retrace_key(self):
+        return tuple(v.label for v in self.system.variables.values())
 
     # -- the ensemble --------------------------------------------------------
 
