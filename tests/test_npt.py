@@ -358,7 +358,7 @@ def test_guarded_roundings_recompute_cleanly_and_stay_exact(monkeypatch):
     # A wide guard band and a fine quantum of p_lambda: the kicks and the
     # piston's kicks come near a tie often, and each is then recomputed
     # from a clean neighbour list.
-    from ase_reversible.md import npt as module
+    from ase_reversible.md.npt import system as module
     monkeypatch.setattr(module, 'TARGET_CLEAN_RATE', 1e9)
     cleaned = []
     clean = module.ScaledKick.clean_stress_trace
