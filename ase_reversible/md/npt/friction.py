@@ -30,7 +30,7 @@ class ScaledFriction(Friction):
             # The piston's deviate comes from the atoms' draw: a draw costs
             # 120 us however few deviates it makes (one deviate, timeit,
             # load 4.5), so a draw of its own would add that to a step.
-            self.noise = _OneMoreNormal(self.noise.size)
+            self.noise = _MoreNormals(self.noise.size, piston.size)
 
     def prepare(self, ch):
         return (super().prepare(ch),
@@ -84,36 +84,40 @@ class ScaledFriction(Friction):
             cotangents[P_LAMBDA] *= exact_ratio(self.piston.friction, ch)[1]
 
 
-class _OneMoreNormal(StepNoise):
-    """The atoms' deviates of a step, drawn together with one more, kept
-    as :attr:`extra` for the piston."""
+class _MoreNormals(StepNoise):
+    """The atoms' ``size`` deviates of a step, drawn together with
+    ``more``, kept as :attr:`extra` for the piston."""
 
-    def __init__(self, size):
-        super().__init__(size + 1)
+    def __init__(self, size, more):
+        super().__init__(size + more)
+        self.atoms_size = size
         self.extra = None
 
     def normals(self, key, step):
         z = super().normals(key, step)
-        self.extra = float(z[-1])
-        return z[:-1]
+        self.extra = z[self.atoms_size:]
+        return z[:self.atoms_size]
 
 
 class PistonFriction:
     """The O step on ``p_lambda`` (a Langevin piston): ``p_lambda <- c
     p_lambda + sqrt((1 - c**2) W kT) xi``, exact as the atoms' (the
-    friction through an information buffer of one coordinate, the
-    deviate ``xi`` drawn with the atoms' by the counter-based generator).
+    friction through an information buffer, the deviates ``xi`` drawn
+    with the atoms' by the counter-based generator).
 
     Parameters
     ----------
     system : NPTHamiltonian
     friction : float
         1 / ASE time unit (``1 / pdamp``).
+    size : int
+        Entries of ``p_lambda`` (1; 6 for the full cell's momentum).
     """
 
-    def __init__(self, system, friction):
+    def __init__(self, system, friction, size=1):
         self.system = system
         self.friction = friction
+        self.size = size
         self.buffers = {}
         self.heat = self._saved_heat = 0.0
 
@@ -133,18 +137,18 @@ class PistonFriction:
         n, ratio = exact_ratio(self.friction, ch)
         buffer = self.buffers.get(n)
         if buffer is None:
-            buffer = self.buffers[n] = InformationBuffer(1, n)
+            buffer = self.buffers[n] = InformationBuffer(self.size, n)
         sigma = math.sqrt((1.0 - ratio * ratio) * s.W * s.kT) \
             / s.p_lam.quantum
         return ch > 0, buffer, sigma
 
-    def apply(self, prepared, xi):
-        """One O step of ``p_lambda`` with the standard normal deviate
-        ``xi``."""
+    def apply(self, prepared, xi_k):
+        """One O step of ``p_lambda`` with the standard normal deviates
+        ``xi_k`` (one per entry)."""
         forward, buffer, sigma = prepared
         p = self.system.p_lam
         x_k = p.ints.reshape(-1)
-        noise_k = np.array([np.rint(sigma * xi)], dtype=np.int64)
+        noise_k = np.rint(sigma * xi_k).astype(np.int64)
         if forward:
             new_k = buffer.scale_down(x_k) + noise_k
         else:
@@ -158,8 +162,9 @@ class PistonFriction:
                     'be undone that was never applied. The step was not '
                     'taken; run forward (positive dt) from here.') from None
         q = p.quantum
-        old, new = float(x_k[0]) * q, float(new_k[0]) * q
-        self.heat += 0.5 * (new * new - old * old) / self.system.W
+        old_k, new_k_q = x_k * q, new_k * q
+        self.heat += 0.5 * (dot(new_k_q, new_k_q) - dot(old_k, old_k)) \
+            / self.system.W
         p.add_integers((new_k - x_k).astype(np.float64))
 
     def checkpoint(self):

@@ -25,8 +25,8 @@ from ..watch import SystemWatch
 from .friction import PistonFriction, ScaledFriction
 from .system import (DRIFT, FRICTION, KICK, KINETIC, LAMBDA, LAMBDA_QUANTUM,
                      P_LAMBDA, PISTON, RECOVERABLE, VIRIAL, KineticKick,
-                     NPTHamiltonian, Piston, VirialKick, barostat_mass,
-                     cell_volume, p_lambda_quantum)
+                     NPTHamiltonian, Piston, VirialKick, cell_volume,
+                     p_lambda_quantum)
 
 #: ``B/2 P/2 T/2 O T/2 P/2 B/2`` (module docstring): a palindrome, so the
 #: same sequence run with -h undoes a step.  The two parts of B read
@@ -142,6 +142,19 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
     """
 
     record_sections = ('npt',)
+    _ase_counterpart = 'IsotropicMTKNPT'
+    _system_class = NPTHamiltonian
+    _friction_class = ScaledFriction
+
+    @staticmethod
+    def _refuse_shape(atoms):
+        """Refuse a cell this dynamics cannot move (any, here)."""
+
+    @staticmethod
+    def _barostat_substeps(system):
+        """The piston's sub-steps by kind."""
+        return {VIRIAL: VirialKick(system), PISTON: Piston(system),
+                DRIFT: system.drift, KINETIC: KineticKick(system)}
 
     def __init__(self, atoms, timestep, temperature_K, pressure_au, tdamp,
                  pdamp, *, seed=None, buffer=None, trajectory=None,
@@ -149,11 +162,12 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
                  momentum_quantum=None, force_purity='auto',
                  force_noise=None, energy_check=ENERGY_CHECK_INTERVAL,
                  energy_tolerance=None, **kwargs):
-        for name, advice in _ASE_ONLY.items():
-            if name in kwargs:
+        name = type(self).__name__
+        for arg, advice in _ASE_ONLY.items():
+            if arg in kwargs:
                 raise TypeError(
-                    f'ReversibleIsotropicNPT takes no {name} (an argument of '
-                    f'ASE\'s IsotropicMTKNPT): {advice}.')
+                    f'{name} takes no {arg} (an argument of ASE\'s '
+                    f'{self._ase_counterpart}): {advice}.')
         timestep = check_timestep(timestep)
         temperature_K = _checked_positive(temperature_K, 'temperature_K',
                                           'K')
@@ -165,16 +179,18 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         friction = _checked_friction(1.0 / tdamp, timestep)
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
-        _refuse_cell(atoms)
-        _refuse_constraints(atoms)
+        _refuse_cell(atoms, name)
+        self._refuse_shape(atoms)
+        _refuse_constraints(atoms, name)
         system, record = self._hamiltonian(
             atoms, largest_kick(SCHEME, composition_for(2, None), timestep,
                                 KICK),
             position_quantum, momentum_quantum, force_purity, force_noise,
-            system_class=NPTHamiltonian)
-        _refuse_stressless(atoms)
+            system_class=self._system_class)
+        _refuse_stressless(atoms, name)
         kT = units.kB * temperature_K
-        spread = math.sqrt(barostat_mass(len(atoms), kT, pdamp) * kT)
+        spread = math.sqrt(self._system_class.barostat_mass(
+            len(atoms), kT, pdamp) * kT)
         quanta = {LAMBDA: LAMBDA_QUANTUM,
                   P_LAMBDA: p_lambda_quantum(
                       atoms, system.purity, spread,
@@ -195,13 +211,13 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         self._seed = _checked_seed(seed)
         step = resumed['step'] if resumed is not None else 0
         piston = PistonFriction(system, _checked_friction(
-            1.0 / pdamp, timestep)) if PISTON_FRICTION else None
-        friction_step = ScaledFriction(
+            1.0 / pdamp, timestep), system.p_lam.ints.size) \
+            if PISTON_FRICTION else None
+        friction_step = self._friction_class(
             system, lambda: (friction, system.temperature_K, True, self._seed),
             self._step_of, piston)
-        substep = {KICK: system.kick, VIRIAL: VirialKick(system),
-                   PISTON: Piston(system), DRIFT: system.drift,
-                   KINETIC: KineticKick(system), FRICTION: friction_step}
+        substep = {KICK: system.kick, FRICTION: friction_step,
+                   **self._barostat_substeps(system)}
         invariant = InvariantCheck(
             energy_check, energy_tolerance, self._balance,
             self._explain_drift, trigger=self._balance_trigger)
@@ -434,15 +450,15 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
             self._watch.accept_cell(atoms)
             raise ValueError(
                 'The cell (or pbc) was changed outside '
-                'ReversibleIsotropicNPT, which moves the cell itself (to '
+                f'{type(self).__name__}, which moves the cell itself (to '
                 f'{cell.tolist()}): the change is refused. The cell, '
                 'positions and momenta were put back to the exact state '
                 f'at time {self.get_time() / units.fs:.6g} fs, from which '
                 'reverse() and further runs go on. To start from another '
-                'cell, construct a new ReversibleIsotropicNPT.')
-        _refuse_constraints(atoms)
+                f'cell, construct a new {type(self).__name__}.')
+        _refuse_constraints(atoms, type(self).__name__)
         if atoms.calc is not None and atoms.calc is not self._watch.calc:
-            _refuse_stressless(atoms)
+            _refuse_stressless(atoms, type(self).__name__)
         return super()._take_changes(changes)
 
     def _encode(self, atoms, project):
@@ -662,37 +678,37 @@ def _checked_pressure(value):
     return value
 
 
-def _refuse_cell(atoms):
+def _refuse_cell(atoms, name):
     from ase import Atoms
     if not isinstance(atoms, Atoms):
         return  # admit() refuses it with its own message
     if not atoms.pbc.all():
         raise ValueError(
-            'ReversibleIsotropicNPT needs atoms periodic in all three '
+            f'{name} needs atoms periodic in all three '
             f'directions (pbc is {atoms.pbc.tolist()}): the pressure is '
             'that of a periodic cell. Set atoms.pbc = True with a cell '
             'around the atoms, or use ReversibleLangevin for a cluster.')
     if not cell_volume(atoms.cell.array) > 0:
-        raise ValueError('ReversibleIsotropicNPT needs a cell of positive '
+        raise ValueError(f'{name} needs a cell of positive '
                          f'volume, got {atoms.cell.array.tolist()}.')
 
 
-def _refuse_constraints(atoms):
+def _refuse_constraints(atoms, name='ReversibleIsotropicNPT'):
     if len(getattr(atoms, 'constraints', ())):
         raise UnsupportedConstraintError(
-            'ReversibleIsotropicNPT supports no constraints yet (got '
+            f'{name} supports no constraints yet (got '
             f'{", ".join(type(c).__name__ for c in atoms.constraints)}): '
             'a constraint would have to move with the cell. Remove them '
             '(del atoms.constraints).')
 
 
-def _refuse_stressless(atoms):
+def _refuse_stressless(atoms, name='ReversibleIsotropicNPT'):
     try:
         stress = atoms.get_stress(voigt=True, apply_constraint=False)
     except (PropertyNotImplementedError, NotImplementedError,
             AttributeError) as error:
         raise ValueError(
-            f'ReversibleIsotropicNPT needs the stress, and '
+            f'{name} needs the stress, and '
             f'{type(atoms.calc).__name__} does not give it ({error!r}): '
             'the piston is pushed by it. Use a calculator that computes '
             'the stress (ASE EMT or LennardJones, asap3, '

@@ -94,7 +94,9 @@ class NPTHamiltonian(Hamiltonian):
         self.kT = units.kB * temperature_K
         self.pressure = pressure_au
         self.tdamp, self.pdamp = tdamp, pdamp
-        self.W = barostat_mass(len(self.m_n1), self.kT, pdamp)
+        self.W = self.barostat_mass(len(self.m_n1), self.kT, pdamp)
+
+    barostat_mass = staticmethod(barostat_mass)
 
     def lam_value(self) -> float:
         """``lambda``, its exact float image."""
