@@ -260,25 +260,28 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         """``(cell0, counts, section)``: from the record's ``'npt'``
         section if it has a valid one (``quanta`` then take its quanta),
         else the atoms' cell, ``lambda = 1`` and ``p_lambda = 0``."""
-        atoms = system.atoms
-        counts = {LAMBDA: np.array([round(1.0 / LAMBDA_QUANTUM)], np.int64),
-                  P_LAMBDA: np.zeros(1, np.int64)}
+        atoms, kind = system.atoms, type(system)
+        counts = kind.start_counts(LAMBDA_QUANTUM)
         section = record.get('npt') if record else None
         if section is not None:
             saved = read_record(atoms.info, names=(LAMBDA, P_LAMBDA))
+            size = counts[LAMBDA].size
             try:
-                lam_count = int(section[LAMBDA])
-                p_count = int(section[P_LAMBDA])
+                lam_counts = np.array(section[LAMBDA],
+                                      np.int64).reshape(size)
+                p_counts = np.array(section[P_LAMBDA],
+                                    np.int64).reshape(size)
                 cell0 = np.array(section['cell0'], dtype=float).reshape(3, 3)
-            except (KeyError, TypeError, ValueError):
+            except (KeyError, TypeError, ValueError, OverflowError):
                 saved = None
-            if saved is not None and lam_count > 0 and np.isfinite(
-                    cell0).all() and np.array_equal(
-                        cell0 * (lam_count * saved[f'{LAMBDA}_quantum']),
+            if saved is not None and np.isfinite(cell0).all() \
+                    and kind.valid_counts(lam_counts) and np.array_equal(
+                        kind.cell_at(cell0, lam_counts
+                                     * saved[f'{LAMBDA}_quantum']),
                         atoms.cell.array):
                 quanta[LAMBDA] = saved[f'{LAMBDA}_quantum']
                 quanta[P_LAMBDA] = saved[f'{P_LAMBDA}_quantum']
-                counts[LAMBDA][0], counts[P_LAMBDA][0] = lam_count, p_count
+                counts = {LAMBDA: lam_counts, P_LAMBDA: p_counts}
                 return cell0, counts, section
             _warn_new_run('the cell or its record was changed since the '
                           'frame was written')
@@ -290,12 +293,11 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         show the frame again bit for bit.  Returns the section, or None
         (and starts afresh) if the frame was edited."""
         atoms = system.atoms
-        lam = system.lam_value()
         momenta = atoms.arrays.get('momenta')
         if momenta is None:
             momenta = np.zeros((len(atoms), 3))
         try:
-            rho, pi = system.counts_of(atoms.positions, momenta, lam)
+            rho, pi = system.counts_of(atoms.positions, momenta)
         except Exception:
             rho = pi = None
         if 'position' in section:
@@ -312,16 +314,14 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
                 return section
         _warn_new_run('the positions or momenta were changed since the '
                       'frame was written')
-        cell0 = atoms.cell.array.copy()
-        rho, pi = system.counts_of(atoms.positions, momenta, 1.0)
-        system.x.reset(rho)
-        system.p.reset(pi)
         quanta = {LAMBDA: system.lam.quantum, P_LAMBDA: system.p_lam.quantum}
         system.set_barostat(
-            cell0, {LAMBDA: np.array([round(1.0 / system.lam.quantum)]),
-                    P_LAMBDA: np.zeros(1, np.int64)}, quanta,
-            system.temperature_K, system.pressure, system.tdamp,
-            system.pdamp)
+            atoms.cell.array.copy(), type(system).start_counts(
+                system.lam.quantum), quanta, system.temperature_K,
+            system.pressure, system.tdamp, system.pdamp)
+        rho, pi = system.counts_of(atoms.positions, momenta)
+        system.x.reset(rho)
+        system.p.reset(pi)
         return None
 
     def _read_buffer(self, path, system, timestep, step):
@@ -412,8 +412,8 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
 
     def _record_sections(self):
         system, engine = self.system, self.engine
-        section = {LAMBDA: int(system.lam.ints[0]),
-                   P_LAMBDA: int(system.p_lam.ints[0]),
+        section = {LAMBDA: system.record_counts(system.lam),
+                   P_LAMBDA: system.record_counts(system.p_lam),
                    'cell0': system.cell0.reshape(-1).tolist(),
                    'temperature_K': system.temperature_K,
                    'pressure_au': system.pressure, 'tdamp': system.tdamp,
@@ -463,11 +463,10 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
 
     def _encode(self, atoms, project):
         system = self.system
-        lam = system.lam_value()
         momenta = atoms.arrays.get('momenta')
         if momenta is None:
             momenta = np.zeros((len(atoms), 3))
-        rho, pi = system.counts_of(atoms.positions, momenta, lam)
+        rho, pi = system.counts_of(atoms.positions, momenta)
         return {'position': rho, 'momentum': pi,
                 LAMBDA: system.lam.ints, P_LAMBDA: system.p_lam.ints}
 

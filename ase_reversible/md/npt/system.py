@@ -145,11 +145,37 @@ class NPTHamiltonian(Hamiltonian):
         self.show_cell()
         super().show()
 
-    def counts_of(self, positions_nc, momenta_nc, lam):
+    def counts_of(self, positions_nc, momenta_nc):
         """``(rho, pi)`` counts (int64) of shown positions and momenta at
-        ``lambda = lam``."""
+        the present ``lambda``."""
+        lam = self.lam_value()
         return (encode(positions_nc / lam, self.x.quantum, 'position'),
                 encode(momenta_nc * lam, self.p.quantum, 'momentum'))
+
+    # -- the barostat's counts, for the restart record --------------------
+
+    @staticmethod
+    def start_counts(quantum):
+        """Counts of the undeformed cell and a piston at rest, by name,
+        for the cell's quantum ``quantum``."""
+        return {LAMBDA: np.array([round(1.0 / quantum)], np.int64),
+                P_LAMBDA: np.zeros(1, np.int64)}
+
+    @staticmethod
+    def valid_counts(counts):
+        """Whether the cell's counts (int64) describe a cell."""
+        return bool(counts[0] > 0)
+
+    @staticmethod
+    def cell_at(cell0, values):
+        """The cell (3x3, Å) the cell's variable ``values`` (float)
+        make of ``cell0``."""
+        return cell0 * values[0]
+
+    @staticmethod
+    def record_counts(variable):
+        """A barostat variable's counts as the record keeps them."""
+        return int(variable.ints[0])
 
     # -- energies ---------------------------------------------------------
 
