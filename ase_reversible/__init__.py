@@ -25,13 +25,13 @@ from .calculators import LennardJones, PendulumChain, SoftenedGravity
 from .core.quanta import Grid
 from .core.record import INFO_KEY  # noqa: F401  (the restart record's key)
 from .md import (FixedPointState, ReversibleIsotropicNPT, ReversibleLangevin,
-                 ReversibleNose, ReversibleVerlet)
+                 ReversibleNose, ReversibleNPT, ReversibleVerlet)
 from .purity import CalculatorCheck, check_calculator, probe_purity
 
 __version__ = '0.1.0'
 
 __all__ = ['ReversibleVerlet', 'ReversibleLangevin', 'ReversibleNose',
-           'ReversibleIsotropicNPT',
+           'ReversibleIsotropicNPT', 'ReversibleNPT',
            'Grid', 'FixedPointState', 'probe_purity',
            'check_calculator', 'CalculatorCheck',
            'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',

@@ -1,5 +1,6 @@
-"""ReversibleIsotropicNPT: exact out and back with a moving cell, restarts,
-the piston's force against the energy, refusals.
+"""ReversibleIsotropicNPT and ReversibleNPT: exact out and back with a
+moving cell, restarts, the piston's force against the energy, gradients,
+refusals.
 
 Every exact variable (scaled positions and momenta, the cell's scale and
 its momentum) and what the atoms show (positions, momenta, cell) is
@@ -15,9 +16,11 @@ from ase.calculators.emt import EMT
 from ase.io import Trajectory, read
 
 from ase_reversible import (AnchorMovedWarning, ReversibleIsotropicNPT,
-                            UnstableIntegrationError,
+                            ReversibleNPT, UnstableIntegrationError,
                             UnsupportedConstraintError)
+from ase_reversible.core.portable import rows_times_matrix
 from ase_reversible.md.npt import LAMBDA_MIN, VirialKick, cell_volume
+from ase_reversible.md.npt.cell import COLUMNS, ROWS, CellVirial
 from conftest import argon_bulk, asap_emt, ase_lj, copper_bulk
 from tiers import SLOW
 
@@ -336,13 +339,26 @@ def test_parameter_gradients_are_refused():
                           parameters=('sigma',))
 
 
-def test_conserved_energy_is_conserved():
-    # No thermostat to speak of (tdamp far beyond the run): the extended
-    # energy moves by the time-step error only.
-    dyn = npt(copper(), tdamp=1e6 * units.fs, energy_check=0)
-    e0 = dyn.get_conserved_energy()
-    dyn.run(40)
-    assert abs(dyn.get_conserved_energy() - e0) < 2e-3 * 32
+@pytest.mark.parametrize('cls', [ReversibleIsotropicNPT, ReversibleNPT])
+def test_the_extended_energy_errs_by_the_square_of_the_time_step(
+        cls, monkeypatch):
+    """With no friction, the conserved energy moves by the splitting's
+    error only, which halving the time step divides by about four: a
+    force or push inconsistent with the Hamiltonian would not shrink."""
+    from ase_reversible.md.npt import isotropic
+    monkeypatch.setattr(isotropic, 'PISTON_FRICTION', False)
+    errors = []
+    for dt in (2.5 * units.fs, 1.25 * units.fs):
+        atoms = copper()
+        dyn = cls(atoms, dt, 300, 1.0 * units.GPa, 1e9 * units.fs,
+                  100 * units.fs, seed=1, energy_check=0)
+        e0 = dyn.get_conserved_energy()
+        moved = []
+        for _ in range(4):
+            dyn.run(round(15 * units.fs / dt))
+            moved.append(abs(dyn.get_conserved_energy() - e0))
+        errors.append(max(moved))
+    assert 0 < errors[1] < 0.35 * errors[0] < 5e-3
 
 
 @SLOW
@@ -371,3 +387,105 @@ def test_guarded_roundings_recompute_cleanly_and_stay_exact(monkeypatch):
     out_and_back(dyn, 30)
     assert len(cleaned) > 0
     assert dyn.force_purity.clean_recomputations > len(cleaned)
+
+
+# -- ReversibleNPT: the whole cell ---------------------------------------------
+
+def full(atoms, **kwargs):
+    settings = dict(temperature_K=300, pressure_au=1.0 * units.GPa,
+                    tdamp=50 * units.fs, pdamp=100 * units.fs, seed=7)
+    settings.update(kwargs)
+    return ReversibleNPT(atoms, DT, **settings)
+
+
+def full_out_and_back(dyn, steps):
+    state, seen = dyn.engine.snapshot(), shown(dyn.atoms)
+    dyn.run(steps)
+    m = dyn.barostat_position
+    # Every entry of the deformation moved: the cell changed its shape.
+    assert np.all(m[ROWS, COLUMNS] != np.eye(3)[ROWS, COLUMNS])
+    assert np.array_equal(dyn.atoms.cell.array,
+                          rows_times_matrix(dyn.reference_cell, m))
+    dyn.reverse()
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', AnchorMovedWarning)
+        dyn.run(steps)
+    assert_back(dyn, state, seen)
+
+
+def test_full_cell_copper_emt_runs_out_and_back():
+    full_out_and_back(full(copper()), 30)
+
+
+def test_full_cell_asap3_emt_runs_out_and_back():
+    atoms = copper_bulk((2, 2, 2), 300)
+    atoms.calc = asap_emt()  # skips where asap3 is missing
+    full_out_and_back(full(atoms), 30)
+
+
+def test_full_cell_piston_force_is_minus_the_energy_derivative():
+    """Each of the six entries: ``force + J = -dU/dM_ab`` at fixed scaled
+    positions, by central differences of the energy under ``M -> M + d
+    E_ab`` (positions and cell together)."""
+    atoms = copper()
+    dyn = full(atoms, pressure_au=0.0)
+    s = dyn.system
+    # A deformation well away from the identity, so that M^-T, M^-1 and
+    # the identity give different forces.
+    m = np.array([[1.02, 0, 0], [0.05, 0.98, 0], [-0.04, 0.03, 1.01]])
+    s.lam.reset(np.rint(m[ROWS, COLUMNS] / s.lam.quantum))
+    s.show()
+    m = s.matrices()[0]
+    force = CellVirial(s).force(s.kick.stress())
+    force[2] += s.kT / m[1, 1]
+    force[5] += 2 * s.kT / m[2, 2]
+    probe = atoms.copy()
+    probe.calc = EMT()
+    rho, cell0 = s.x.floats.copy(), s.cell0
+    d = 1e-6
+    for k, (a, b) in enumerate(zip(ROWS, COLUMNS)):
+        energies = []
+        for sign in (1, -1):
+            moved = m.copy()
+            moved[a, b] += sign * d
+            probe.set_cell(cell0 @ moved, scale_atoms=False)
+            probe.positions = rho @ moved
+            energies.append(probe.get_potential_energy())
+        derivative = (energies[0] - energies[1]) / (2 * d)
+        assert force[k] == pytest.approx(-derivative, rel=1e-4, abs=1e-4)
+    assert np.abs(force).max() > 1.0  # eV: a test that could fail
+
+
+def test_full_cell_frame_and_buffer_resume_bit_for_bit(tmp_path):
+    atoms = copper()
+    dyn = full(atoms)
+    dyn.run(8)
+    dyn.write_buffer(tmp_path / 'buffer.npz')
+    with Trajectory(tmp_path / 'frame.traj', 'w') as traj:
+        traj.write(atoms)
+    frame = read(tmp_path / 'frame.traj')
+    frame.calc = EMT()
+    again = full(frame, seed=None, buffer=tmp_path / 'buffer.npz')
+    for name, counts in dyn.engine.snapshot().items():
+        assert np.array_equal(again.engine.snapshot()[name], counts), name
+    dyn.run(6)
+    again.run(6)
+    for name, counts in dyn.engine.snapshot().items():
+        assert np.array_equal(again.engine.snapshot()[name], counts), name
+    again.reverse()
+    again.run(14)
+    assert again.get_time() == 0.0
+
+
+def test_full_cell_refusals():
+    atoms = copper()
+    atoms.set_cell([[7.2, 0.1, 0], [0, 7.2, 0], [0, 0, 7.2]],
+                   scale_atoms=True)
+    with pytest.raises(ValueError, match='standard_form'):
+        full(atoms)
+    with pytest.raises(TypeError, match="ASE's MTKNPT"):
+        full(copper(), pchain=3)
+    dyn = full(copper())
+    dyn.run(2)
+    with pytest.raises(NotImplementedError, match='full cell'):
+        dyn.backpropagate(2, grad_positions=np.ones((32, 3)))

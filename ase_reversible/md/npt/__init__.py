@@ -3,7 +3,8 @@ exactly.
 
 The package: :mod:`.system` (the exact variables in scaled coordinates,
 what the atoms show, the drift, kicks and piston), :mod:`.friction` (the
-O step on the atoms and the piston), :mod:`.isotropic` (the integrator).
+O step on the atoms and the piston), :mod:`.isotropic` (the integrator),
+:mod:`.cell` (``ReversibleNPT``: the whole cell free, ASE's ``MTKNPT``).
 
 Andersen's barostat (H. C. Andersen, "Molecular dynamics simulations at
 constant pressure and/or temperature", J. Chem. Phys. 72, 2384 (1980)) as
@@ -90,10 +91,11 @@ also gives the kick's derivative in ``lambda``; the same two calls give
 as for :class:`~ase_reversible.ReversibleLangevin`.
 """
 
+from .cell import ReversibleNPT
 from .isotropic import ENERGY_CHECK_INTERVAL, SCHEME, ReversibleIsotropicNPT
 from .system import (LAMBDA_MIN, LAMBDA_QUANTUM, P_LAMBDA_BITS,
                      NPTHamiltonian, VirialKick, barostat_mass, cell_volume)
 
-__all__ = ['ReversibleIsotropicNPT', 'NPTHamiltonian', 'VirialKick',
+__all__ = ['ReversibleIsotropicNPT', 'ReversibleNPT', 'NPTHamiltonian', 'VirialKick',
            'cell_volume', 'barostat_mass', 'LAMBDA_MIN', 'LAMBDA_QUANTUM',
            'P_LAMBDA_BITS', 'SCHEME', 'ENERGY_CHECK_INTERVAL']

@@ -243,29 +243,39 @@ class ScaledKick(Kick):
         self._f_cache = (key, f_nc)
         return f_nc
 
-    def stress_trace(self):
-        """``tr(sigma)`` (eV/Å**3, ASE's sign) at the shown positions and
-        cell, from the call that gave the forces."""
+    def stress(self):
+        """The stress (Voigt, eV/Å**3, ASE's sign) at the shown positions
+        and cell, from the call that gave the forces."""
         key = self._key()
         if self._stress is not None and self._stress[0] == key:
             return self._stress[1]
         self.forces()
-        sigma = self.system.atoms.get_stress(voigt=True,
-                                             apply_constraint=False)
-        trace = float(sigma[0]) + float(sigma[1]) + float(sigma[2])
-        self._stress = (key, trace)
-        return trace
+        sigma = np.array(self.system.atoms.get_stress(
+            voigt=True, apply_constraint=False), dtype=float)
+        self._stress = (key, sigma)
+        return sigma
 
-    def clean_stress_trace(self):
-        """``tr(sigma)`` from a neighbour list built at exactly these
+    def stress_trace(self):
+        """``tr(sigma)`` (eV/Å**3) of :meth:`stress`."""
+        sigma = self.stress()
+        return float(sigma[0]) + float(sigma[1]) + float(sigma[2])
+
+    def clean_stress(self):
+        """The stress from a neighbour list built at exactly these
         positions (guarded rounding's clean recomputation)."""
         s = self.system
         f_nc = s.purity.clean_forces(s.atoms)
         self._f_cache = (self._key(), f_nc)
-        sigma = s.atoms.get_stress(voigt=True, apply_constraint=False)
-        trace = float(sigma[0]) + float(sigma[1]) + float(sigma[2])
-        self._stress = (self._key(), trace)
-        return trace
+        sigma = np.array(s.atoms.get_stress(voigt=True,
+                                            apply_constraint=False),
+                         dtype=float)
+        self._stress = (self._key(), sigma)
+        return sigma
+
+    def clean_stress_trace(self):
+        """``tr(sigma)`` of :meth:`clean_stress`."""
+        sigma = self.clean_stress()
+        return float(sigma[0]) + float(sigma[1]) + float(sigma[2])
 
     def held(self, label=None):
         key = self._key()
