@@ -389,7 +389,7 @@ def test_guarded_roundings_recompute_cleanly_and_stay_exact(monkeypatch):
     assert dyn.force_purity.clean_recomputations > len(cleaned)
 
 
-# -- ReversibleNPT: the whole cell ---------------------------------------------
+# -- ReversibleNPT: the whole cell --------------------------------------------
 
 def full(atoms, **kwargs):
     settings = dict(temperature_K=300, pressure_au=1.0 * units.GPa,
