@@ -489,3 +489,66 @@ def test_full_cell_refusals():
     dyn.run(2)
     with pytest.raises(NotImplementedError, match='full cell'):
         dyn.backpropagate(2, grad_positions=np.ones((32, 3)))
+
+
+def test_a_frame_whose_stress_differs_here_is_warned_about(tmp_path):
+    from ase_reversible import MachineChangedWarning
+    atoms = copper()
+    dyn = npt(atoms)
+    dyn.run(5)
+    with Trajectory(tmp_path / 'frame.traj', 'w') as traj:
+        traj.write(atoms)
+    frame = read(tmp_path / 'frame.traj')
+    assert len(frame.info['reversible']['npt']['stress']) == 8
+    frame.calc = EMT()
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', MachineChangedWarning)
+        assert npt(frame, seed=None).forces_match_record is True
+    frame = read(tmp_path / 'frame.traj')
+    frame.info['reversible']['npt']['stress'] = '00000000'
+    frame.calc = EMT()
+    with pytest.warns(MachineChangedWarning, match='stress at this restart'):
+        again = npt(frame, seed=None)
+    assert again.forces_match_record is False
+    for name, counts in dyn.engine.snapshot().items():
+        assert np.array_equal(again.engine.snapshot()[name], counts), name
+
+
+@SLOW
+def test_a_frame_resumed_on_another_blas_warns_of_its_stress(tmp_path):
+    """ASE's EMT sums its stress with a BLAS product: on an emulated
+    machine with another OpenBLAS core type the forces keep their bits and
+    the stress does not, and the resumed ReversibleNPT says so."""
+    from machines import emulation_works, run_leg
+    if not emulation_works(tmp_path):
+        pytest.skip('the emulated machines compute alike here')
+    write = '''
+from ase import units
+from ase.calculators.emt import EMT
+from ase.io import write
+from ase_reversible import ReversibleNPT
+from ase_reversible.app.systems import copper_bulk
+atoms = copper_bulk((2, 2, 2), 300)
+atoms.calc = EMT()
+ReversibleNPT(atoms, 5 * units.fs, 300, units.GPa, 50 * units.fs,
+              100 * units.fs, seed=7).run(5)
+write('frame.traj', atoms)
+'''
+    resume = '''
+import warnings
+from ase import units
+from ase.calculators.emt import EMT
+from ase.io import read
+from ase_reversible import ReversibleNPT
+frame = read('frame.traj')
+frame.calc = EMT()
+with warnings.catch_warnings(record=True) as seen:
+    warnings.simplefilter('always')
+    dyn = ReversibleNPT(frame, 5 * units.fs, 300, units.GPa, 50 * units.fs,
+                        100 * units.fs)
+print(dyn.forces_match_record, [str(w.message)[:40] for w in seen])
+'''
+    run_leg('avx2', write, tmp_path)
+    assert run_leg('avx2', resume, tmp_path).startswith('True []')
+    there = run_leg('sse4', resume, tmp_path)
+    assert there.startswith('False') and 'The stress at this restart' in there

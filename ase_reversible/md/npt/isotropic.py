@@ -16,11 +16,13 @@ from ...core.compositions import composition_for
 from ...core.engine import Engine, InvariantCheck
 from ...core.portable import dot
 from ...core.record import read_record
-from ...errors import AnchorMovedWarning, UnsupportedConstraintError
+from ...errors import (AnchorMovedWarning, MachineChangedWarning,
+                       UnsupportedConstraintError)
 from ..base import ReversibleDynamics
 from ..checks import check_energy_watch, check_timestep, fixed
 from ..hamiltonian import largest_kick
 from ..langevin import _checked_friction, _checked_positive, _checked_seed
+from ..machine import describe, digest, platform
 from ..watch import SystemWatch
 from .friction import PistonFriction, ScaledFriction
 from .system import (DRIFT, FRICTION, KICK, KINETIC, LAMBDA, LAMBDA_QUANTUM,
@@ -205,6 +207,9 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         if section is None and record is not None:
             record = None  # a new run: time from 0
         self._friction = friction
+        # Compared with this machine's stress once the integrator stands.
+        self._resumed_stress = None if section is None else \
+            section.get('stress')
         resumed = _resumed_noise(section, timestep)
         if seed is None and resumed is not None:
             seed = resumed['seed']
@@ -378,6 +383,38 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         with open(path, 'wb') as f:
             np.savez(f, **arrays)
 
+    def _check_machine(self, section):
+        same = super()._check_machine(section)
+        recorded = self._resumed_stress
+        if recorded is None or same is False:
+            return same
+        if digest(self.system.kick.stress()) == recorded:
+            return same
+        dropped = self.engine.anchor_index != self.engine.step_index
+        if dropped:
+            self._install(self.engine.snapshot())
+        else:
+            self._write_frame_record()
+        there = section.get('platform') if isinstance(section, dict) \
+            else None
+        warnings.warn(
+            f'The stress at this restart frame (time '
+            f'{self.get_time() / units.fs:.6g} fs) differs from the one the '
+            'run that wrote it computed there'
+            + ('' if same else ' (its forces were not compared)')
+            + ': the piston is pushed otherwise on this machine. Written '
+            f'on: {describe(there) if there else "unknown"}. Here: '
+            f'{describe(platform(self.atoms.calc))}. The run from this '
+            'frame is exact and reverses exactly to it; running back past '
+            'it is not to be trusted to reach the earlier states of the '
+            'run that wrote it'
+            + ('; the way back the buffer file held was dropped' if dropped
+               else '')
+            + '. Run on the machine and software stack that wrote it '
+            '(same CPU features, numpy, BLAS and thread counts) to go '
+            'back past it.', MachineChangedWarning, stacklevel=4)
+        return False
+
     # -- what the steps read ------------------------------------------------
 
     def _step_of(self):
@@ -419,6 +456,12 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
                    'pressure_au': system.pressure, 'tdamp': system.tdamp,
                    'pdamp': system.pdamp, 'seed': self._seed,
                    'step': engine.step_index, 'timestep': abs(engine.dt)}
+        stress = system.kick.held_stress()
+        if stress is not None:
+            # Checked on resume as the forces are (:mod:`..machine`): a
+            # BLAS product in the calculator's stress may change its bits
+            # on another machine when its forces do not.
+            section['stress'] = digest(stress)
         if not system.x.bound < RECOVERABLE:
             section['position'] = system.x.ints.reshape(-1).tolist()
         if not system.p.bound < RECOVERABLE:

@@ -255,6 +255,13 @@ class ScaledKick(Kick):
         self._stress = (key, sigma)
         return sigma
 
+    def held_stress(self):
+        """The stress the steps left for the present positions and cell,
+        or None (computing nothing)."""
+        stress = self._stress
+        return stress[1] if stress is not None and \
+            stress[0] == self._key() else None
+
     def stress_trace(self):
         """``tr(sigma)`` (eV/Å**3) of :meth:`stress`."""
         sigma = self.stress()
