@@ -21,7 +21,8 @@ from ase_reversible import (AnchorMovedWarning, ReversibleIsotropicNPT,
 from ase_reversible.core.portable import rows_times_matrix
 from ase_reversible.md.npt import LAMBDA_MIN, VirialKick, cell_volume
 from ase_reversible.md.npt.cell import COLUMNS, ROWS, CellVirial
-from conftest import argon_bulk, asap_emt, ase_lj, copper_bulk
+from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, argon_bulk, asap_emt,
+                      ase_lj, copper_bulk)
 from tiers import SLOW
 
 DT = 5 * units.fs
@@ -74,19 +75,25 @@ def copper():
     return atoms
 
 
-def argon():
+def argon(calc=ase_lj):
     # Liquid argon at 120 K: the solid's lattice, hot.
     atoms = argon_bulk((2, 2, 2), 120)
-    atoms.calc = ase_lj()
+    atoms.calc = calc()
     return atoms
+
+
+def our_lj():
+    from ase_reversible import LennardJones
+    return LennardJones(epsilon=AR_EPSILON, sigma=AR_SIGMA, rc=AR_RC)
 
 
 def test_copper_emt_runs_out_and_back_with_the_cell():
     out_and_back(npt(copper()), 30)
 
 
-def test_argon_lj_runs_out_and_back_with_the_cell():
-    dyn = npt(argon(), temperature_K=120, pressure_au=0.05 * units.GPa,
+@pytest.mark.parametrize('calc', [ase_lj, our_lj])
+def test_argon_lj_runs_out_and_back_with_the_cell(calc):
+    dyn = npt(argon(calc), temperature_K=120, pressure_au=0.05 * units.GPa,
               pdamp=200 * units.fs)
     out_and_back(dyn, 30)
 

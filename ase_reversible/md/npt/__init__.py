@@ -4,7 +4,8 @@ exactly.
 The package: :mod:`.system` (the exact variables in scaled coordinates,
 what the atoms show, the drift, kicks and piston), :mod:`.friction` (the
 O step on the atoms and the piston), :mod:`.isotropic` (the integrator),
-:mod:`.cell` (``ReversibleNPT``: the whole cell free, ASE's ``MTKNPT``).
+:mod:`.cell` (``ReversibleNPT``: the whole cell free, ASE's ``MTKNPT``),
+:mod:`.checks` (arguments, atoms, records and buffer files).
 
 Andersen's barostat (H. C. Andersen, "Molecular dynamics simulations at
 constant pressure and/or temperature", J. Chem. Phys. 72, 2384 (1980)) as

@@ -4,20 +4,17 @@ contract, gradients' mapping); the dynamics is in :mod:`.system` and
 
 from __future__ import annotations
 
-import hashlib
 import math
 import warnings
 
 import numpy as np
 from ase import units
-from ase.calculators.calculator import PropertyNotImplementedError
 
 from ...core.compositions import composition_for
 from ...core.engine import Engine, InvariantCheck
 from ...core.portable import dot
 from ...core.record import read_record
-from ...errors import (AnchorMovedWarning, MachineChangedWarning,
-                       UnsupportedConstraintError)
+from ...errors import MachineChangedWarning
 from ..base import ReversibleDynamics
 from ..checks import check_energy_watch, check_timestep, fixed
 from ..hamiltonian import largest_kick
@@ -27,8 +24,10 @@ from ..watch import SystemWatch
 from .friction import PistonFriction, ScaledFriction
 from .system import (DRIFT, FRICTION, KICK, KINETIC, LAMBDA, LAMBDA_QUANTUM,
                      P_LAMBDA, PISTON, RECOVERABLE, VIRIAL, KineticKick,
-                     NPTHamiltonian, Piston, VirialKick, cell_volume,
-                     p_lambda_quantum)
+                     NPTHamiltonian, Piston, VirialKick, p_lambda_quantum)
+from .checks import (_checked_pressure, _digest, _load_piston, _refuse_cell,
+                     _refuse_constraints, _refuse_stressless, _resumed_noise,
+                     _warn_new_run)
 
 #: ``B/2 P/2 T/2 O T/2 P/2 B/2`` (module docstring): a palindrome, so the
 #: same sequence run with -h undoes a step.  The two parts of B read
@@ -60,21 +59,15 @@ _ASE_ONLY = {
 
 
 
-def _digest(counts):
-    h = hashlib.sha256()
-    for name in sorted(counts):
-        h.update(np.ascontiguousarray(counts[name], dtype=np.int64).tobytes())
-    return h.hexdigest()
-
-
 class ReversibleIsotropicNPT(ReversibleDynamics):
     """Constant pressure and temperature (NPT) in fixed point, run back
     exactly: the counterpart of ASE's
     :class:`ase.md.nose_hoover_chain.IsotropicMTKNPT`.
 
-    The cell is scaled uniformly by an exact piston (Andersen's barostat)
-    and the atoms are held at ``temperature_K`` by Langevin friction and
-    noise (module docstring).  After ``run(n)``, :meth:`reverse` and
+    The cell is scaled uniformly by an exact piston (Andersen's barostat,
+    with friction and noise of its own) and the atoms are held at
+    ``temperature_K`` by Langevin friction and noise (the derivation is
+    in :mod:`ase_reversible.md.npt`).  After ``run(n)``, :meth:`reverse` and
     ``run(n)``, the scaled positions, their momenta, the cell's scale and
     its momentum and the information buffer are bitwise those right after
     the constructor; so are ``atoms.positions``, ``atoms.get_momenta()``
@@ -101,7 +94,7 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         The barostat's time, ASE time units (``1000 * timestep`` is
         common): the piston's mass is ASE's MTK mass ``(3N + 3) kT
         pdamp**2``, so the volume oscillates with a period of the order
-        of ``pdamp``.
+        of ``pdamp``; the piston's friction is ``1 / pdamp``.
     seed : int, optional
         Key of the thermostat's noise.  Default: the seed of the atoms'
         restart record if it was written at this time step, else drawn
@@ -125,21 +118,26 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         Passed to :class:`ase.md.md.MolecularDynamics`.
 
     ASE's ``tchain``, ``pchain``, ``tloop``, ``ploop`` and ``rng`` are
-    refused with a TypeError that says what to pass instead.
+    refused with a TypeError that says what to pass instead.  A frame the
+    run wrote resumes it (its restart record holds the reference cell,
+    ``lambda``, ``p_lambda``, their quanta and a digest of the stress);
+    with the file :meth:`write_buffer` wrote, bit for bit.
+    :meth:`backpropagate` gives gradients through the run.
 
     Raises
     ------
     TypeError
         An argument of ASE's chain integrators, or bad argument types.
     ValueError
-        A non-periodic cell, a calculator without stress, non-positive
-        temperature, tdamp or pdamp, a negative pressure... (before
+        A non-periodic cell, a calculator without stress, a non-positive
+        temperature, tdamp or pdamp, a non-finite pressure (before
         anything is changed).
     UnsupportedConstraintError
         Any constraint.
     UnstableIntegrationError
         During a run: the cell collapsed (``lambda`` below
-        :data:`LAMBDA_MIN`) or the conserved energy drifted; the step was
+        :data:`~ase_reversible.md.npt.LAMBDA_MIN`) or the conserved energy
+        drifted; the step was
         not taken, and the state runs back exactly.
     """
 
@@ -683,89 +681,3 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
                 'pdamp': self.pdamp, 'seed': self._seed,
                 **self.system.grid.todict(),
                 'force_purity': self.force_purity.mode}
-
-
-def _load_piston(piston, saved):
-    """Take the piston's buffers from a buffer file's arrays."""
-    for key in saved:
-        if key.startswith('piston_') and key.endswith('_state'):
-            n = int(key.split('_')[1])
-            buffer = None if piston is None else piston.buffers.get(n)
-            if buffer is None:
-                raise ValueError(
-                    'The buffer file was written with another pdamp or '
-                    'time step: construct with those of the run that '
-                    'wrote it.')
-            buffer.load(saved[key], saved[f'piston_{n}_top'],
-                        saved[f'piston_{n}_words'])
-
-
-def _warn_new_run(why):
-    warnings.warn(
-        f'The restart record of these atoms cannot be resumed ({why}); '
-        'ReversibleIsotropicNPT starts a new run here, with this cell as '
-        'the reference cell and time from 0.', AnchorMovedWarning,
-        stacklevel=5)
-
-
-def _checked_pressure(value):
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise TypeError('pressure_au must be a number (eV/Å**3, e.g. '
-                        f'1.0 * ase.units.GPa), got {value!r}') from None
-    if not math.isfinite(value):
-        raise ValueError(f'pressure_au must be finite (eV/Å**3), got '
-                         f'{value!r}')
-    return value
-
-
-def _refuse_cell(atoms, name):
-    from ase import Atoms
-    if not isinstance(atoms, Atoms):
-        return  # admit() refuses it with its own message
-    if not atoms.pbc.all():
-        raise ValueError(
-            f'{name} needs atoms periodic in all three '
-            f'directions (pbc is {atoms.pbc.tolist()}): the pressure is '
-            'that of a periodic cell. Set atoms.pbc = True with a cell '
-            'around the atoms, or use ReversibleLangevin for a cluster.')
-    if not cell_volume(atoms.cell.array) > 0:
-        raise ValueError(f'{name} needs a cell of positive '
-                         f'volume, got {atoms.cell.array.tolist()}.')
-
-
-def _refuse_constraints(atoms, name='ReversibleIsotropicNPT'):
-    if len(getattr(atoms, 'constraints', ())):
-        raise UnsupportedConstraintError(
-            f'{name} supports no constraints yet (got '
-            f'{", ".join(type(c).__name__ for c in atoms.constraints)}): '
-            'a constraint would have to move with the cell. Remove them '
-            '(del atoms.constraints).')
-
-
-def _refuse_stressless(atoms, name='ReversibleIsotropicNPT'):
-    try:
-        stress = atoms.get_stress(voigt=True, apply_constraint=False)
-    except (PropertyNotImplementedError, NotImplementedError,
-            AttributeError) as error:
-        raise ValueError(
-            f'{name} needs the stress, and '
-            f'{type(atoms.calc).__name__} does not give it ({error!r}): '
-            'the piston is pushed by it. Use a calculator that computes '
-            'the stress (ASE EMT or LennardJones, asap3, '
-            'ase_reversible.LennardJones).') from None
-    if np.shape(stress) != (6,) or not np.isfinite(stress).all():
-        raise ValueError(f'The stress of {type(atoms.calc).__name__} is not '
-                         f'six finite numbers: {stress!r}.')
-
-
-def _resumed_noise(section, timestep):
-    try:
-        if section is not None and float(section['timestep']) == abs(
-                timestep):
-            return {'seed': int(section['seed']),
-                    'step': int(section['step'])}
-    except (KeyError, TypeError, ValueError):
-        pass
-    return None
