@@ -559,3 +559,14 @@ print(dyn.forces_match_record, [str(w.message)[:40] for w in seen])
     assert run_leg('avx2', resume, tmp_path).startswith('True []')
     there = run_leg('sse4', resume, tmp_path)
     assert there.startswith('False') and 'The stress at this restart' in there
+
+
+@pytest.mark.parametrize('build', [npt, full])
+def test_a_step_back_past_the_anchor_is_refused_naming_the_class(build):
+    from ase_reversible import RetraceLimitError
+    dyn = build(copper())
+    state, seen = dyn.engine.snapshot(), shown(dyn.atoms)
+    dyn.reverse()
+    with pytest.raises(RetraceLimitError, match=type(dyn).__name__):
+        dyn.run(1)
+    assert_back(dyn, state, seen)

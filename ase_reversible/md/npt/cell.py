@@ -54,7 +54,7 @@ from ...errors import RetraceLimitError, UnstableIntegrationError
 from ...core.infobuffer import BufferUnderflowError
 from ..hamiltonian import Drift
 from ..langevin import _without_net_momentum
-from .friction import ScaledFriction
+from .friction import ScaledFriction, past_the_anchor
 from .isotropic import ReversibleIsotropicNPT
 from .system import (DRIFT, KINETIC, LAMBDA, LAMBDA_MIN, P_LAMBDA, PISTON,
                      VIRIAL, NPTHamiltonian, ScaledKick, virial_noise)
@@ -92,6 +92,8 @@ class CellHamiltonian(NPTHamiltonian):
     """The atoms in scaled variables under a lower-triangular ``M`` (six
     entries in ``lam``, their momenta in ``p_lam``); the atoms show ``x =
     rho M``, ``p = pi M^-T`` and the cell ``cell0 M``."""
+
+    dynamics_name = 'ReversibleNPT'
 
     def __init__(self, atoms, grid, counts, masses_n, project, purity):
         super().__init__(atoms, grid, counts, masses_n, project, purity)
@@ -372,11 +374,7 @@ class CellFriction(ScaledFriction):
             try:
                 new_k = buffer.scale_up(x_k - noise_k, mask_k)
             except BufferUnderflowError:
-                raise RetraceLimitError(
-                    'ReversibleNPT can only retrace steps it has taken: '
-                    'this one goes back past the anchor of reversal. The '
-                    'step was not taken; run forward (positive dt) from '
-                    'here.') from None
+                raise RetraceLimitError(past_the_anchor(s)) from None
         p.add_integers((new_k - x_k).astype(np.float64).reshape(self.shape))
         self.heat += s.kinetic_energy() - before
         if piston_part is not None:

@@ -16,6 +16,15 @@ from ..langevin import Friction, exact_ratio
 from .system import LAMBDA, P_LAMBDA
 
 
+def past_the_anchor(system):
+    """The message of a step back past the anchor of reversal."""
+    return (f'{system.dynamics_name} can only retrace steps it has taken: '
+            'this one goes back past the anchor of reversal, where friction '
+            '(of the atoms or the piston) would have to be undone that was '
+            'never applied. The step was not taken; run forward (positive '
+            'dt) from here.')
+
+
 class ScaledFriction(Friction):
     """Langevin's exact O step on ``pi``, whose mass is ``m lambda**2``:
     the noise's spread is ``lambda`` times that for the mass ``m``, and
@@ -42,7 +51,10 @@ class ScaledFriction(Friction):
         parts = list(atoms_part)
         parts[3] = atoms_part[3] * lam
         parts[6] = atoms_part[6] / (lam * lam)
-        super().apply(tuple(parts))
+        try:
+            super().apply(tuple(parts))
+        except RetraceLimitError:
+            raise RetraceLimitError(past_the_anchor(self.system)) from None
         if piston_part is not None:
             self.piston.apply(piston_part, self.noise.extra)
 
@@ -156,11 +168,7 @@ class PistonFriction:
                 new_k = buffer.scale_up(x_k - noise_k)
             except BufferUnderflowError:
                 raise RetraceLimitError(
-                    'ReversibleIsotropicNPT can only retrace steps it has '
-                    'taken: this one goes back past the anchor of '
-                    'reversal, where the piston\'s friction would have to '
-                    'be undone that was never applied. The step was not '
-                    'taken; run forward (positive dt) from here.') from None
+                    past_the_anchor(self.system)) from None
         q = p.quantum
         old_k, new_k_q = x_k * q, new_k * q
         self.heat += 0.5 * (dot(new_k_q, new_k_q) - dot(old_k, old_k)) \

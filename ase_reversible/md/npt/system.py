@@ -71,6 +71,9 @@ class NPTHamiltonian(Hamiltonian):
     :class:`~.hamiltonian.Hamiltonian`.
     """
 
+    #: The integrator's name, for messages.
+    dynamics_name = 'ReversibleIsotropicNPT'
+
     def __init__(self, atoms, grid, counts, masses_n, project, purity):
         self.lam = None
         super().__init__(atoms, grid, counts, masses_n, project, purity)
