@@ -294,7 +294,8 @@ def test_a_collapsing_cell_stops_the_run_at_a_reversible_state():
 class WholeRun:
     """L(x0, p0) = <a, x_T> + <b, p_T> over a fresh run of ``steps``."""
 
-    def __init__(self, steps, seed=5):
+    def __init__(self, steps, seed=5, build=None):
+        self.build = npt if build is None else build
         self.steps = steps
         self.a_nc, self.b_nc = np.random.default_rng(seed).normal(
             size=(2, 32, 3))
@@ -305,8 +306,8 @@ class WholeRun:
         atoms.set_momenta(atoms.get_momenta() + dp_nc)
         # Fine quanta: a finite difference of a whole run sees the
         # rounding as noise.
-        return npt(atoms, energy_check=0, position_quantum=2.0**-44,
-                   momentum_quantum=2.0**-46)
+        return self.build(atoms, energy_check=0, position_quantum=2.0**-44,
+                          momentum_quantum=2.0**-46)
 
     def __call__(self, dx_nc=0.0, dp_nc=0.0):
         dyn = self.dynamics(dx_nc, dp_nc)
@@ -316,8 +317,10 @@ class WholeRun:
                      + np.sum(self.b_nc * atoms.get_momenta()))
 
 
-def test_gradients_match_whole_run_finite_differences():
-    loss = WholeRun(steps=3)
+@pytest.mark.parametrize('kind', ['isotropic', 'full'])
+def test_gradients_match_whole_run_finite_differences(kind):
+    loss = WholeRun(steps=3, build=npt if kind == 'isotropic' else
+                    lambda atoms, **kw: full(atoms, **kw))
     dyn = loss.dynamics()
     start, seen = dyn.engine.snapshot(), shown(dyn.atoms)
     dyn.run(loss.steps)
@@ -494,8 +497,9 @@ def test_full_cell_refusals():
         full(copper(), pchain=3)
     dyn = full(copper())
     dyn.run(2)
-    with pytest.raises(NotImplementedError, match='full cell'):
-        dyn.backpropagate(2, grad_positions=np.ones((32, 3)))
+    with pytest.raises(NotImplementedError, match='potential parameters'):
+        dyn.backpropagate(2, grad_positions=np.ones((32, 3)),
+                          parameters=('sigma',))
 
 
 def test_a_frame_whose_stress_differs_here_is_warned_about(tmp_path):

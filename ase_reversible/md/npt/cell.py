@@ -39,6 +39,15 @@ gives ``pi`` the noise ``xi M^T`` of the mass ``m`` (the covariance of
 inverse is written in ``+ - * /`` (:func:`~ase_reversible.core.portable.
 rows_times_matrix`, the triangular inverse below): the same bits on every
 CPU.
+
+Gradients.  Each sub-step has its adjoint rule, as for the isotropic
+barostat; the derivatives of ``F M^T`` and of the piston's force in the
+six entries of ``M`` come from central differences (twelve calls for
+forces and stress at a step's positions, shared by its kick and push),
+and ``d g / d rho = sum_k d(F M^T)/d M_k`` (the mixed second derivatives
+of ``U`` being equal).  Derivatives of cheap functions of ``M`` (the
+drift, the kinetic push, what the atoms show) are central differences
+too, with no force call.
 """
 
 from __future__ import annotations
@@ -47,13 +56,14 @@ import math
 
 import numpy as np
 
+from ...adjoint.hessian import DEFAULT_FD_STEP
 from ...core.codec import encode, round_odd
 from ...core.plans import SubStep
 from ...core.portable import dot, rows_times_matrix
 from ...errors import RetraceLimitError, UnstableIntegrationError
 from ...core.infobuffer import BufferUnderflowError
 from ..hamiltonian import Drift
-from ..langevin import _without_net_momentum
+from ..langevin import _without_net_momentum, exact_ratio
 from .friction import ScaledFriction, past_the_anchor
 from .isotropic import ReversibleIsotropicNPT
 from .system import (DRIFT, KINETIC, LAMBDA, LAMBDA_MIN, P_LAMBDA, PISTON,
@@ -80,6 +90,26 @@ def lower_inverse(m):
     inverse[2, 1] = -e / (c * f)
     inverse[2, 0] = (b * e - c * d) / (a * c * f)
     return inverse
+
+
+#: Step of the central differences in the entries of ``M`` (relative to
+#: the largest ``|rho|``, so that atoms move by about 1e-5 Å, the step of
+#: :data:`~ase_reversible.adjoint.hessian.DEFAULT_FD_STEP`).
+def _entry_step(system):
+    return DEFAULT_FD_STEP / max(1.0, float(np.abs(system.x.floats).max()))
+
+
+def entry_gradient(function, m, d):
+    """``d function / d M_k`` for the six entries, by central differences
+    of step ``d``: ``function(M)`` returns a float or an array."""
+    out = []
+    for a, b in zip(ROWS, COLUMNS):
+        plus, minus = m.copy(), m.copy()
+        plus[a, b] += d
+        minus[a, b] -= d
+        out.append((np.asarray(function(plus)) - np.asarray(
+            function(minus))) / (2 * d))
+    return np.array(out)
 
 
 def is_lower_triangular(cell):
@@ -210,6 +240,24 @@ class CellDrift(Drift):
         self._moved = None
         s.show_positions()
 
+    def adjoint(self, cotangents, ch):
+        """``a_pi += c h (a_rho / m) M^-T M^-1``; ``a_M += c h d/dM
+        [(a_rho / m) . pi M^-T M^-1]`` (central differences, no force
+        call)."""
+        cotangents.flush()
+        s = self.system
+        w_nc = cotangents['position'] / s.m_n1
+        pi_nc = s.p.floats
+        m, inverse = s.matrices()
+
+        def along(m_):
+            inv = lower_inverse(m_)
+            return dot(w_nc, rows_times_matrix(
+                rows_times_matrix(pi_nc, inv.T), inv))
+        cotangents[LAMBDA] += ch * entry_gradient(along, m, 1e-6)
+        cotangents['momentum'] += ch * rows_times_matrix(
+            rows_times_matrix(w_nc, inverse.T), inverse)
+
 
 class CellKick(ScaledKick):
     """``pi += round_odd(c h F M^T / q_p)``, guarded as the kick is."""
@@ -235,14 +283,53 @@ class CellKick(ScaledKick):
             self._applied = key
         self._r_max = s.p.add_integers(self._r_nc, self._r_max)
 
+    def entry_derivatives(self):
+        """``(D, dg)``: for each of the six entries of ``M``, the
+        derivative at fixed ``rho`` of ``F M^T`` (``[6, n_atoms, 3]``,
+        eV/Å) and of the piston's force (``[6, 6]``, eV), by central
+        differences (twelve calls for forces and stress, positions and
+        cell put back bit for bit).  ``sum_k a_k D_k`` is also the
+        derivative of ``a . g`` in ``rho`` (the mixed second derivatives
+        of ``U`` being equal)."""
+        key = self._key()
+        if self._second is not None and self._second[0] == key:
+            return self._second[1]
+        s = self.system
+        atoms, rho_nc = s.atoms, s.x.floats.copy()
+        virial = CellVirial(s)
+
+        def at(m_):
+            atoms.cell.array[:] = rows_times_matrix(s.cell0, m_)
+            atoms.positions = rows_times_matrix(rho_nc, m_)
+            f_nc = atoms.get_forces(apply_constraint=False)
+            sigma = atoms.get_stress(voigt=True, apply_constraint=False)
+            return np.concatenate([rows_times_matrix(f_nc, m_.T).ravel(),
+                                   virial.force(sigma, m_)])
+        try:
+            both = entry_gradient(at, s.matrices()[0], _entry_step(s))
+        finally:
+            s.show_cell()
+            s.show_positions()
+        n = rho_nc.size
+        derivatives = (both[:, :n].reshape((6,) + rho_nc.shape),
+                       both[:, n:])
+        self._second = (key, derivatives)
+        return derivatives
+
     def adjoint(self, cotangents, ch):
-        raise NotImplementedError(NO_GRADIENTS)
-
-
-NO_GRADIENTS = (
-    'backpropagate is not available for ReversibleNPT (the full cell) '
-    'yet: its piston has no adjoint. Use ReversibleIsotropicNPT, whose '
-    'gradients are exact, or a fixed-cell run.')
+        """``a_rho += c h ((dF/dx)^T (a_pi M)) M^T`` (one product) and
+        ``a_M += c h a_pi . d(F M^T)/dM``."""
+        cotangents.flush()
+        s = self.system
+        a_nc = np.array(cotangents['momentum'])
+        if not a_nc.any():
+            return
+        m = s.matrices()[0]
+        dx_nc, _ = cotangents.product(s.atoms, rows_times_matrix(a_nc, m))
+        cotangents.products += 1
+        cotangents['position'] += ch * rows_times_matrix(dx_nc, m.T)
+        d_knc = self.entry_derivatives()[0]
+        cotangents[LAMBDA] += ch * np.array([dot(a_nc, d) for d in d_knc])
 
 
 def _add_rounded(variable, y_k):
@@ -261,16 +348,17 @@ class CellVirial(SubStep):
     def prepare(self, ch):
         return ch / self.system.p_lam.quantum
 
-    def force(self, sigma):
+    def force(self, sigma, m=None):
         """The six entries of the piston's force (eV) for the stress
-        ``sigma`` (Voigt, eV/Å**3)."""
+        ``sigma`` (Voigt, eV/Å**3), at ``M = m`` (default: the present)."""
         s = self.system
-        m, inverse = s.matrices()
+        m, inverse = s.matrices() if m is None else (m, lower_inverse(m))
+        volume = s.V0 * (m[0, 0] * m[1, 1] * m[2, 2])
         xx, yy, zz, yz, xz, xy = (float(v) for v in sigma)
         p = s.pressure
         full = np.array([[xx + p, xy, xz], [xy, yy + p, yz],
                          [xz, yz, zz + p]])
-        g = rows_times_matrix(inverse.T, full) * (-s.volume())
+        g = rows_times_matrix(inverse.T, full) * (-volume)
         g[1, 1] -= s.kT / m[1, 1]
         g[2, 2] -= 2.0 * s.kT / m[2, 2]
         return g[ROWS, COLUMNS]
@@ -294,6 +382,18 @@ class CellVirial(SubStep):
     def rollback(self):
         self._key = None
 
+    def adjoint(self, cotangents, ch):
+        """``a_rho += c h sum_k a_k D_k``, ``a_M += c h a . dg/dM``
+        (:meth:`CellKick.entry_derivatives`)."""
+        cotangents.flush()
+        a_k = np.array(cotangents[P_LAMBDA])
+        if not a_k.any():
+            return
+        d_knc, dg_kl = self.system.kick.entry_derivatives()
+        cotangents['position'] += ch * np.tensordot(a_k, d_knc, axes=1)
+        # dg_kl[k, l] = d g_l / d M_k.
+        cotangents[LAMBDA] += ch * (dg_kl @ a_k)
+
 
 class CellKinetic(SubStep):
     """``P += round_odd(c h sum q^T p / m / q)`` (lower-triangular
@@ -315,6 +415,30 @@ class CellKinetic(SubStep):
                                     for a, b in zip(ROWS, COLUMNS)])
             self._key = key
         _add_rounded(s.p_lam, scale * self._force)
+
+    def adjoint(self, cotangents, ch):
+        """With ``A`` the lower-triangular matrix of ``a = a_P``: ``a_pi
+        += c h pi (C + C^T) / m``, ``C = B B^T A B^T``, ``B = M^-T``;
+        ``a_M`` by central differences of ``a . f`` (no force call)."""
+        cotangents.flush()
+        a_k = np.array(cotangents[P_LAMBDA])
+        if not a_k.any():
+            return
+        s = self.system
+        pi_nc, m_n1 = s.p.floats, s.m_n1
+        a = lower_matrix(a_k)
+        m, inverse = s.matrices()
+        b = inverse.T
+        c = b @ b.T @ a @ b.T
+
+        def along(m_):
+            inv = lower_inverse(m_)
+            p_nc = rows_times_matrix(pi_nc, inv.T)
+            q_nc = rows_times_matrix(p_nc, inv) / m_n1
+            return dot(rows_times_matrix(q_nc, a), p_nc)
+        cotangents[LAMBDA] += ch * entry_gradient(along, m, 1e-6)
+        cotangents['momentum'] += ch * rows_times_matrix(pi_nc, c + c.T) \
+            / m_n1
 
 
 class CellPiston(SubStep):
@@ -349,6 +473,10 @@ class CellPiston(SubStep):
         s.show_cell()
         s.show_positions()
 
+    def adjoint(self, cotangents, ch):
+        """``a_P += c h a_M / W``."""
+        cotangents[P_LAMBDA] += ch / self.system.W * cotangents[LAMBDA]
+
 
 class CellFriction(ScaledFriction):
     """The O step on ``pi``: ``pi' = c pi + (sigma xi) M^T``, exact through
@@ -381,7 +509,24 @@ class CellFriction(ScaledFriction):
             self.piston.apply(piston_part, self.noise.extra)
 
     def adjoint(self, cotangents, ch):
-        raise NotImplementedError(NO_GRADIENTS)
+        """``pi' = c pi + P(s M^T)`` (``s`` the noise for the mass ``m``,
+        ``P`` the removal of its net momentum): ``a_M[c, d] += sum_i
+        (P^T a_pi')_ic s_id``, then ``a_pi = c a_pi'``; the piston's
+        ``a_P *= c_piston``."""
+        cotangents.flush()
+        s = self.system
+        atoms_part, piston_part = self.prepare(ch)
+        sigma_k, key, zero_sum = atoms_part[3], atoms_part[4], atoms_part[5]
+        s_nc = (s.p.quantum * sigma_k
+                * self.noise.normals(key, self.step_of())).reshape(self.shape)
+        a_nc = cotangents['momentum']
+        if zero_sum is not None:
+            a_nc = a_nc - (zero_sum[0] * a_nc).sum(axis=0)
+        outer = a_nc.T @ s_nc
+        cotangents[LAMBDA] += outer[ROWS, COLUMNS]
+        cotangents['momentum'] *= exact_ratio(self.settings()[0], ch)[1]
+        if piston_part is not None:
+            cotangents[P_LAMBDA] *= exact_ratio(self.piston.friction, ch)[1]
 
 
 class ReversibleNPT(ReversibleIsotropicNPT):
@@ -397,7 +542,12 @@ class ReversibleNPT(ReversibleIsotropicNPT):
     ``b`` in the xy plane), as ``atoms.cell.standard_form()`` gives it.
     :attr:`barostat_position` is ``M`` (3x3), :attr:`barostat_momentum`
     its momenta (six, in the order ``M00 M10 M11 M20 M21 M22``).
-    ``backpropagate`` is not available (NotImplementedError).
+    ``backpropagate`` gives gradients through the run; each step of the
+    retrace costs twelve calls for forces and stress (the derivatives in
+    ``M`` by central differences) besides the kick's product, and the
+    barostat's gradients (``.thermostat['lambda']``, six, at fixed
+    positions and momenta; ``['p_lambda']``) come in the order of the
+    entries.
     """
 
     _ase_counterpart = 'MTKNPT'
@@ -421,10 +571,38 @@ class ReversibleNPT(ReversibleIsotropicNPT):
         return {VIRIAL: CellVirial(system), PISTON: CellPiston(system),
                 DRIFT: system.drift, KINETIC: CellKinetic(system)}
 
-    def backpropagate(self, steps, *args, **kwargs):
-        """Not available for the full cell (raises NotImplementedError,
-        changing nothing)."""
-        raise NotImplementedError(NO_GRADIENTS)
+    def _loss_cotangents(self, ax_nc, ap_nc):
+        # x = rho M, p = pi M^-T.
+        s = self.system
+        n = s.x.ints.shape
+        ax_nc = np.zeros(n) if ax_nc is None else np.asarray(ax_nc, float)
+        ap_nc = np.zeros(n) if ap_nc is None else np.asarray(ap_nc, float)
+        rho_nc, pi_nc = s.x.floats, s.p.floats
+        m, inverse = s.matrices()
+
+        def shown(m_):
+            return (dot(ax_nc, rows_times_matrix(rho_nc, m_))
+                    + dot(ap_nc, rows_times_matrix(pi_nc,
+                                                   lower_inverse(m_).T)))
+        return {'position': rows_times_matrix(ax_nc, m.T),
+                'momentum': rows_times_matrix(ap_nc, inverse),
+                LAMBDA: entry_gradient(shown, m, 1e-6)}
+
+    def _gradients_of(self, cotangents):
+        # Back to (x, p) at fixed M: rho = x M^-1, pi = p M^T.
+        s = self.system
+        m, inverse = s.matrices()
+        a_rho, a_pi = cotangents['position'], cotangents['momentum']
+        x_nc, p_nc = s.shown_positions(), s.shown_momenta().copy()
+
+        def held(m_):
+            return (dot(a_rho, rows_times_matrix(x_nc, lower_inverse(m_)))
+                    + dot(a_pi, rows_times_matrix(p_nc, m_.T)))
+        a_m = np.array(cotangents[LAMBDA]) + entry_gradient(held, m, 1e-6)
+        self._retrace_end = self._retrace_key()
+        return (rows_times_matrix(a_rho, inverse.T),
+                rows_times_matrix(a_pi, m),
+                {'lambda': a_m, 'p_lambda': np.array(cotangents[P_LAMBDA])})
 
     @property
     def barostat_position(self):

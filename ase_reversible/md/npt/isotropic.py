@@ -565,10 +565,13 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
                 'but the state has changed since: pass carry=False or none.')
         barostat = carry.thermostat if carry else {}
         added = self._loss_cotangents(ax_nc, ap_nc)
+        size = self.system.lam.ints.size
         return {'position': added['position'],
                 'momentum': added['momentum'],
-                LAMBDA: added[LAMBDA] + float(barostat.get('lambda', 0.0)),
-                P_LAMBDA: np.array([float(barostat.get('p_lambda', 0.0))])}
+                LAMBDA: added[LAMBDA] + np.asarray(
+                    barostat.get('lambda', 0.0), float).reshape(-1),
+                P_LAMBDA: np.zeros(size) + np.asarray(
+                    barostat.get('p_lambda', 0.0), float).reshape(-1)}
 
     def _loss_cotangents(self, ax_nc, ap_nc):
         s = self.system
