@@ -36,9 +36,9 @@ rate ``M^-1 dM/dt`` is ASE's cell velocity at ``M = 1``).  The O step
 gives ``pi`` the noise ``xi M^T`` of the mass ``m`` (the covariance of
 ``pi`` at fixed ``M`` is ``m kT G``), and the piston its own friction
 ``1 / pdamp`` and noise.  Every product of a row by a matrix and every
-inverse is written in ``+ - * /`` (:func:`~ase_reversible.core.portable.
-rows_times_matrix`, the triangular inverse below): the same bits on every
-CPU.
+inverse is written in ``+ - * /``
+(:func:`~ase_reversible.core.portable.rows_times_matrix`, the triangular
+inverse below): the same bits on every CPU.
 
 Gradients.  Each sub-step has its adjoint rule, as for the isotropic
 barostat; the derivatives of ``F M^T`` and of the piston's force in the

@@ -136,8 +136,8 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         Any constraint.
     UnstableIntegrationError
         During a run: the cell collapsed (``lambda`` below
-        :data:`~ase_reversible.md.npt.LAMBDA_MIN`) or the conserved energy
-        drifted; the step was
+        :data:`~ase_reversible.md.npt.system.LAMBDA_MIN`) or the conserved
+        energy drifted; the step was
         not taken, and the state runs back exactly.
     """
 

@@ -428,7 +428,9 @@ class VirialKick(SubStep):
 
     def adjoint(self, cotangents, ch):
         """``a_rho += c h a_p_lambda dG/d rho``, ``a_lambda += c h
-        a_p_lambda dG/d lambda`` (:meth:`ScaledKick.lambda_derivatives`)."""
+        a_p_lambda dG/d lambda`` (from
+        :meth:`~ase_reversible.md.npt.system.ScaledKick.lambda_derivatives`).
+        """
         cotangents.flush()
         a = float(cotangents[P_LAMBDA][0])
         if a == 0.0:
