@@ -380,6 +380,13 @@ def test_a_long_run_goes_out_and_back():
     assert dyn.force_purity.mode in ('sorted', 'guarded', 'trust')
 
 
+@SLOW
+def test_a_long_full_cell_run_goes_out_and_back():
+    atoms = copper_bulk((3, 3, 3), 300)
+    atoms.calc = asap_emt()
+    full_out_and_back(full(atoms, pdamp=200 * units.fs), 2500)
+
+
 def test_guarded_roundings_recompute_cleanly_and_stay_exact(monkeypatch):
     # A wide guard band and a fine quantum of p_lambda: the kicks and the
     # piston's kicks come near a tie often, and each is then recomputed
