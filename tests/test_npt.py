@@ -178,6 +178,13 @@ def test_a_frame_and_its_buffer_resume_the_run_bit_for_bit(tmp_path):
     again.reverse()
     again.run(18)
     assert again.get_time() == 0.0
+    # Not under other dynamics: the steps behind the frame would retrace
+    # elsewhere.
+    frame = read(tmp_path / 'run.traj', index=-1)
+    frame.calc = EMT()
+    with pytest.raises(ValueError, match='written with pressure_au'):
+        npt(frame, seed=None, buffer=tmp_path / 'buffer.npz',
+            pressure_au=2.0 * units.GPa)
 
 
 def test_a_frame_alone_resumes_the_exact_state(tmp_path):

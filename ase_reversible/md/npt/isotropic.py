@@ -59,6 +59,13 @@ _ASE_ONLY = {
 
 
 
+def _settings(system):
+    """The ensemble's settings a buffer file is tied to."""
+    return {'temperature_K': system.temperature_K,
+            'pressure_au': system.pressure, 'tdamp': system.tdamp,
+            'pdamp': system.pdamp}
+
+
 class ReversibleIsotropicNPT(ReversibleDynamics):
     """Constant pressure and temperature (NPT) in fixed point, run back
     exactly: the counterpart of ASE's
@@ -337,6 +344,14 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         if float(saved['timestep']) != abs(timestep):
             problems.append('it was written at a time step of '
                             f'{float(saved["timestep"]) / units.fs:g} fs')
+        # The steps behind the frame retrace only under the dynamics they
+        # were taken with.
+        for name, value in _settings(system).items():
+            if name not in saved:
+                problems.append(f'it holds no {name}')
+            elif float(saved[name]) != value:
+                problems.append(f'it was written with {name} = '
+                                f'{float(saved[name]):g}, not {value:g}')
         state = {name: v.ints for name, v in system.variables.items()}
         if int(saved['step']) != step or str(saved['digest']) != \
                 _digest(state):
@@ -365,7 +380,8 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
         arrays = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
                   'step': engine.step_index,
                   'anchor_step': engine.anchor_index,
-                  'digest': _digest(engine.snapshot())}
+                  'digest': _digest(engine.snapshot()),
+                  **_settings(self.system)}
         for name, counts in engine.anchor.items():
             arrays[f'anchor_{name}'] = counts
         piston = self.friction_step.piston
