@@ -77,7 +77,8 @@ def admit(atoms, force_purity, force_noise):
             f'{type(atoms).__name__}: filters that move the cell '
             '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
             'pass the Atoms themselves. To let the cell move at constant '
-            'pressure, use ReversibleIsotropicNPT on the Atoms.')
+            'pressure, use ReversibleIsotropicNPT on the Atoms (or '
+            'ReversibleNPT for a cell that changes shape).')
     refuse_unholdable_values(atoms)
     check_calculator(atoms.calc, 'constructing the integrator')
     masses_n = checked_masses(atoms)
