@@ -23,7 +23,7 @@ from ase_reversible.md.npt import LAMBDA_MIN, VirialKick, cell_volume
 from ase_reversible.md.npt.cell import COLUMNS, ROWS, CellVirial
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, argon_bulk, asap_emt,
                       ase_lj, copper_bulk)
-from tiers import SLOW
+from tiers import SLOW, tiered
 
 DT = 5 * units.fs
 
@@ -91,7 +91,8 @@ def test_copper_emt_runs_out_and_back_with_the_cell():
     out_and_back(npt(copper()), 30)
 
 
-@pytest.mark.parametrize('calc', [ase_lj, our_lj])
+# The package's LennardJones (plain numpy) takes twice ASE's time here.
+@pytest.mark.parametrize('calc', tiered([ase_lj, our_lj], quick=[ase_lj]))
 def test_argon_lj_runs_out_and_back_with_the_cell(calc):
     dyn = npt(argon(calc), temperature_K=120, pressure_au=0.05 * units.GPa,
               pdamp=200 * units.fs)
@@ -356,7 +357,9 @@ def test_parameter_gradients_are_refused():
                           parameters=('sigma',))
 
 
-@pytest.mark.parametrize('cls', [ReversibleIsotropicNPT, ReversibleNPT])
+# One case in the quick tier (1 s each), both in the long one.
+@pytest.mark.parametrize('cls', tiered([ReversibleIsotropicNPT, ReversibleNPT],
+                                       quick=[ReversibleNPT]))
 def test_the_extended_energy_errs_by_the_square_of_the_time_step(
         cls, monkeypatch):
     """With no friction, the conserved energy moves by the splitting's
