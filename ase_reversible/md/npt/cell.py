@@ -546,7 +546,7 @@ class ReversibleNPT(ReversibleIsotropicNPT):
     As :class:`~ase_reversible.ReversibleIsotropicNPT` (the same
     arguments, restarts, refusals and Langevin thermostat), but the cell
     changes shape too: the six entries of a lower-triangular deformation
-    ``M`` and their momenta are exact variables (module docstring).  The
+    ``M`` and their momenta are exact variables (:mod:`.cell`).  The
     atoms' cell must be lower triangular in ASE's rows (``a`` along x,
     ``b`` in the xy plane), as ``atoms.cell.standard_form()`` gives it.
     :attr:`barostat_position` is ``M`` (3x3), :attr:`barostat_momentum`

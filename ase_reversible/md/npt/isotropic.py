@@ -29,9 +29,10 @@ from .checks import (_checked_pressure, _digest, _load_piston, _refuse_cell,
                      _refuse_constraints, _refuse_stressless, _resumed_noise,
                      _warn_new_run)
 
-#: ``B/2 P/2 T/2 O T/2 P/2 B/2`` (module docstring): a palindrome, so the
-#: same sequence run with -h undoes a step.  The two parts of B read
-#: ``rho`` and ``lambda`` only, the two of T ``pi`` and ``lambda`` only.
+#: ``B/2 P/2 T/2 O T/2 P/2 B/2`` (:mod:`ase_reversible.md.npt`): a
+#: palindrome, so the same sequence run with -h undoes a step.  The two
+#: parts of B read ``rho`` and ``lambda`` only, the two of T ``pi`` and
+#: ``lambda`` only.
 SCHEME = ((KICK, 0.5), (VIRIAL, 0.5), (PISTON, 0.5), (DRIFT, 0.5),
           (KINETIC, 0.5), (FRICTION, 1.0), (KINETIC, 0.5), (DRIFT, 0.5),
           (PISTON, 0.5), (VIRIAL, 0.5), (KICK, 0.5))
@@ -670,7 +671,7 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
 
     @property
     def barostat_mass(self) -> float:
-        """``W``, eV (ASE time)**2 (module docstring)."""
+        """``W``, eV (ASE time)**2 (see :mod:`ase_reversible.md.npt`)."""
         return self.system.W
 
     @property

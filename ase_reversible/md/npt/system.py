@@ -384,7 +384,7 @@ def _add_rounded(variable, y):
 
 class VirialKick(SubStep):
     """``p_lambda += round_odd(c h G / q)``, ``G = -lambda**2 V0 (tr(sigma)
-    + 3P) + 2 kT / lambda`` (module docstring).
+    + 3P) + 2 kT / lambda`` (see :mod:`ase_reversible.md.npt`).
 
     Under guarded rounding the increment is a rounding like the kick's: if
     it lies within the stress's noise bound of a tie, the stress is
