@@ -60,6 +60,35 @@ MAP = {
         'loginterval': (2, TAKEN),
         'append_trajectory': (True, TAKEN),
     }),
+    'IsotropicMTKNPT': ('ase.md.nose_hoover_chain', 'ReversibleIsotropicNPT',
+                        {
+        'temperature_K': (300.0, TAKEN),
+        'pressure_au': (1 * units.GPa, TAKEN),
+        'tdamp': (100 * DT, TAKEN),
+        'pdamp': (1000 * DT, TAKEN),
+        'tchain': (3, 'leave tchain out'),
+        'pchain': (3, 'leave pchain out'),
+        'tloop': (1, 'leave tloop out'),
+        'ploop': (1, 'leave ploop out'),
+        'trajectory': ('file', TAKEN),
+        'logfile': ('file', TAKEN),
+        'loginterval': (2, TAKEN),
+        'append_trajectory': (True, TAKEN),
+    }),
+    'MTKNPT': ('ase.md.nose_hoover_chain', 'ReversibleNPT', {
+        'temperature_K': (300.0, TAKEN),
+        'pressure_au': (1 * units.GPa, TAKEN),
+        'tdamp': (100 * DT, TAKEN),
+        'pdamp': (1000 * DT, TAKEN),
+        'tchain': (3, 'leave tchain out'),
+        'pchain': (3, 'leave pchain out'),
+        'tloop': (1, 'leave tloop out'),
+        'ploop': (1, 'leave ploop out'),
+        'trajectory': ('file', TAKEN),
+        'logfile': ('file', TAKEN),
+        'loginterval': (2, TAKEN),
+        'append_trajectory': (True, TAKEN),
+    }),
 }
 
 #: Parameters that are two ways of giving one value: ASE takes exactly one.
@@ -108,7 +137,10 @@ def test_the_ase_call_runs_exactly(ase_name, tmp_path):
     kwargs = {name: _value(value, tmp_path, name)
               for name, (value, verdict) in table.items()
               if verdict is TAKEN}
-    assert_runs_back(cls(_atoms(), DT, **kwargs), 4)
+    dyn = cls(_atoms(), DT, **kwargs)
+    cell = dyn.atoms.cell.array.copy()
+    assert_runs_back(dyn, 4)
+    assert np.array_equal(dyn.atoms.cell.array, cell)
 
 
 def _refused_cases():
@@ -135,6 +167,16 @@ def test_a_refused_argument_gives_its_translation(ase_name, argument,
         cls(atoms, DT, **kwargs)
     assert_same_state(atoms, start)   # nothing was changed
     assert not any(tmp_path.iterdir())  # nor any file opened
+
+
+def test_a_cell_mask_is_refused():
+    atoms = _atoms()
+    start = snapshot(atoms)
+    with pytest.raises(TypeError, match='MaskedMTKNPT'):
+        ase_reversible.ReversibleNPT(
+            atoms, DT, temperature_K=300, pressure_au=0.0, tdamp=100 * DT,
+            pdamp=1000 * DT, mask=(True, True, False))
+    assert_same_state(atoms, start)
 
 
 def test_a_temperature_in_ev_is_warned_about():

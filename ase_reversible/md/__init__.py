@@ -4,9 +4,10 @@
 change contract, the clock, ``backpropagate``);
 :class:`~.verlet.ReversibleVerlet` declares NVE on it,
 :class:`~.langevin.ReversibleLangevin`, :class:`~.bussi.ReversibleBussi`
-and :class:`~.nose.ReversibleNose` NVT.  :mod:`.hamiltonian` holds the
-drift and kick, :mod:`.watch` what is checked around a run,
-:mod:`.constraints` the exact constraint projections.
+and :class:`~.nose.ReversibleNose` NVT, :class:`~.npt.ReversibleIsotropicNPT`
+and :class:`~.npt.ReversibleNPT` NPT.  :mod:`.hamiltonian` holds the drift
+and kick, :mod:`.watch` what is checked around a run, :mod:`.constraints`
+the exact constraint projections.
 """
 
 from .base import ReversibleDynamics
@@ -14,7 +15,9 @@ from .state import FixedPointState
 from .langevin import ReversibleLangevin
 from .bussi import ReversibleBussi
 from .nose import ReversibleNose
+from .npt import ReversibleIsotropicNPT, ReversibleNPT
 from .verlet import ReversibleVerlet
 
 __all__ = ['ReversibleDynamics', 'ReversibleVerlet', 'ReversibleLangevin',
-           'ReversibleBussi', 'ReversibleNose', 'FixedPointState']
+           'ReversibleBussi', 'ReversibleNose', 'ReversibleIsotropicNPT',
+           'ReversibleNPT', 'FixedPointState']

@@ -1,0 +1,107 @@
+"""What :class:`~.isotropic.ReversibleIsotropicNPT` checks of its
+arguments and atoms, and reads of restart records and buffer files."""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import warnings
+
+import numpy as np
+from ase.calculators.calculator import PropertyNotImplementedError
+
+from ...errors import AnchorMovedWarning, UnsupportedConstraintError
+from .system import cell_volume
+
+
+def _digest(counts):
+    h = hashlib.sha256()
+    for name in sorted(counts):
+        h.update(np.ascontiguousarray(counts[name], dtype=np.int64).tobytes())
+    return h.hexdigest()
+
+
+def _load_piston(piston, saved):
+    """Take the piston's buffers from a buffer file's arrays."""
+    for key in saved:
+        if key.startswith('piston_') and key.endswith('_state'):
+            n = int(key.split('_')[1])
+            buffer = None if piston is None else piston.buffers.get(n)
+            if buffer is None:
+                raise ValueError(
+                    'The buffer file was written with another pdamp or '
+                    'time step: construct with those of the run that '
+                    'wrote it.')
+            buffer.load(saved[key], saved[f'piston_{n}_top'],
+                        saved[f'piston_{n}_words'])
+
+
+def _warn_new_run(why):
+    warnings.warn(
+        f'The restart record of these atoms cannot be resumed ({why}); '
+        'ReversibleIsotropicNPT starts a new run here, with this cell as '
+        'the reference cell and time from 0.', AnchorMovedWarning,
+        stacklevel=5)
+
+
+def _checked_pressure(value):
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise TypeError('pressure_au must be a number (eV/Å**3, e.g. '
+                        f'1.0 * ase.units.GPa), got {value!r}') from None
+    if not math.isfinite(value):
+        raise ValueError(f'pressure_au must be finite (eV/Å**3), got '
+                         f'{value!r}')
+    return value
+
+
+def _refuse_cell(atoms, name):
+    from ase import Atoms
+    if not isinstance(atoms, Atoms):
+        return  # admit() refuses it with its own message
+    if not atoms.pbc.all():
+        raise ValueError(
+            f'{name} needs atoms periodic in all three '
+            f'directions (pbc is {atoms.pbc.tolist()}): the pressure is '
+            'that of a periodic cell. Set atoms.pbc = True with a cell '
+            'around the atoms, or use ReversibleLangevin for a cluster.')
+    if not cell_volume(atoms.cell.array) > 0:
+        raise ValueError(f'{name} needs a cell of positive '
+                         f'volume, got {atoms.cell.array.tolist()}.')
+
+
+def _refuse_constraints(atoms, name='ReversibleIsotropicNPT'):
+    if len(getattr(atoms, 'constraints', ())):
+        raise UnsupportedConstraintError(
+            f'{name} supports no constraints yet (got '
+            f'{", ".join(type(c).__name__ for c in atoms.constraints)}): '
+            'a constraint would have to move with the cell. Remove them '
+            '(del atoms.constraints).')
+
+
+def _refuse_stressless(atoms, name='ReversibleIsotropicNPT'):
+    try:
+        stress = atoms.get_stress(voigt=True, apply_constraint=False)
+    except (PropertyNotImplementedError, NotImplementedError,
+            AttributeError) as error:
+        raise ValueError(
+            f'{name} needs the stress, and '
+            f'{type(atoms.calc).__name__} does not give it ({error!r}): '
+            'the piston is pushed by it. Use a calculator that computes '
+            'the stress (ASE EMT or LennardJones, asap3, '
+            'ase_reversible.LennardJones).') from None
+    if np.shape(stress) != (6,) or not np.isfinite(stress).all():
+        raise ValueError(f'The stress of {type(atoms.calc).__name__} is not '
+                         f'six finite numbers: {stress!r}.')
+
+
+def _resumed_noise(section, timestep):
+    try:
+        if section is not None and float(section['timestep']) == abs(
+                timestep):
+            return {'seed': int(section['seed']),
+                    'step': int(section['step'])}
+    except (KeyError, TypeError, ValueError):
+        pass
+    return None
