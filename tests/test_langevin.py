@@ -366,12 +366,16 @@ def test_a_buffer_file_from_another_state_is_refused(tmp_path):
     dyn.run(20)
     dyn.write_buffer(saved)
     dyn.close()
-    for index, friction, match in ((10, FRICTION, 'step 20 of another'),
-                                   (20, 2 * FRICTION, 'another friction')):
+    # The way back past the frame would draw its noise at another
+    # temperature or friction: refused, not retraced elsewhere.
+    for index, temperature, friction, match in (
+            (10, 300, FRICTION, 'step 20 of another'),
+            (20, 300, 2 * FRICTION, 'friction='),
+            (20, 350, FRICTION, 'temperature_K=300.0, not 350.0')):
         frame = read(str(traj), index)
         frame.calc = CALCULATORS['ase-lj']()
         with pytest.raises(ValueError, match=match):
-            ReversibleLangevin(frame, 5 * units.fs, 300, friction,
+            ReversibleLangevin(frame, 5 * units.fs, temperature, friction,
                                buffer=saved)
 
 

@@ -374,7 +374,9 @@ class ReversibleLangevin(ReversibleDynamics):
         self._seed = _checked_seed(seed)
         step = resumed['step'] if resumed is not None else 0
         saved = None if buffer is None else _read_buffer(
-            buffer, system, self._seed, timestep, step)
+            buffer, system, self._seed, timestep, step,
+            {'temperature_K': self._temperature_K,
+             'friction': self._friction})
         if saved is not None and self._resumed_machine is None \
                 and 'machine' in saved:
             # A frame whose record lost its machine section: the file
@@ -470,8 +472,11 @@ class ReversibleLangevin(ReversibleDynamics):
                 'anchor; write the buffer after retracing them, or from a '
                 'run at one time step.')
         buffers = self.friction_step.active_buffers()
+        # The way back past the frame draws the noise again: at the
+        # temperature and friction it was drawn with, or it misses.
         arrays = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
-                  'step': step, 'anchor_step': engine.anchor_index,
+                  'temperature_K': self._temperature_K,
+                  'friction': self._friction, 'step': step, 'anchor_step': engine.anchor_index,
                   'digest': _digest(engine.snapshot()),
                   'machine': json.dumps(self._buffer_machine_section())}
         for name, counts in engine.anchor.items():
@@ -645,9 +650,10 @@ def _digest(counts):
     return h.hexdigest()
 
 
-def _read_buffer(path, system, seed, timestep, step):
+def _read_buffer(path, system, seed, timestep, step, settings):
     """The arrays of a buffer file, refused unless written at this very
-    state, seed, time step and step."""
+    state, seed, time step, step and ``settings`` (``temperature_K`` and
+    ``friction``; a file from before they were written has none)."""
     with np.load(path) as f:
         saved = {key: f[key] for key in f.files}
     state = {'position': system.x.ints, 'momentum': system.p.ints}
@@ -657,6 +663,11 @@ def _read_buffer(path, system, seed, timestep, step):
                         f'not {seed}')
     if float(saved['timestep']) != abs(timestep):
         problems.append(f'its time step is {float(saved["timestep"]) / units.fs:g} fs')
+    for name, value in settings.items():
+        if name in saved and float(saved[name]) != value:
+            problems.append(f'it was written with {name}='
+                            f'{float(saved[name])!r}, not {value!r} (the '
+                            'way back draws the noise again with them)')
     if int(saved['step']) != step or str(saved['digest']) != _digest(state):
         problems.append(f'it was written at step {int(saved["step"])} of '
                         'another state (these atoms are at step '
