@@ -243,7 +243,10 @@ def test_trajectory_and_log_work_as_for_ase(tmp_path):
     ({'temperature_K': float('nan')}, ValueError, 'temperature_K must be'),
     ({'tdamp': -1.0}, ValueError, 'tdamp must be positive'),
     ({'tdamp': 'long'}, TypeError, 'tdamp must be a number'),
-    ({'tchain': 3}, TypeError, 'not a chain'),
+    ({'tloop': 2}, ValueError, 'accepts only tloop=1'),
+    ({'tchain': 0}, ValueError, 'tchain must be a whole number'),
+    ({'tchain': 2.0}, ValueError, 'tchain must be a whole number'),
+    ({'scheme': 'leapfrog'}, ValueError, 'scheme must be one of'),
 ])
 def test_bad_arguments_are_refused_before_anything_changes(kwargs, error,
                                                           match):
