@@ -89,21 +89,25 @@ def chain_names(j):
 def step_scheme(kind='velocity', tchain=1):
     """The sub-steps of a step, ``(name, fraction of the time step)``.
 
-    ``'velocity'``: ``B/2 C/2 A C/2 B/2`` (module docstring), the forces at
-    the step's end.  ``'position'``: ``C/2 A/2 B A/2 C/2``, the force call in
-    the middle of the step and the thermostat's kicks reading the momenta
-    at the step's ends, the ones the frames show.  The three parts of ``A``
-    depend on ``p'`` and ``s_1`` only, which none of them changes, so they
-    commute.  ``C/2`` is the chain's links from the last to the first, each
-    a half step: a palindrome whichever way round, hence exactly undone
-    with ``-h``.
+    ``'velocity'``: ``B/2 C/2 A C/2 B/2`` (module docstring): the forces at
+    the step's end, and the thermostat's kicks reading the momenta half
+    kicked.  ``'position'``: ``A/2 C/2 B C/2 A/2``: the force call in the
+    middle of the step (``B`` and ``C`` commute), and the thermostat's kicks
+    reading the momenta at the step's ends, those the frames show; the
+    step ends with the drift of the positions, so the kick is one drift
+    back, as the restart record's digest of the forces expects.  The
+    three parts of ``A`` depend on ``p'`` and ``s_1`` only, which none of
+    them changes, so they commute.  ``C/2`` is the chain's links, the
+    first next to ``A``, each a half step.  Both are palindromes, hence
+    exactly undone with ``-h``.
     """
-    links = tuple((link(j), 0.5) for j in range(tchain, 0, -1))
-    a_half = ((PI_KICK, 0.5), (TICK, 0.5))
+    inner = tuple((link(j), 0.5) for j in range(1, tchain + 1))
+    a_half = ((TICK, 0.5), (PI_KICK, 0.5))
     if kind == 'velocity':
-        half, middle = ((KICK, 0.5),) + links + a_half, ((DRIFT, 1.0),)
+        half = ((KICK, 0.5),) + inner[::-1] + a_half[::-1]
+        middle = ((DRIFT, 1.0),)
     elif kind == 'position':
-        half, middle = links + a_half + ((DRIFT, 0.5),), ((KICK, 1.0),)
+        half, middle = ((DRIFT, 0.5),) + a_half + inner, ((KICK, 1.0),)
     else:
         raise ValueError(f"scheme must be 'velocity' or 'position', got "
                          f'{kind!r}')
