@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
+import copy
 import gc
 import json
 import math
@@ -696,18 +697,28 @@ CHAIN_SYSTEMS = (
 
 
 class ChainSampler(NoseSampler):
-    """NoseSampler, plus the range of every ``s_j``."""
+    """NoseSampler, plus the range of every ``s_j`` and the internal
+    kinetic energy of the momenta half kicked, ``(p' + h F / 2) / s_1``
+    (what the velocity scheme's thermostat reads)."""
 
     def __init__(self, dyn, steps):
         super().__init__(dyn, steps)
         self.low = np.full(dyn.tchain, np.inf)
         self.high = np.zeros(dyn.tchain)
+        self.half_kinetic = np.full(steps + 1, np.nan)
+        self.m_n1 = self.atoms.get_masses()[:, None]
 
     def __call__(self):
         super().__call__()
         s_j = self.dyn.thermostat_positions
         np.minimum(self.low, s_j, out=self.low)
         np.maximum(self.high, s_j, out=self.high)
+        p_nc = self.atoms.get_momenta() + (0.5 * self.dyn.dt / s_j[0]) * \
+            self.atoms.get_forces()
+        p_c = p_nc.sum(axis=0)
+        self.half_kinetic[self.dyn.nsteps] = 0.5 * (
+            float((p_nc * p_nc / self.m_n1).sum())
+            - float(p_c @ p_c) / self.total_mass)
 
 
 def chain_case(system, tchain, scheme, lengths):
@@ -742,6 +753,12 @@ def chain_case(system, tchain, scheme, lengths):
             np.mean(np.sum(displacement**2, axis=1))),
         'seconds': seconds}
     del result['thermostat']['s_trace']
+    half = copy.copy(sampler)
+    half.kinetic = sampler.half_kinetic
+    half_stats = statistics_of(half, first, dof, kT, histogram_edges(dof, kT),
+                               h)
+    result['half_kicked'] = {'temperature_K': half_stats['temperature_K'],
+                             'ks': half_stats['ks']}
     if tchain == max(CHAIN_LENGTHS):
         dyn.observers.clear()
         dyn.reverse()
@@ -752,9 +769,12 @@ def chain_case(system, tchain, scheme, lengths):
     ks = result['sampling']['ks']
     t = result['sampling']['temperature_K']
     e = result['thermostat']['extended_energy_eV']
+    hk = result['half_kicked']
     print(f'  {system.label:9s} tchain {tchain} {scheme:8s} T {t["mean"]:.2f}'
           f' +- {t["standard_error"]:.2f} K  KS p {ks["p_value"]:.3g} (shape '
-          f'{ks["shape_p_value"]:.3g})  H drift {e["max_deviation"]:.3g} eV'
+          f'{ks["shape_p_value"]:.3g}; half kicked T '
+          f'{hk["temperature_K"]["mean"]:.2f} p {hk["ks"]["p_value"]:.3g})'
+          f'  H drift {e["max_deviation"]:.3g} eV'
           f'  s {result["s_range"]}  {seconds:.0f} s', flush=True)
     return result
 
