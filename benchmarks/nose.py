@@ -524,6 +524,10 @@ def measure_memory(lengths):
 TIMESTEP_STUDY_FS = (2.0, 5.0, 10.0, 20.0)
 TIMESTEP_STUDY_TDAMP_STEPS = 100
 TIMESTEP_STUDY_EVERY = 5
+#: ReversibleNose's schemes (and the velocity scheme with a chain of 3),
+#: and ASE's chain.
+TIMESTEP_STUDY_KINDS = ('velocity', 'position', 'velocity-tchain3',
+                        'ase_nose_hoover_chain')
 
 
 @dataclass(frozen=True)
@@ -579,8 +583,9 @@ def timestep_case(kind, dt_fs, lengths):
     if kind == 'ase_nose_hoover_chain':
         dyn = NoseHooverChainNVT(atoms, dt, temperature_K=300, tdamp=tdamp_)
     else:
+        scheme, _, chain = kind.partition('-tchain')
         dyn = ReversibleNose(atoms, dt, temperature_K=300, tdamp=tdamp_,
-                             scheme=kind)
+                             scheme=scheme, tchain=int(chain or 1))
     tic = time.perf_counter()
     dyn.run(lengths.equilibration)
     sampler = StepSampler(dyn, dof)
@@ -612,7 +617,7 @@ def timestep_study(quick):
     lengths = TIMESTEP_QUICK if quick else TIMESTEP_FULL
     steps = TIMESTEP_STUDY_FS[::3] if quick else TIMESTEP_STUDY_FS
     cases = [timestep_case(kind, dt_fs, lengths) for dt_fs in steps
-             for kind in ('velocity', 'position', 'ase_nose_hoover_chain')]
+             for kind in TIMESTEP_STUDY_KINDS]
     return {'system': 'Au 256, asap3 EMT, momenta drawn at 600 K',
             'temperature_K': 300.0,
             'tdamp_steps': TIMESTEP_STUDY_TDAMP_STEPS,
