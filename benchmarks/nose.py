@@ -94,7 +94,7 @@ from thermostat import (BLOCKS, FORCE_EVERY, SPEED_FULL, SPEED_QUICK,
 
 from ase_reversible import ReversibleNose
 from ase_reversible.app.systems import argon_bulk, copper_bulk, thermalize
-from ase_reversible.md.nose import ENERGY_CHECK_INTERVAL
+from ase_reversible.md.nose import CHAIN_STIFFNESS, ENERGY_CHECK_INTERVAL
 from ase_reversible.purity import SPOT_CHECK_INTERVAL
 
 #: The momenta are drawn at this multiple of the target temperature (top).
@@ -784,8 +784,56 @@ def chain_case(system, tchain, scheme, lengths):
     return result
 
 
+#: The stability check: systems (those of the tests' round trips), tdamp
+#: in steps, and steps run from the start.
+STABILITY_SYSTEMS = (
+    replace(thermostat.SYSTEMS[1], label='Cu fcc', repeat=(3, 3, 3),
+            build=copper_bulk),
+    replace(thermostat.SYSTEMS[0], label='Ar fcc', repeat=(4, 4, 4)),
+)
+STABILITY_TDAMP_STEPS = (10, 20, 40, 100)
+STABILITY_STEPS = 3000
+
+
+def stability_case(system, tchain, tdamp_steps, steps):
+    """From the lattice with momenta at the system's temperature, the
+    thermostat at 0.6 times that (what equipartition leaves, about): does
+    the run last ``steps`` steps, and how far does the extended energy
+    move (kT)?"""
+    atoms = system.atoms()
+    h = system.timestep_fs * units.fs
+    temperature_K = 0.6 * atoms.get_temperature()
+    dyn = ReversibleNose(atoms, h, temperature_K, tdamp_steps * h,
+                         tchain=tchain, energy_check=0)
+    kT = units.kB * temperature_K
+    e0 = dyn.get_conserved_energy()
+    largest = [0.0]
+
+    def watch():
+        largest[0] = max(largest[0], abs(dyn.get_conserved_energy() - e0))
+    dyn.attach(watch, interval=5)
+    try:
+        dyn.run(steps)
+        failure = None
+    except Exception as error:  # what it raised is the result
+        failure = f'{type(error).__name__} at step {dyn.nsteps}'
+    result = {'system': system.label, 'n_atoms': len(atoms),
+              'timestep_fs': system.timestep_fs, 'tchain': tchain,
+              'tdamp_steps': tdamp_steps, 'steps': steps,
+              'failure': failure, 'largest_change_kT': largest[0] / kT}
+    print(f"  {system.label} {len(atoms)} tchain {tchain} tdamp "
+          f"{tdamp_steps:3d} steps: {failure or 'ran'}, |dH| <= "
+          f"{result['largest_change_kT']:.3g} kT", flush=True)
+    return result
+
+
 def chain_study(quick, scheme='velocity'):
     lengths = CHAIN_QUICK if quick else CHAIN_FULL
+    steps = 300 if quick else STABILITY_STEPS
+    stability = [stability_case(system, tchain, tdamp_steps, steps)
+                 for system in STABILITY_SYSTEMS
+                 for tdamp_steps in STABILITY_TDAMP_STEPS
+                 for tchain in (1, 3)]
     cases = [chain_case(system, tchain, scheme, lengths)
              for system in CHAIN_SYSTEMS for tchain in CHAIN_LENGTHS]
     speed = SPEED_QUICK if quick else SPEED_FULL
@@ -793,7 +841,8 @@ def chain_study(quick, scheme='velocity'):
                       names=CHAIN_SPEED_CONTESTANTS, integrators=INTEGRATORS,
                       reference='ase_nose_hoover_chain')
     return {'lengths': asdict(lengths), 'tdamp_steps': TDAMP_STEPS,
-            'ks_level': KS_LEVEL, 'cases': cases, 'speed': cost}
+            'ks_level': KS_LEVEL, 'chain_stiffness': CHAIN_STIFFNESS,
+            'stability': stability, 'cases': cases, 'speed': cost}
 
 
 STUDIES = {'timestep': timestep_study, 'chain': chain_study}

@@ -298,7 +298,7 @@ def test_gradients_match_complex_step_through_a_float_nose_run():
     atoms = argon(2, 40, rc=30.0, ro=29.0)
     Stationary(atoms)
     dyn = ReversibleNose(atoms, dt, 120, 50 * units.fs, energy_check=0,
-                         **FINE)
+                         tchain=1, **FINE)
     a_nc, b_nc = random_loss(atoms)
     x0_nc, p0_nc = atoms.positions.copy(), atoms.get_momenta()
     g_th, kT, Q = dyn.system.g, dyn.system.kT, dyn.system.Q

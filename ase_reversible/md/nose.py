@@ -18,7 +18,40 @@ adds to some variables a function of variables it leaves alone:
 Each update is rounded odd to its quantum, so each is undone exactly with
 ``-h``, and the step ``B/2 C/2 A C/2 B/2`` is a palindrome: one force call,
 with the forces at the step's end as in velocity Verlet, one drift of the
-positions, and no buffer.
+positions, and no buffer (``scheme='velocity'``).  Its thermostat kicks
+read the momenta half kicked, which it holds at ``T``; the frames show the
+momenta at the step's end, cooler by ``O(dt**2)``.  ``A/2 C/2 B C/2 A/2``
+(``scheme='position'``; ``B`` and ``C`` commute) kicks ``pi`` with the
+momenta the frames show; docs/thermostats.md has the measured comparison.
+
+The chain (``tchain = M > 1``; cf. B. Leimkuhler and C. Sweet, SIAM J.
+Appl. Dyn. Syst. 4, 187 (2005), for recursive thermostats in one virtual
+time) thermostats the thermostats::
+
+    H = sum p'**2 / (2 m s_1**2) + U(x) + g kT ln s_1
+        + sum_(j<M) pi_j**2 / (2 Q_j s_(j+1)**2) + pi_M**2 / (2 Q_M)
+        + sum_(j>1) phi(s_j),    phi(s) = kT (a (s - 1) - (a - 1) ln s).
+
+With ``p = p' / s_1`` and ``u_j = pi_j / s_(j+1)`` (``u_M = pi_M``; the
+Jacobian is ``s_1**N_f s_2 ... s_M``), ``H = H_0 + sum u_j**2 / (2 Q_j) +
+g kT ln s_1 + sum phi(s_j)``, and integrating the microcanonical density
+over ``s_1`` leaves ``exp(-H_0 / kT) prod_j exp(-u_j**2 / (2 Q_j kT))
+prod_(j>1) s_j exp(-phi(s_j) / kT)`` for ``g = N_f + 1``: canonical in the
+atoms' ``x`` and ``p``, whatever ``phi`` is, provided each ``s_j``'s weight
+is normalisable.  A bare ``g_j kT ln s_j`` (the single thermostat's term
+repeated) gives ``s**(1 - g_j)``, normalisable for no ``g_j``; this
+``phi`` gives ``s**a exp(-a (s - 1))``, largest at ``s = 1`` and vanishing
+at 0, with ``a`` = :data:`CHAIN_STIFFNESS`.  The force on ``pi_j``, ``j >
+1``, is ``(u_(j-1)**2 / Q_(j-1) - kT) / s_j - a kT (s_j - 1) / s_j``: the
+thermostat ``j`` heats or cools ``j - 1`` towards ``kT`` as a Nosé-Hoover
+chain does, and is pulled back towards ``s_j = 1``.  Each term of ``C =
+sum_j pi_j**2 / (2 Q_j s_(j+1)**2) + phi(s_(j+1))`` (link ``j``) is a
+function of ``pi_j`` and ``s_(j+1)``, which it does not move: its flow is
+the shear ``s_j += h pi_j / (Q_j s_(j+1)**2)``, ``pi_(j+1) += h (pi_j**2 /
+(Q_j s_(j+1)**3) - phi'(s_(j+1)))``.  ``C/2`` is the links in a row, each
+a half step, mirrored in the palindrome.  The masses are ASE's: ``Q_1 = g
+kT tdamp**2``, ``Q_j = kT tdamp**2``.  ``tchain=1`` is the single
+thermostat, bit for bit.
 
 Which ensemble, and the clock.  Steps are equal in virtual time.
 Integrating the microcanonical density of ``H`` over ``s`` leaves, for
@@ -66,7 +99,10 @@ S, PI, CLOCK = 'thermostat_position', 'thermostat_momentum', 'time'
 DRIFT, KICK, S_DRIFT, PI_KICK, TICK = ('drift', 'kick', 's-drift',
                                        'pi-kick', 'tick')
 
-#: Default length of the chain (``tchain``).
+#: Default length of the chain (``tchain``): the single thermostat, whose
+#: frames the records of earlier runs hold.  A chain is steadier only with
+#: a slow enough thermostat (docs/thermostats.md, "A chain of
+#: thermostats"); ASE's call with ``tchain=3`` is accepted unchanged.
 TCHAIN = 1
 
 #: Confinement of the chain's coordinates ``s_j``, ``j >= 2``: each has the
@@ -161,19 +197,22 @@ def chain_masses(g, kT, tdamp, tchain):
             for j in range(tchain)]
 
 
-def confinement(kT, s, a=CHAIN_STIFFNESS):
+def confinement(kT, s, a=None):
     """``phi(s) = kT (a (s - 1) - (a - 1) ln s)``, eV: the potential of a
     chain coordinate after the first."""
+    a = CHAIN_STIFFNESS if a is None else a
     return kT * (a * (s - 1.0) - (a - 1.0) * math.log(s))
 
 
-def confinement_force(kT, s, a=CHAIN_STIFFNESS):
+def confinement_force(kT, s, a=None):
     """``phi'(s) = kT (a - (a - 1) / s)``, eV."""
+    a = CHAIN_STIFFNESS if a is None else a
     return kT * (a - (a - 1.0) / s)
 
 
-def confinement_curvature(kT, s, a=CHAIN_STIFFNESS):
+def confinement_curvature(kT, s, a=None):
     """``phi''(s) = kT (a - 1) / s**2``, eV."""
+    a = CHAIN_STIFFNESS if a is None else a
     return kT * (a - 1.0) / (s * s)
 
 
@@ -539,16 +578,18 @@ class ReversibleNose(ReversibleDynamics):
     """Nosé's constant-temperature dynamics in fixed point, run back
     exactly with no buffer: a deterministic NVT.
 
-    The atoms, a thermostat coordinate ``s`` and its momentum ``pi``
-    evolve under Nosé's extended Hamiltonian (module docstring), split so
-    that every update is an exact shear.  After ``run(n)``,
-    :meth:`reverse` and ``run(n)``, positions, momenta, ``s``, ``pi`` and
-    the clock are bitwise those right after the constructor, however long
-    the run: nothing is stored.  The frames of a run sample the canonical
-    distribution at ``temperature_K`` if the dynamics is ergodic, which a
-    single Nosé thermostat is not for small or stiff systems (a handful of
-    atoms, a cold harmonic crystal): use
-    :class:`~ase_reversible.ReversibleLangevin` for those.
+    The atoms and a chain of thermostats -- coordinates ``s_j`` and
+    momenta ``pi_j``, ``s = s_1`` and ``pi = pi_1`` those of the first --
+    evolve under a Hamiltonian in Nosé's virtual time (module docstring),
+    split so that every update is an exact shear.  After ``run(n)``,
+    :meth:`reverse` and ``run(n)``, positions, momenta, every ``s_j`` and
+    ``pi_j`` and the clock are bitwise those right after the constructor,
+    however long the run: nothing is stored.  The frames of a run sample
+    the canonical distribution at ``temperature_K`` if the dynamics is
+    ergodic, which a single thermostat is not for small or stiff systems
+    (a handful of atoms, a cold harmonic crystal): a chain helps on a
+    crystal (docs/thermostats.md, "A chain of thermostats"); for a handful
+    of atoms use :class:`~ase_reversible.ReversibleLangevin`.
 
     The atoms show the real momenta ``p = p' / s``; the exact variable is
     the virtual momentum ``p'`` (``state`` and ``counts`` hold its
@@ -568,7 +609,21 @@ class ReversibleNose(ReversibleDynamics):
     tdamp : float
         Characteristic time of the thermostat, ASE time units (``100 *
         timestep`` is a common choice, as for ASE's
-        ``NoseHooverChainNVT``); its mass is ``Q = g kB T tdamp**2``.
+        ``NoseHooverChainNVT``); the masses are ASE's, ``Q_1 = g kB T
+        tdamp**2`` and ``kB T tdamp**2`` for the chain's others.
+    tchain : int, optional
+        Thermostats in the chain, 1 or more; default: that of the frame's
+        restart record, else :data:`TCHAIN` (1: Nosé's single
+        thermostat).  ASE's default, 3, needs ``tdamp`` of 40 steps or
+        more to stay stable (docs/thermostats.md).
+    tloop : int
+        Accepted only as 1 (ASE's chain sub-cycles; this one has no
+        sub-cycles: use a smaller time step).
+    scheme : {'velocity', 'position'}, optional
+        The arrangement of a step (:func:`step_scheme`); default: the
+        record's, else ``'velocity'``, whose configurational averages
+        hardly move with the time step (docs/thermostats.md, "Large time
+        steps").
     trajectory, logfile, loginterval
         As for :class:`ase.md.verlet.VelocityVerlet`.
     order, composition
@@ -586,13 +641,16 @@ class ReversibleNose(ReversibleDynamics):
         Passed to :class:`ase.md.md.MolecularDynamics`.
 
     A frame the run wrote resumes it bit for bit: the restart record
-    (``atoms.info['reversible']``) holds ``s``, ``pi`` and their quanta.
+    (``atoms.info['reversible']``) holds every ``s_j``, ``pi_j``, their
+    quanta, ``tchain`` and ``scheme``.
 
     Raises
     ------
     ValueError, TypeError
-        A non-positive or non-finite temperature or tdamp, ``tchain`` or
-        ``tloop`` (arguments of ASE's chain), or the errors of
+        A non-positive or non-finite temperature or tdamp, a ``tchain``
+        that is not a whole number from 1, a ``tloop`` other than 1, an
+        unknown ``scheme``, a ``tchain`` or ``scheme`` other than those of
+        the frame's restart record, or the errors of
         :class:`~ase_reversible.ReversibleVerlet`.
     UnsupportedConstraintError
         As for :class:`~ase_reversible.ReversibleVerlet`.
