@@ -441,9 +441,13 @@ def test_a_chain_runs_back_exactly(case, tchain, scheme):
     atoms = build()
     Stationary(atoms)
     atoms.calc = CALCULATORS[calc]()
-    dyn = nose(atoms, dt_fs, temperature_K=0.6 * atoms.get_temperature(),
-               tchain=tchain, scheme=scheme)
+    # ASE's NoseHooverChainNVT call, tloop=1 included, plus the scheme.
+    dyn = ReversibleNose(atoms, dt_fs * units.fs,
+                         temperature_K=0.6 * atoms.get_temperature(),
+                         tdamp=40 * dt_fs * units.fs, tchain=tchain, tloop=1,
+                         scheme=scheme)
     assert (dyn.tchain, dyn.scheme) == (tchain, scheme)
+    assert dyn.todict()['tchain'] == tchain
     start, shown = dyn.counts, snapshot(atoms)
     assert sorted(start) == sorted(['position', 'momentum', 'time']
                                    + chain_names(tchain))
@@ -588,3 +592,48 @@ def test_gradients_match_complex_step_through_a_float_chain_run():
         reference = (np.vdot(a_nc, x_nc.imag) + np.vdot(b_nc, p_nc.imag)) / h
         errors.append(abs(np.vdot(ours, u_nc) - reference) / abs(reference))
     assert max(errors) < 1e-7, errors
+
+
+@SLOW
+def test_a_chain_of_three_samples_a_copper_crystal_canonically():
+    """Cu256 with asap3 EMT, momenta drawn at 1200 K on the lattice,
+    thermostats at 600 K, 5 fs, tdamp 40 steps; 2000 steps, then the
+    internal kinetic energy of the half-kicked momenta (what the thermostat
+    reads) every 10 steps over 20,000.  A chain of three: Kolmogorov-Smirnov
+    p against the canonical Gamma distribution and the width against the
+    canonical one in the assertions' messages; the single thermostat's
+    distribution is too narrow (the lack of ergodicity of one Nosé
+    thermostat on a nearly harmonic crystal), which the test requires to
+    show that it can fail."""
+    from scipy import stats
+    from asap3 import EMT
+    from ase_reversible.app.systems import copper_bulk
+
+    widths = {}
+    for tchain in (1, 3):
+        atoms = copper_bulk((4, 4, 4), 1200, rattle=0)
+        Stationary(atoms)
+        atoms.calc = EMT()
+        dof = 3 * len(atoms) - 3
+        kT = units.kB * 600
+        m_n1 = atoms.get_masses()[:, None]
+        dyn = ReversibleNose(atoms, 5 * units.fs, 600, 200 * units.fs,
+                             tchain=tchain)
+        dyn.run(2000)
+        kinetic = []
+
+        def sample():
+            p_nc = atoms.get_momenta() + (
+                0.5 * dyn.dt / dyn.thermostat_position) * atoms.get_forces()
+            p_c = p_nc.sum(axis=0)
+            kinetic.append(0.5 * ((p_nc**2 / m_n1).sum()
+                                  - p_c @ p_c / m_n1.sum()))
+        dyn.attach(sample, interval=10)
+        dyn.run(20_000)
+        kinetic = np.array(kinetic)
+        widths[tchain] = kinetic.std() / (np.sqrt(dof / 2) * kT)
+        if tchain == 3:
+            p = stats.kstest(kinetic, 'gamma', args=(dof / 2, 0, kT)).pvalue
+            assert p > 0.01, (p, widths)
+            assert abs(widths[3] - 1) < 0.1, widths
+    assert widths[1] < 0.9, widths

@@ -504,7 +504,8 @@ def timestep_block(stored):
             if c is None:
                 continue
             u = c['potential_energy_eV']
-            half = c.get('half_kick_temperature_K')
+            half = (c.get('half_kick_temperature_K')
+                    if kind.startswith('velocity') else None)
             du = u['mean'] - reference[kind]
             rows.append([
                 f'{dt:g}', label, _mean_se(c['temperature_K']),
@@ -581,7 +582,23 @@ ASE NoseHooverChainNVT {median['ase_nose_hoover_chain'] * 1e3:.2f} ms
 """
 
 
+def chain_stability_block(stored):
+    """docs/thermostats.md, "A chain of thermostats": which runs lasted."""
+    study = stored['results'].get('chain')
+    if study is None or 'stability' not in study:
+        return 'Not measured yet: `python benchmarks/nose.py --study chain`.'
+    rows = []
+    for c in study['stability']:
+        rows.append([f"{c['system']} {c['n_atoms']}, {c['timestep_fs']:g} fs",
+                     c['tdamp_steps'], c['tchain'],
+                     c['failure'] or f"ran {c['steps']:,} steps",
+                     f"{c['largest_change_kT']:.3g}"])
+    return markdown_table(['system', 'tdamp (steps)', 'tchain', 'outcome',
+                           'largest change of H (kT)'], rows)
+
+
 #: docs pages this section writes numbers into (render.py replaces what
 #: lies between each block's markers).
 DOC_BLOCKS = {('thermostats.md', 'timestep'): timestep_block,
+              ('thermostats.md', 'chain-stability'): chain_stability_block,
               ('thermostats.md', 'chain'): chain_block}
