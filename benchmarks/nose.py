@@ -678,7 +678,7 @@ def run(quick):
 AR_LIQUID_LATTICE = 5.73
 AR_LIQUID_MELT_STEPS = 2000
 CHAIN_LENGTHS = (1, 2, 3)
-CHAIN_FULL = StudyLengths(equilibration=2000, sampled=100_000)
+CHAIN_FULL = StudyLengths(equilibration=2000, sampled=60_000)
 CHAIN_QUICK = StudyLengths(equilibration=200, sampled=1000)
 
 
@@ -740,7 +740,18 @@ def chain_case(system, tchain, scheme, lengths):
     sampler = ChainSampler(dyn, steps)
     dyn.attach(sampler, interval=1)
     tic = time.perf_counter()
-    dyn.run(steps)
+    try:
+        dyn.run(steps)
+    except Exception as error:  # what it raised is the result
+        failure = f'{type(error).__name__} at step {dyn.nsteps}'
+        print(f'  {system.label:9s} tchain {tchain} {scheme:8s} {failure}',
+              flush=True)
+        return {'system': system.label, 'n_atoms': n_atoms,
+                'tchain': tchain, 'scheme': scheme,
+                'timestep_fs': system.timestep_fs,
+                'temperature_K': system.temperature_K, 'failure': failure,
+                's_range': [[float(a), float(b)] for a, b in
+                            zip(sampler.low, sampler.high)]}
     seconds = time.perf_counter() - tic
     first = lengths.equilibration + 1
     displacement = atoms.get_positions() - x0_nc
