@@ -99,10 +99,11 @@ S, PI, CLOCK = 'thermostat_position', 'thermostat_momentum', 'time'
 DRIFT, KICK, S_DRIFT, PI_KICK, TICK = ('drift', 'kick', 's-drift',
                                        'pi-kick', 'tick')
 
-#: Default length of the chain (``tchain``): the single thermostat, whose
-#: frames the records of earlier runs hold.  A chain is steadier only with
-#: a slow enough thermostat (docs/thermostats.md, "A chain of
-#: thermostats"); ASE's call with ``tchain=3`` is accepted unchanged.
+#: Default length of the chain (``tchain``): the single thermostat.  A
+#: chain samples a crystal better, but its coordinates wander near zero,
+#: where it stops with an error unless its thermostat is slow
+#: (docs/thermostats.md, "A chain of thermostats"); ASE's call with
+#: ``tchain=3`` is accepted unchanged.
 TCHAIN = 1
 
 #: Confinement of the chain's coordinates ``s_j``, ``j >= 2``: each has the
@@ -614,8 +615,9 @@ class ReversibleNose(ReversibleDynamics):
     tchain : int, optional
         Thermostats in the chain, 1 or more; default: that of the frame's
         restart record, else :data:`TCHAIN` (1: Nosé's single
-        thermostat).  ASE's default, 3, needs ``tdamp`` of 40 steps or
-        more to stay stable (docs/thermostats.md).
+        thermostat).  ASE's default, 3, samples a crystal better but
+        needs ``tdamp`` of 40 steps or more, and may still stop with an
+        error (docs/thermostats.md, "A chain of thermostats").
     tloop : int
         Accepted only as 1 (ASE's chain sub-cycles; this one has no
         sub-cycles: use a smaller time step).
