@@ -59,6 +59,27 @@ into about T, and ``s`` (its mean and range) and ``dt / s`` are reported.
    ASE Langevin, ASE VelocityVerlet and ReversibleVerlet, copper with
    asap3 EMT at 1000 and 4000 atoms, interleaved rounds by
    ``thermostat.speed_case``.
+
+Two studies run on their own and are kept by the section's runs
+(``python benchmarks/nose.py --study timestep`` or ``chain``: 807 s and
+743 s measured at a load average of 3 to 4), rendered into
+docs/thermostats.md:
+
+5. Large time steps: Au 256 (asap3 EMT), momenta drawn at 600 K,
+   thermostats at 300 K with tdamp = 100 steps, at 2, 5, 10 and 20 fs:
+   ReversibleNose's two schemes, the velocity scheme with a chain of 3,
+   and ASE's ``NoseHooverChainNVT``; 5,000 steps, then 40,000 sampled
+   every 5: the mean on-step temperature, that of the half-kicked momenta
+   ``(p' + dt F / 2) / s`` (what the velocity scheme's thermostat reads),
+   and the mean and spread of the potential energy.
+6. The chain: first, from the tests' round-trip systems (Cu 108, Ar 256)
+   at tdamp 10 to 100 steps, whether a chain of 3 runs 3,000 steps where
+   the single thermostat does; then the sampling of copper (as in 1.) and
+   liquid argon (256 atoms at rho sigma**3 = 0.84, 120 K, melted by ASE's
+   Langevin) with tchain 1, 2 and 3: KS tests of the on-step kinetic
+   energy (scale kT, and scale from its mean) and of the half-kicked one,
+   the extended energy, every ``s_j``'s range, a round trip for tchain 3,
+   and the cost per step against the single thermostat and ASE's chain.
 """
 
 from __future__ import annotations
@@ -650,6 +671,7 @@ def run(quick):
              for s, r in (QUICK_SPEED_CASES if quick else SPEED_CASES)]
     load['end'] = os.getloadavg()
     return {
+        **stored_studies(),
         'load_average': load,
         'settings': {'start_factor': START_FACTOR,
                      'tdamp_steps': TDAMP_STEPS,
@@ -857,6 +879,19 @@ def chain_study(quick, scheme='velocity'):
 
 
 STUDIES = {'timestep': timestep_study, 'chain': chain_study}
+
+
+def stored_studies():
+    """The studies stored in docs/benchmarks/nose.json, each with its own
+    command and date: a run of the section keeps them (they take longer
+    than the rest of it; ``--study`` measures them again)."""
+    import common as common_
+    path = Path(common_.DOCS) / 'benchmarks' / 'nose.json'
+    try:
+        results = json.loads(path.read_text())['results']
+    except (OSError, ValueError, KeyError):
+        return {}
+    return {name: results[name] for name in STUDIES if name in results}
 
 
 def run_study(name, quick, out=None):
