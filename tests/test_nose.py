@@ -637,3 +637,24 @@ def test_a_chain_of_three_samples_a_copper_crystal_canonically():
             assert p > 0.01, (p, widths)
             assert abs(widths[3] - 1) < 0.1, widths
     assert widths[1] < 0.9, widths
+
+
+def test_an_unstable_chain_stops_loudly_and_stays_reversible():
+    """A chain of three with tdamp = 10 steps on Cu108 (measured: the run
+    stops at step 182, the fixed-point range of pi_3 exceeded)."""
+    from ase_reversible import UnstableIntegrationError
+    build, calc, dt_fs, _ = THERMOSTAT_CASES['Cu108 asap-emt']
+    atoms = build()
+    Stationary(atoms)
+    atoms.calc = CALCULATORS[calc]()
+    dyn = ReversibleNose(atoms, dt_fs * units.fs,
+                         0.6 * atoms.get_temperature(),
+                         10 * dt_fs * units.fs, tchain=3, energy_check=0)
+    start = dyn.counts
+    with pytest.raises(UnstableIntegrationError, match='larger tdamp'):
+        dyn.run(400)
+    taken = dyn.nsteps
+    assert 0 < taken < 400
+    dyn.reverse()
+    dyn.run(taken)
+    assert_same_counts(dyn.counts, start)

@@ -87,7 +87,8 @@ from ..core.plans import SubStep
 from ..core.portable import dot
 from ..core.record import read_record
 from ..core.variables import ExactVariable
-from ..errors import AnchorMovedWarning, UnstableIntegrationError
+from ..errors import (AnchorMovedWarning, QuantumRangeError,
+                      UnstableIntegrationError)
 from .base import ReversibleDynamics, projected_momenta
 from .checks import check_energy_watch, check_timestep, fixed
 from .constraints import no_projection
@@ -425,6 +426,13 @@ class ThermostatKick(SubStep):
             sys.p.floats / sys.m_n1)
 
 
+_CHAIN_ADVICE = (
+    'the chain is unstable at this tdamp and time step (a chain coordinate '
+    's_j came near zero, where its link stiffens). Use a larger tdamp (40 '
+    'time steps or more; 100 is usual), a smaller time step, or tchain=1. '
+    'The step was not taken; the state is valid and reversible.')
+
+
 class ThermostatDrift(SubStep):
     """The flow of the chain's link ``j`` (from 1), ``pi_j**2 / (2 Q_j
     s_(j+1)**2) + phi(s_(j+1))``, a function of ``pi_j`` and ``s_(j+1)``:
@@ -448,23 +456,40 @@ class ThermostatDrift(SubStep):
         sys, j = self.system, self.j
         pi = float(sys.chain_pi[j - 1].floats[0])
         s_j = sys.chain_s[j - 1]
-        if j == sys.tchain:
+        if sys.tchain == 1:
             _add_rounded(s_j, prepared * pi)
         else:
-            factor, scale = prepared
-            s = float(sys.chain_s[j].floats[0])
-            inverse_square = 1.0 / (s * s)
-            _add_rounded(s_j, factor * pi * inverse_square)
-            _add_rounded(sys.chain_pi[j], scale * (
-                pi * pi * inverse_square / (sys.masses_Q[j - 1] * s)
-                - confinement_force(sys.kT, s)))
+            try:
+                self._apply_link(prepared, pi)
+            except QuantumRangeError as error:
+                raise UnstableIntegrationError(
+                    f'The thermostat chain left the range of its fixed '
+                    f'point at link {j} ({error}): {_CHAIN_ADVICE}'
+                ) from error
         if not s_j.floats[0] > 0.0:
-            name = 's' if j == 1 else f's_{j}'
+            if sys.tchain == 1:
+                raise UnstableIntegrationError(
+                    'The Nosé thermostat coordinate s reached zero: the '
+                    'thermostat is unstable. Use a larger tdamp or a '
+                    'smaller time step. The step was not taken; the state '
+                    'is valid and reversible.')
             raise UnstableIntegrationError(
-                f'The Nosé thermostat coordinate {name} reached zero: the '
-                'thermostat is unstable. Use a larger tdamp or a smaller '
-                'time step. The step was not taken; the state is valid and '
-                'reversible.')
+                f'The thermostat chain\'s coordinate s_{j} reached zero: '
+                f'{_CHAIN_ADVICE}')
+
+    def _apply_link(self, prepared, pi):
+        sys, j = self.system, self.j
+        s_j = sys.chain_s[j - 1]
+        if j == sys.tchain:
+            _add_rounded(s_j, prepared * pi)
+            return
+        factor, scale = prepared
+        s = float(sys.chain_s[j].floats[0])
+        inverse_square = 1.0 / (s * s)
+        _add_rounded(s_j, factor * pi * inverse_square)
+        _add_rounded(sys.chain_pi[j], scale * (
+            pi * pi * inverse_square / (sys.masses_Q[j - 1] * s)
+            - confinement_force(sys.kT, s)))
 
     def adjoint(self, cotangents, ch):
         """``a_pi_j += c h (a_s_j / (Q s**2) + a_pi_(j+1) 2 pi_j / (Q
