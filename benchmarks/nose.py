@@ -106,7 +106,8 @@ from ase import units
 from ase.build import bulk
 from ase.md.langevin import Langevin
 from ase.md.nose_hoover_chain import NoseHooverChainNVT
-from ase.md.velocitydistribution import MaxwellBoltzmannDistribution, Stationary
+from ase.md.velocitydistribution import (MaxwellBoltzmannDistribution,
+                                         Stationary)
 from thermostat import (BLOCKS, FORCE_EVERY, SPEED_FULL, SPEED_QUICK,
                         TEMPERATURE_GOAL_PERCENT,
                         TRAJECTORY_BYTES_PER_COORDINATE, WINDOW_C, Sampler,
@@ -693,7 +694,7 @@ def run(quick):
     }
 
 
-# -- the chain: canonical on a crystal? ----------------------------------------
+# -- the chain: canonical on a crystal? --------------------------------------
 
 #: Liquid argon: fcc at rho sigma**3 = 0.84 (sigma 3.405 Å), 120 K (kT /
 #: epsilon = 1.0), melted by ASE's Langevin before the thermostat starts.

@@ -588,7 +588,8 @@ def test_gradients_match_complex_step_through_a_float_chain_run():
     errors = []
     for dx, dp, ours in ((1, 0, g.positions), (0, 1, g.momenta)):
         u_nc = rng.normal(size=x0_nc.shape)
-        x_nc, p_nc = run(x0_nc + 1j * h * dx * u_nc, p0_nc + 1j * h * dp * u_nc)
+        x_nc, p_nc = run(x0_nc + 1j * h * dx * u_nc,
+                         p0_nc + 1j * h * dp * u_nc)
         reference = (np.vdot(a_nc, x_nc.imag) + np.vdot(b_nc, p_nc.imag)) / h
         errors.append(abs(np.vdot(ours, u_nc) - reference) / abs(reference))
     assert max(errors) < 1e-7, errors

@@ -563,9 +563,10 @@ def chain_block(stored):
     lengths = study['lengths']
     chain = median['reversible_nose_tchain3'] / median['reversible_nose']
     ase = median['reversible_nose_tchain3'] / median['ase_nose_hoover_chain']
+    scheme = study['cases'][0]['scheme']
     return f"""\
 Momenta drawn at twice the target on the lattice (copper; argon melted
-first by ASE's `Langevin` at the target), `scheme='{study['cases'][0]['scheme']}'`,
+first by ASE's `Langevin` at the target), `scheme='{scheme}'`,
 tdamp = {study['tdamp_steps']} steps, {lengths['equilibration']:,} steps
 of equilibration and {lengths['sampled']:,} sampled, every step. KS: the
 Kolmogorov-Smirnov p-value of the internal kinetic energy against the
