@@ -59,12 +59,34 @@ into about T, and ``s`` (its mean and range) and ``dt / s`` are reported.
    ASE Langevin, ASE VelocityVerlet and ReversibleVerlet, copper with
    asap3 EMT at 1000 and 4000 atoms, interleaved rounds by
    ``thermostat.speed_case``.
+
+Two studies run on their own and are kept by the section's runs
+(``python benchmarks/nose.py --study timestep`` or ``chain``: 807 s and
+743 s measured at a load average of 3 to 4), rendered into
+docs/thermostats.md:
+
+5. Large time steps: Au 256 (asap3 EMT), momenta drawn at 600 K,
+   thermostats at 300 K with tdamp = 100 steps, at 2, 5, 10 and 20 fs:
+   ReversibleNose's two schemes, the velocity scheme with a chain of 3,
+   and ASE's ``NoseHooverChainNVT``; 5,000 steps, then 40,000 sampled
+   every 5: the mean on-step temperature, that of the half-kicked momenta
+   ``(p' + dt F / 2) / s`` (what the velocity scheme's thermostat reads),
+   and the mean and spread of the potential energy.
+6. The chain: first, from the tests' round-trip systems (Cu 108, Ar 256)
+   at tdamp 10 to 100 steps, whether a chain of 3 runs 3,000 steps where
+   the single thermostat does; then the sampling of copper (as in 1.) and
+   liquid argon (256 atoms at rho sigma**3 = 0.84, 120 K, melted by ASE's
+   Langevin) with tchain 1, 2 and 3: KS tests of the on-step kinetic
+   energy (scale kT, and scale from its mean) and of the half-kicked one,
+   the extended energy, every ``s_j``'s range, a round trip for tchain 3,
+   and the cost per step against the single thermostat and ASE's chain.
 """
 
 from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
+import copy
 import gc
 import json
 import math
@@ -81,7 +103,11 @@ import numpy as np
 import thermostat
 from adjoint import _max_rss_bytes
 from ase import units
+from ase.build import bulk
+from ase.md.langevin import Langevin
 from ase.md.nose_hoover_chain import NoseHooverChainNVT
+from ase.md.velocitydistribution import (MaxwellBoltzmannDistribution,
+                                         Stationary)
 from thermostat import (BLOCKS, FORCE_EVERY, SPEED_FULL, SPEED_QUICK,
                         TEMPERATURE_GOAL_PERCENT,
                         TRAJECTORY_BYTES_PER_COORDINATE, WINDOW_C, Sampler,
@@ -89,8 +115,8 @@ from thermostat import (BLOCKS, FORCE_EVERY, SPEED_FULL, SPEED_QUICK,
                         integrated_time, run_ase, speed_case, statistics_of)
 
 from ase_reversible import ReversibleNose
-from ase_reversible.app.systems import argon_bulk, copper_bulk
-from ase_reversible.md.nose import ENERGY_CHECK_INTERVAL
+from ase_reversible.app.systems import argon_bulk, copper_bulk, thermalize
+from ase_reversible.md.nose import CHAIN_STIFFNESS, ENERGY_CHECK_INTERVAL
 from ase_reversible.purity import SPOT_CHECK_INTERVAL
 
 #: The momenta are drawn at this multiple of the target temperature (top).
@@ -146,6 +172,8 @@ QUICK = Lengths(equilibration=200, round_trip=1000, memory_steps=(100, 1000),
 #: Copper, asap3 EMT: 1000 and 4000 atoms.
 SPEED_CASES = ((SYSTEMS[1], (5, 5, 10)), (SYSTEMS[1], (10, 10, 10)))
 QUICK_SPEED_CASES = SPEED_CASES[:1]
+CHAIN_SPEED_CONTESTANTS = ('reversible_nose', 'reversible_nose_tchain3',
+                           'ase_nose_hoover_chain', 'velocity_verlet')
 SPEED_CONTESTANTS = ('reversible_nose', 'ase_nose_hoover_chain',
                      'ase_langevin', 'velocity_verlet', 'reversible_verlet')
 
@@ -167,7 +195,13 @@ def ase_nose_hoover_chain(atoms, system):
                               tdamp=tdamp(system))
 
 
+def reversible_nose_chain(atoms, system):
+    return ReversibleNose(atoms, system.timestep_fs * units.fs,
+                          system.temperature_K, tdamp(system), tchain=3)
+
+
 INTEGRATORS = {'reversible_nose': reversible_nose,
+               'reversible_nose_tchain3': reversible_nose_chain,
                'ase_nose_hoover_chain': ase_nose_hoover_chain,
                **thermostat.INTEGRATORS}
 
@@ -505,6 +539,114 @@ def measure_memory(lengths):
             'nose': nose, 'langevin': langevin, 'profile': profile}
 
 
+# -- large time steps: which momenta the thermostat holds at T --------------
+
+#: Au 256, asap3 EMT, momenta drawn at 600 K, thermostats at 300 K with
+#: tdamp = TIMESTEP_STUDY_TDAMP_STEPS steps; 2 fs is the reference.
+TIMESTEP_STUDY_FS = (2.0, 5.0, 10.0, 20.0)
+TIMESTEP_STUDY_TDAMP_STEPS = 100
+TIMESTEP_STUDY_EVERY = 5
+#: ReversibleNose's schemes (and the velocity scheme with a chain of 3),
+#: and ASE's chain.
+TIMESTEP_STUDY_KINDS = ('velocity', 'position', 'velocity-tchain3',
+                        'ase_nose_hoover_chain')
+
+
+@dataclass(frozen=True)
+class StudyLengths:
+    equilibration: int
+    sampled: int
+
+
+TIMESTEP_FULL = StudyLengths(equilibration=5000, sampled=40_000)
+TIMESTEP_QUICK = StudyLengths(equilibration=200, sampled=1000)
+
+
+def gold_256():
+    atoms = bulk('Au', 'fcc', a=4.08, cubic=True).repeat((4, 4, 4))
+    MaxwellBoltzmannDistribution(atoms, temperature_K=600,
+                                 rng=np.random.default_rng(1))
+    Stationary(atoms)
+    atoms.calc = thermostat.CALCULATORS['asap3 EMT']()
+    return atoms
+
+
+class StepSampler:
+    """Observer: the on-step kinetic temperature, the temperature of the
+    momenta half kicked by the step's forces, ``(p' + h F / 2) / s``
+    (what the velocity scheme's thermostat reads), and the potential
+    energy."""
+
+    def __init__(self, dyn, dof):
+        self.dyn, self.atoms = dyn, dyn.atoms
+        self.m_n1 = self.atoms.get_masses()[:, None]
+        self.scale = 1.0 / (dof * units.kB)
+        self.on, self.half, self.potential = [], [], []
+
+    def __call__(self):
+        p_nc = self.atoms.get_momenta()
+        self.on.append(float((p_nc * p_nc / self.m_n1).sum()) * self.scale)
+        s = getattr(self.dyn, 'thermostat_position', None)
+        if s is not None:
+            f_nc = self.atoms.get_forces()
+            h_nc = p_nc + (0.5 * self.dyn.dt / s) * f_nc
+            self.half.append(float((h_nc * h_nc / self.m_n1).sum())
+                             * self.scale)
+        self.potential.append(self.atoms.get_potential_energy())
+
+
+def timestep_case(kind, dt_fs, lengths):
+    """One run of the study: ``kind`` is a ReversibleNose scheme or
+    ``'ase_nose_hoover_chain'``."""
+    atoms = gold_256()
+    dof = 3 * len(atoms) - 3
+    dt = dt_fs * units.fs
+    tdamp_ = TIMESTEP_STUDY_TDAMP_STEPS * dt
+    if kind == 'ase_nose_hoover_chain':
+        dyn = NoseHooverChainNVT(atoms, dt, temperature_K=300, tdamp=tdamp_)
+    else:
+        scheme, _, chain = kind.partition('-tchain')
+        dyn = ReversibleNose(atoms, dt, temperature_K=300, tdamp=tdamp_,
+                             scheme=scheme, tchain=int(chain or 1))
+    tic = time.perf_counter()
+    dyn.run(lengths.equilibration)
+    sampler = StepSampler(dyn, dof)
+    dyn.attach(sampler, interval=TIMESTEP_STUDY_EVERY)
+    dyn.run(lengths.sampled)
+    seconds = time.perf_counter() - tic
+    potential = np.array(sampler.potential[1:])
+    result = {'kind': kind, 'timestep_fs': dt_fs, 'seconds': seconds,
+              'samples': len(potential),
+              'temperature_K': block_mean(sampler.on[1:]),
+              'potential_energy_eV': block_mean(potential),
+              'potential_std_eV': float(potential.std())}
+    if sampler.half:
+        result['half_kick_temperature_K'] = block_mean(sampler.half[1:])
+    if hasattr(dyn, 'thermostat_position'):
+        result['s_last'] = dyn.thermostat_position
+    half = result.get('half_kick_temperature_K', {}).get('mean', math.nan)
+    t_on = result['temperature_K']['mean']
+    u = result['potential_energy_eV']
+    print(f'  {kind:22s} {dt_fs:4g} fs  T {t_on:.2f} K (half kick '
+          f"{half:.2f})  U {u['mean']:.3f} +- {u['standard_error']:.3f} eV"
+          f'  {seconds:.0f} s', flush=True)
+    return result
+
+
+def timestep_study(quick):
+    """Mean on-step temperature and potential energy of ReversibleNose's
+    two schemes and ASE's chain against the time step."""
+    lengths = TIMESTEP_QUICK if quick else TIMESTEP_FULL
+    steps = TIMESTEP_STUDY_FS[::3] if quick else TIMESTEP_STUDY_FS
+    cases = [timestep_case(kind, dt_fs, lengths) for dt_fs in steps
+             for kind in TIMESTEP_STUDY_KINDS]
+    return {'system': 'Au 256, asap3 EMT, momenta drawn at 600 K',
+            'temperature_K': 300.0,
+            'tdamp_steps': TIMESTEP_STUDY_TDAMP_STEPS,
+            'sample_every': TIMESTEP_STUDY_EVERY,
+            'lengths': asdict(lengths), 'blocks': BLOCKS, 'cases': cases}
+
+
 # -- cost per step ------------------------------------------------------------
 
 def cost_case(system, repeat, settings):
@@ -530,6 +672,7 @@ def run(quick):
              for s, r in (QUICK_SPEED_CASES if quick else SPEED_CASES)]
     load['end'] = os.getloadavg()
     return {
+        **stored_studies(),
         'load_average': load,
         'settings': {'start_factor': START_FACTOR,
                      'tdamp_steps': TDAMP_STEPS,
@@ -551,7 +694,235 @@ def run(quick):
     }
 
 
+# -- the chain: canonical on a crystal? --------------------------------------
+
+#: Liquid argon: fcc at rho sigma**3 = 0.84 (sigma 3.405 Å), 120 K (kT /
+#: epsilon = 1.0), melted by ASE's Langevin before the thermostat starts.
+AR_LIQUID_LATTICE = 5.73
+AR_LIQUID_MELT_STEPS = 2000
+CHAIN_LENGTHS = (1, 2, 3)
+CHAIN_FULL = StudyLengths(equilibration=2000, sampled=60_000)
+CHAIN_QUICK = StudyLengths(equilibration=200, sampled=1000)
+
+
+def liquid_argon(repeat, temperature_K):
+    atoms = bulk('Ar', 'fcc', a=AR_LIQUID_LATTICE, cubic=True) * repeat
+    thermalize(atoms, temperature_K, seed=thermostat.SEED)
+    atoms.calc = thermostat.CALCULATORS['asap3 LJ']()
+    Langevin(atoms, 10 * units.fs, temperature_K=temperature_K,
+             friction=0.01 / units.fs,
+             rng=np.random.default_rng(thermostat.SEED)).run(
+        AR_LIQUID_MELT_STEPS)
+    atoms.calc = None
+    return atoms
+
+
+CHAIN_SYSTEMS = (
+    SYSTEMS[1],
+    replace(thermostat.SYSTEMS[0], label='Ar liquid', build=liquid_argon,
+            temperature_K=120.0, timestep_fs=10.0),
+)
+
+
+class ChainSampler(NoseSampler):
+    """NoseSampler, plus the range of every ``s_j`` and the internal
+    kinetic energy of the momenta half kicked, ``(p' + h F / 2) / s_1``
+    (what the velocity scheme's thermostat reads)."""
+
+    def __init__(self, dyn, steps):
+        super().__init__(dyn, steps)
+        self.low = np.full(dyn.tchain, np.inf)
+        self.high = np.zeros(dyn.tchain)
+        self.half_kinetic = np.full(steps + 1, np.nan)
+        self.m_n1 = self.atoms.get_masses()[:, None]
+
+    def __call__(self):
+        super().__call__()
+        s_j = self.dyn.thermostat_positions
+        np.minimum(self.low, s_j, out=self.low)
+        np.maximum(self.high, s_j, out=self.high)
+        p_nc = self.atoms.get_momenta() + (0.5 * self.dyn.dt / s_j[0]) * \
+            self.atoms.get_forces()
+        p_c = p_nc.sum(axis=0)
+        self.half_kinetic[self.dyn.nsteps] = 0.5 * (
+            float((p_nc * p_nc / self.m_n1).sum())
+            - float(p_c @ p_c) / self.total_mass)
+
+
+def chain_case(system, tchain, scheme, lengths):
+    atoms = system.atoms()
+    n_atoms = len(atoms)
+    dof = 3 * n_atoms - 3
+    kT = units.kB * system.temperature_K
+    h = system.timestep_fs * units.fs
+    dyn = ReversibleNose(atoms, h, system.temperature_K, tdamp(system),
+                         tchain=tchain, scheme=scheme)
+    steps = lengths.equilibration + lengths.sampled
+    start = dyn.counts
+    x0_nc = atoms.get_positions()
+    sampler = ChainSampler(dyn, steps)
+    dyn.attach(sampler, interval=1)
+    tic = time.perf_counter()
+    try:
+        dyn.run(steps)
+    except Exception as error:  # what it raised is the result
+        failure = f'{type(error).__name__} at step {dyn.nsteps}'
+        print(f'  {system.label:9s} tchain {tchain} {scheme:8s} {failure}',
+              flush=True)
+        return {'system': system.label, 'n_atoms': n_atoms,
+                'tchain': tchain, 'scheme': scheme,
+                'timestep_fs': system.timestep_fs,
+                'temperature_K': system.temperature_K, 'failure': failure,
+                's_range': [[float(a), float(b)] for a, b in
+                            zip(sampler.low, sampler.high)]}
+    seconds = time.perf_counter() - tic
+    first = lengths.equilibration + 1
+    displacement = atoms.get_positions() - x0_nc
+    result = {
+        'system': system.label, 'n_atoms': n_atoms, 'tchain': tchain,
+        'scheme': scheme, 'timestep_fs': system.timestep_fs,
+        'temperature_K': system.temperature_K,
+        'sampling': statistics_of(sampler, first, dof, kT,
+                                  histogram_edges(dof, kT), h),
+        'thermostat': thermostat_statistics(sampler, first,
+                                            system.timestep_fs),
+        's_range': [[float(a), float(b)]
+                    for a, b in zip(sampler.low, sampler.high)],
+        'mean_square_displacement_A2': float(
+            np.mean(np.sum(displacement**2, axis=1))),
+        'seconds': seconds}
+    del result['thermostat']['s_trace']
+    half = copy.copy(sampler)
+    half.kinetic = sampler.half_kinetic
+    half_stats = statistics_of(half, first, dof, kT, histogram_edges(dof, kT),
+                               h)
+    result['half_kicked'] = {'temperature_K': half_stats['temperature_K'],
+                             'ks': half_stats['ks']}
+    if tchain == max(CHAIN_LENGTHS):
+        dyn.observers.clear()
+        dyn.reverse()
+        dyn.run(steps)
+        result['round_trip_equal'] = {
+            name: bool(np.array_equal(dyn.counts[name], start[name]))
+            for name in start}
+    ks = result['sampling']['ks']
+    t = result['sampling']['temperature_K']
+    e = result['thermostat']['extended_energy_eV']
+    hk = result['half_kicked']
+    print(f'  {system.label:9s} tchain {tchain} {scheme:8s} T {t["mean"]:.2f}'
+          f' +- {t["standard_error"]:.2f} K  KS p {ks["p_value"]:.3g} (shape '
+          f'{ks["shape_p_value"]:.3g}; half kicked T '
+          f'{hk["temperature_K"]["mean"]:.2f} p {hk["ks"]["p_value"]:.3g})'
+          f'  H drift {e["max_deviation"]:.3g} eV'
+          f'  s {result["s_range"]}  {seconds:.0f} s', flush=True)
+    return result
+
+
+#: The stability check: systems (those of the tests' round trips), tdamp
+#: in steps, and steps run from the start.
+STABILITY_SYSTEMS = (
+    replace(thermostat.SYSTEMS[1], label='Cu fcc', repeat=(3, 3, 3),
+            build=copper_bulk),
+    replace(thermostat.SYSTEMS[0], label='Ar fcc', repeat=(4, 4, 4)),
+)
+STABILITY_TDAMP_STEPS = (10, 20, 40, 100)
+STABILITY_STEPS = 3000
+
+
+def stability_case(system, tchain, tdamp_steps, steps):
+    """From the lattice with momenta at the system's temperature, the
+    thermostat at 0.6 times that (what equipartition leaves, about): does
+    the run last ``steps`` steps, and how far does the extended energy
+    move (kT)?"""
+    atoms = system.atoms()
+    h = system.timestep_fs * units.fs
+    temperature_K = 0.6 * atoms.get_temperature()
+    dyn = ReversibleNose(atoms, h, temperature_K, tdamp_steps * h,
+                         tchain=tchain, energy_check=0)
+    kT = units.kB * temperature_K
+    e0 = dyn.get_conserved_energy()
+    largest = [0.0]
+
+    def watch():
+        largest[0] = max(largest[0], abs(dyn.get_conserved_energy() - e0))
+    dyn.attach(watch, interval=5)
+    try:
+        dyn.run(steps)
+        failure = None
+    except Exception as error:  # what it raised is the result
+        failure = f'{type(error).__name__} at step {dyn.nsteps}'
+    result = {'system': system.label, 'n_atoms': len(atoms),
+              'timestep_fs': system.timestep_fs, 'tchain': tchain,
+              'tdamp_steps': tdamp_steps, 'steps': steps,
+              'failure': failure, 'largest_change_kT': largest[0] / kT}
+    print(f"  {system.label} {len(atoms)} tchain {tchain} tdamp "
+          f"{tdamp_steps:3d} steps: {failure or 'ran'}, |dH| <= "
+          f"{result['largest_change_kT']:.3g} kT", flush=True)
+    return result
+
+
+def chain_study(quick, scheme='velocity'):
+    lengths = CHAIN_QUICK if quick else CHAIN_FULL
+    steps = 300 if quick else STABILITY_STEPS
+    stability = [stability_case(system, tchain, tdamp_steps, steps)
+                 for system in STABILITY_SYSTEMS
+                 for tdamp_steps in STABILITY_TDAMP_STEPS
+                 for tchain in (1, 3)]
+    cases = [chain_case(system, tchain, scheme, lengths)
+             for system in CHAIN_SYSTEMS for tchain in CHAIN_LENGTHS]
+    speed = SPEED_QUICK if quick else SPEED_FULL
+    cost = speed_case(SYSTEMS[1], (5, 5, 10), speed,
+                      names=CHAIN_SPEED_CONTESTANTS, integrators=INTEGRATORS,
+                      reference='ase_nose_hoover_chain')
+    return {'lengths': asdict(lengths), 'tdamp_steps': TDAMP_STEPS,
+            'ks_level': KS_LEVEL, 'chain_stiffness': CHAIN_STIFFNESS,
+            'stability': stability, 'cases': cases, 'speed': cost}
+
+
+STUDIES = {'timestep': timestep_study, 'chain': chain_study}
+
+
+def stored_studies():
+    """The studies stored in docs/benchmarks/nose.json, each with its own
+    command and date: a run of the section keeps them (they take longer
+    than the rest of it; ``--study`` measures them again)."""
+    import common as common_
+    path = Path(common_.DOCS) / 'benchmarks' / 'nose.json'
+    try:
+        results = json.loads(path.read_text())['results']
+    except (OSError, ValueError, KeyError):
+        return {}
+    return {name: results[name] for name in STUDIES if name in results}
+
+
+def run_study(name, quick, out=None):
+    """Measure one study and store it in the nose section's JSON
+    (``results[name]``), with its own command, date and load, leaving the
+    section's other parts as they were measured."""
+    from datetime import datetime
+    import common as common_
+    path = Path(out or common_.DOCS) / 'benchmarks' / 'nose.json'
+    tic = time.perf_counter()
+    load = os.getloadavg()
+    results = STUDIES[name](quick)
+    results.update({
+        'command': f'python benchmarks/nose.py --study {name}'
+                   + (' --quick' if quick else ''),
+        'date': datetime.now().astimezone().isoformat(timespec='seconds'),
+        'git_commit': common_.machine_info()['git_commit'],
+        'wall_seconds': time.perf_counter() - tic,
+        'load_average': {'start': load, 'end': os.getloadavg()}})
+    stored = json.loads(path.read_text())
+    stored['results'][name] = results
+    path.write_text(json.dumps(stored, indent=1) + '\n')
+    return results
+
+
 if __name__ == '__main__':
+    if sys.argv[1:2] == ['--study']:
+        run_study(sys.argv[2], '--quick' in sys.argv[3:],
+                  out=os.environ.get('NOSE_STUDY_OUT'))
+        sys.exit(0)
     if sys.argv[1:2] == ['--memory-worker']:
         kind, steps = sys.argv[2], [int(n) for n in sys.argv[3:]]
         if kind == 'langevin':

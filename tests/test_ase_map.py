@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from ase import units
 from ase.calculators.emt import EMT
+from ase.md.velocitydistribution import Stationary
 
 import ase_reversible
 from ase_reversible.app.systems import copper_bulk
@@ -55,6 +56,16 @@ MAP = {
         'temperature_K': (300.0, TAKEN),
         'taut': (100 * units.fs, TAKEN),
         'rng': (np.random.default_rng(1), 'seed='),
+        'trajectory': ('file', TAKEN),
+        'logfile': ('file', TAKEN),
+        'loginterval': (2, TAKEN),
+        'append_trajectory': (True, TAKEN),
+    }),
+    'NoseHooverChainNVT': ('ase.md.nose_hoover_chain', 'ReversibleNose', {
+        'temperature_K': (300.0, TAKEN),
+        'tdamp': (100 * DT, TAKEN),
+        'tchain': (3, TAKEN),
+        'tloop': (1, TAKEN),
         'trajectory': ('file', TAKEN),
         'logfile': ('file', TAKEN),
         'loginterval': (2, TAKEN),
@@ -117,6 +128,7 @@ def _value(value, tmp_path, name):
 
 def _atoms():
     atoms = copper_bulk((2, 2, 2), temperature_K=300, seed=3)
+    Stationary(atoms)   # as ASE's docs do before a Nosé-Hoover run
     atoms.calc = EMT()
     return atoms
 
@@ -148,6 +160,13 @@ def _refused_cases():
         for name, (value, verdict) in table.items():
             if verdict is not TAKEN:
                 yield pytest.param(ase_name, name, id=f'{ase_name}-{name}')
+
+
+def test_tloop_other_than_one_is_refused():
+    atoms = _atoms()
+    with pytest.raises((TypeError, ValueError), match='tloop'):
+        ase_reversible.ReversibleNose(atoms, DT, temperature_K=300,
+                                      tdamp=100 * DT, tchain=3, tloop=2)
 
 
 @pytest.mark.parametrize('ase_name, argument', list(_refused_cases()))

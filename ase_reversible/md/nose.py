@@ -18,7 +18,40 @@ adds to some variables a function of variables it leaves alone:
 Each update is rounded odd to its quantum, so each is undone exactly with
 ``-h``, and the step ``B/2 C/2 A C/2 B/2`` is a palindrome: one force call,
 with the forces at the step's end as in velocity Verlet, one drift of the
-positions, and no buffer.
+positions, and no buffer (``scheme='velocity'``).  Its thermostat kicks
+read the momenta half kicked, which it holds at ``T``; the frames show the
+momenta at the step's end, cooler by ``O(dt**2)``.  ``A/2 C/2 B C/2 A/2``
+(``scheme='position'``; ``B`` and ``C`` commute) kicks ``pi`` with the
+momenta the frames show; docs/thermostats.md has the measured comparison.
+
+The chain (``tchain = M > 1``; cf. B. Leimkuhler and C. Sweet, SIAM J.
+Appl. Dyn. Syst. 4, 187 (2005), for recursive thermostats in one virtual
+time) thermostats the thermostats::
+
+    H = sum p'**2 / (2 m s_1**2) + U(x) + g kT ln s_1
+        + sum_(j<M) pi_j**2 / (2 Q_j s_(j+1)**2) + pi_M**2 / (2 Q_M)
+        + sum_(j>1) phi(s_j),    phi(s) = kT (a (s - 1) - (a - 1) ln s).
+
+With ``p = p' / s_1`` and ``u_j = pi_j / s_(j+1)`` (``u_M = pi_M``; the
+Jacobian is ``s_1**N_f s_2 ... s_M``), ``H = H_0 + sum u_j**2 / (2 Q_j) +
+g kT ln s_1 + sum phi(s_j)``, and integrating the microcanonical density
+over ``s_1`` leaves ``exp(-H_0 / kT) prod_j exp(-u_j**2 / (2 Q_j kT))
+prod_(j>1) s_j exp(-phi(s_j) / kT)`` for ``g = N_f + 1``: canonical in the
+atoms' ``x`` and ``p``, whatever ``phi`` is, provided each ``s_j``'s weight
+is normalisable.  A bare ``g_j kT ln s_j`` (the single thermostat's term
+repeated) gives ``s**(1 - g_j)``, normalisable for no ``g_j``; this
+``phi`` gives ``s**a exp(-a (s - 1))``, largest at ``s = 1`` and vanishing
+at 0, with ``a`` = :data:`CHAIN_STIFFNESS`.  The force on ``pi_j``, ``j >
+1``, is ``(u_(j-1)**2 / Q_(j-1) - kT) / s_j - a kT (s_j - 1) / s_j``: the
+thermostat ``j`` heats or cools ``j - 1`` towards ``kT`` as a Nosé-Hoover
+chain does, and is pulled back towards ``s_j = 1``.  Each term of ``C =
+sum_j pi_j**2 / (2 Q_j s_(j+1)**2) + phi(s_(j+1))`` (link ``j``) is a
+function of ``pi_j`` and ``s_(j+1)``, which it does not move: its flow is
+the shear ``s_j += h pi_j / (Q_j s_(j+1)**2)``, ``pi_(j+1) += h (pi_j**2 /
+(Q_j s_(j+1)**3) - phi'(s_(j+1)))``.  ``C/2`` is the links in a row, each
+a half step, mirrored in the palindrome.  The masses are ASE's: ``Q_1 = g
+kT tdamp**2``, ``Q_j = kT tdamp**2``.  ``tchain=1`` is the single
+thermostat, bit for bit.
 
 Which ensemble, and the clock.  Steps are equal in virtual time.
 Integrating the microcanonical density of ``H`` over ``s`` leaves, for
@@ -54,7 +87,8 @@ from ..core.plans import SubStep
 from ..core.portable import dot
 from ..core.record import read_record
 from ..core.variables import ExactVariable
-from ..errors import AnchorMovedWarning, UnstableIntegrationError
+from ..errors import (AnchorMovedWarning, QuantumRangeError,
+                      UnstableIntegrationError)
 from .base import ReversibleDynamics, projected_momenta
 from .checks import check_energy_watch, check_timestep, fixed
 from .constraints import no_projection
@@ -66,13 +100,62 @@ S, PI, CLOCK = 'thermostat_position', 'thermostat_momentum', 'time'
 DRIFT, KICK, S_DRIFT, PI_KICK, TICK = ('drift', 'kick', 's-drift',
                                        'pi-kick', 'tick')
 
-#: ``B/2 C/2 A C/2 B/2`` (module docstring).  The three parts of ``A``
-#: depend on ``p'`` and ``s`` only, which none of them changes, so they
-#: commute; written as a palindrome around the one drift of the positions,
-#: the step's only pass over the atoms besides the kick.
-SCHEME = ((KICK, 0.5), (S_DRIFT, 0.5), (PI_KICK, 0.5), (TICK, 0.5),
-          (DRIFT, 1.0), (TICK, 0.5), (PI_KICK, 0.5), (S_DRIFT, 0.5),
-          (KICK, 0.5))
+#: Default length of the chain (``tchain``): the single thermostat.  A
+#: chain samples a crystal better, but its coordinates wander near zero,
+#: where it stops with an error unless its thermostat is slow
+#: (docs/thermostats.md, "A chain of thermostats"); ASE's call with
+#: ``tchain=3`` is accepted unchanged.
+TCHAIN = 1
+
+#: Confinement of the chain's coordinates ``s_j``, ``j >= 2``: each has the
+#: potential ``kT (a (s - 1) - (a - 1) ln s)`` (module docstring), which
+#: gives it the weight ``s**a exp(-a (s - 1))``, largest at ``s = 1``.
+CHAIN_STIFFNESS = 4.0
+
+
+def link(j):
+    """The name of the sub-step that moves ``s_j`` (``j`` from 1)."""
+    return S_DRIFT if j == 1 else f'{S_DRIFT}-{j}'
+
+
+def chain_names(j):
+    """The names of ``s_j`` and ``pi_j`` (``j`` from 1): the first link
+    keeps the names of the single thermostat."""
+    return (S, PI) if j == 1 else (f'{S}_{j}', f'{PI}_{j}')
+
+
+def step_scheme(kind='velocity', tchain=1):
+    """The sub-steps of a step, ``(name, fraction of the time step)``.
+
+    ``'velocity'``: ``B/2 C/2 A C/2 B/2`` (module docstring): the forces at
+    the step's end, and the thermostat's kicks reading the momenta half
+    kicked.  ``'position'``: ``A/2 C/2 B C/2 A/2``: the force call in the
+    middle of the step (``B`` and ``C`` commute), and the thermostat's kicks
+    reading the momenta at the step's ends, those the frames show; the
+    step ends with the drift of the positions, so the kick is one drift
+    back, as the restart record's digest of the forces expects.  The
+    three parts of ``A`` depend on ``p'`` and ``s_1`` only, which none of
+    them changes, so they commute.  ``C/2`` is the chain's links, the
+    first next to ``A``, each a half step.  Both are palindromes, hence
+    exactly undone with ``-h``.
+    """
+    inner = tuple((link(j), 0.5) for j in range(1, tchain + 1))
+    a_half = ((TICK, 0.5), (PI_KICK, 0.5))
+    if kind == 'velocity':
+        half = ((KICK, 0.5),) + inner[::-1] + a_half[::-1]
+        middle = ((DRIFT, 1.0),)
+    elif kind == 'position':
+        half, middle = ((DRIFT, 0.5),) + a_half + inner, ((KICK, 1.0),)
+    else:
+        raise ValueError(f"scheme must be 'velocity' or 'position', got "
+                         f'{kind!r}')
+    return half + middle + half[::-1]
+
+
+SCHEMES = ('velocity', 'position')
+#: The default scheme; a record without a ``'scheme'`` was written by it.
+SCHEME_DEFAULT = 'velocity'
+SCHEME = step_scheme(SCHEME_DEFAULT)
 
 #: Centre-of-mass kinetic energy (in kT) above which unconstrained atoms
 #: are warned about: a thermal centre of mass has 1.5 kT, one at rest
@@ -108,6 +191,33 @@ def thermostat_mass(g, kT, tdamp):
     return g * kT * (tdamp * tdamp)
 
 
+def chain_masses(g, kT, tdamp, tchain):
+    """``[Q_1, ..., Q_M]``, eV (ASE time)**2: ``Q_1 = g kT tdamp**2`` and
+    ``kT tdamp**2`` for the others, as ASE's ``NoseHooverChainNVT`` sets
+    its chain's masses."""
+    return [thermostat_mass(g if j == 0 else 1, kT, tdamp)
+            for j in range(tchain)]
+
+
+def confinement(kT, s, a=None):
+    """``phi(s) = kT (a (s - 1) - (a - 1) ln s)``, eV: the potential of a
+    chain coordinate after the first."""
+    a = CHAIN_STIFFNESS if a is None else a
+    return kT * (a * (s - 1.0) - (a - 1.0) * math.log(s))
+
+
+def confinement_force(kT, s, a=None):
+    """``phi'(s) = kT (a - (a - 1) / s)``, eV."""
+    a = CHAIN_STIFFNESS if a is None else a
+    return kT * (a - (a - 1.0) / s)
+
+
+def confinement_curvature(kT, s, a=None):
+    """``phi''(s) = kT (a - 1) / s**2``, eV."""
+    a = CHAIN_STIFFNESS if a is None else a
+    return kT * (a - 1.0) / (s * s)
+
+
 def degrees_of_freedom(n_atoms, project):
     """``N_f``: the free momentum coordinates, less 3 without constraints
     (the total momentum is then conserved), less one per Cartesian
@@ -137,24 +247,32 @@ class NoseHamiltonian(Hamiltonian):
 
     def __init__(self, atoms, grid, counts, masses_n, project, purity):
         self.kT = self.tdamp = None
+        self.tchain = 1
         super().__init__(atoms, grid, counts, masses_n, project, purity)
         self.drift = ScaledDrift(self)
         self._shown_nc = np.empty(self.p.ints.shape)
         self._shown_key = None
 
-    def set_thermostat(self, counts, quanta, temperature_K, tdamp):
-        """Take ``s``, ``pi`` and the clock from ``counts`` (int64 ``[1]``
-        by name) in ``quanta``, at ``temperature_K`` (K) and ``tdamp``
-        (ASE time units)."""
-        self.s = ExactVariable(S, counts[S], quanta[S])
-        self.pi = ExactVariable(PI, counts[PI], quanta[PI])
+    def set_thermostat(self, counts, quanta, temperature_K, tdamp,
+                       tchain=1):
+        """Take ``s_j``, ``pi_j`` (``j`` = 1 to ``tchain``) and the clock
+        from ``counts`` (int64 ``[1]`` by name) in ``quanta``, at
+        ``temperature_K`` (K) and ``tdamp`` (ASE time units)."""
+        self.tchain = tchain
+        self.chain_s, self.chain_pi = [], []
+        for j in range(1, tchain + 1):
+            for name, kept in zip(chain_names(j),
+                                  (self.chain_s, self.chain_pi)):
+                kept.append(ExactVariable(name, counts[name], quanta[name]))
+                self.variables[name] = kept[-1]
+        self.s, self.pi = self.chain_s[0], self.chain_pi[0]
         self.clock = ExactVariable(CLOCK, counts[CLOCK], quanta[CLOCK])
-        self.variables.update({S: self.s, PI: self.pi, CLOCK: self.clock})
+        self.variables[CLOCK] = self.clock
         self.tdamp = tdamp
         self.set_temperature(temperature_K)
 
     def set_temperature(self, temperature_K):
-        """Thermostat at ``temperature_K`` (K); the mass ``Q`` follows."""
+        """Thermostat at ``temperature_K`` (K); the masses ``Q_j`` follow."""
         self.temperature_K = temperature_K
         self.kT = units.kB * temperature_K
         self._set_mass()
@@ -170,7 +288,9 @@ class NoseHamiltonian(Hamiltonian):
             self._set_mass()
 
     def _set_mass(self):
-        self.Q = thermostat_mass(self.g, self.kT, self.tdamp)
+        self.masses_Q = chain_masses(self.g, self.kT, self.tdamp,
+                                     self.tchain)
+        self.Q = self.masses_Q[0]
 
     # -- what the atoms show ----------------------------------------------
 
@@ -205,12 +325,21 @@ class NoseHamiltonian(Hamiltonian):
     # -- energies ---------------------------------------------------------
 
     def thermostat_energy(self) -> float:
-        """``pi**2 / 2Q + g kT ln s``, eV."""
+        """The chain's energy, eV: ``sum_j pi_j**2 / (2 Q_j s_(j+1)**2)``
+        (no ``s`` after the last) ``+ g kT ln s_1 + sum_(j>1) phi(s_j)``."""
         # libm's log may differ between CPUs in the last bit: harmless,
         # only the energy check reads this, never a step.
-        pi = float(self.pi.floats[0])
-        return 0.5 * pi * pi / self.Q + self.g * self.kT * math.log(
-            self.s_value())
+        s_j = [float(v.floats[0]) for v in self.chain_s] + [1.0]
+        energy = 0.0
+        for j, (pi, Q) in enumerate(zip(self.pi_values(), self.masses_Q)):
+            energy += 0.5 * pi * pi / (Q * s_j[j + 1] * s_j[j + 1])
+            if j:
+                energy += confinement(self.kT, s_j[j])
+        return energy + self.g * self.kT * math.log(s_j[0])
+
+    def pi_values(self):
+        """``pi_j``, their exact float images."""
+        return [float(v.floats[0]) for v in self.chain_pi]
 
     def kinetic_energy(self):
         """The atoms' real kinetic energy ``sum p'**2 / (2 m s**2)``, eV."""
@@ -297,29 +426,94 @@ class ThermostatKick(SubStep):
             sys.p.floats / sys.m_n1)
 
 
-class ThermostatDrift(SubStep):
-    """``s += round_odd(c h pi / Q / q_s)``; ``s`` must stay positive."""
+_CHAIN_ADVICE = (
+    'the chain is unstable at this tdamp and time step (a chain coordinate '
+    's_j came near zero, where its link stiffens). Use a larger tdamp (40 '
+    'time steps or more; 100 is usual), a smaller time step, or tchain=1. '
+    'The step was not taken; the state is valid and reversible.')
 
-    def __init__(self, system):
-        self.system = system
+
+class ThermostatDrift(SubStep):
+    """The flow of the chain's link ``j`` (from 1), ``pi_j**2 / (2 Q_j
+    s_(j+1)**2) + phi(s_(j+1))``, a function of ``pi_j`` and ``s_(j+1)``:
+    ``s_j += round_odd(c h pi_j / (Q_j s_(j+1)**2) / q)`` and ``pi_(j+1) +=
+    round_odd(c h (pi_j**2 / (Q_j s_(j+1)**3) - phi'(s_(j+1))) / q)``.
+    The last link is ``pi_M**2 / (2 Q_M)``: ``s_M += round_odd(c h pi_M /
+    Q_M / q)``.  Every ``s_j`` must stay positive.
+    """
+
+    def __init__(self, system, j=1):
+        self.system, self.j = system, j
 
     def prepare(self, ch):
-        sys = self.system
-        return ch / (sys.Q * sys.s.quantum)
+        sys, j = self.system, self.j
+        factor = ch / (sys.masses_Q[j - 1] * sys.chain_s[j - 1].quantum)
+        if j == sys.tchain:
+            return factor
+        return factor, ch / sys.chain_pi[j].quantum
 
-    def apply(self, factor):
-        sys = self.system
-        _add_rounded(sys.s, factor * float(sys.pi.floats[0]))
-        if not sys.s.floats[0] > 0.0:
+    def apply(self, prepared):
+        sys, j = self.system, self.j
+        pi = float(sys.chain_pi[j - 1].floats[0])
+        s_j = sys.chain_s[j - 1]
+        if sys.tchain == 1:
+            _add_rounded(s_j, prepared * pi)
+        else:
+            try:
+                self._apply_link(prepared, pi)
+            except QuantumRangeError as error:
+                raise UnstableIntegrationError(
+                    f'The thermostat chain left the range of its fixed '
+                    f'point at link {j} ({error}): {_CHAIN_ADVICE}'
+                ) from error
+        if not s_j.floats[0] > 0.0:
+            if sys.tchain == 1:
+                raise UnstableIntegrationError(
+                    'The Nosé thermostat coordinate s reached zero: the '
+                    'thermostat is unstable. Use a larger tdamp or a '
+                    'smaller time step. The step was not taken; the state '
+                    'is valid and reversible.')
             raise UnstableIntegrationError(
-                'The Nosé thermostat coordinate s reached zero: the '
-                'thermostat is unstable. Use a larger tdamp or a smaller '
-                'time step. The step was not taken; the state is valid and '
-                'reversible.')
+                f'The thermostat chain\'s coordinate s_{j} reached zero: '
+                f'{_CHAIN_ADVICE}')
+
+    def _apply_link(self, prepared, pi):
+        sys, j = self.system, self.j
+        s_j = sys.chain_s[j - 1]
+        if j == sys.tchain:
+            _add_rounded(s_j, prepared * pi)
+            return
+        factor, scale = prepared
+        s = float(sys.chain_s[j].floats[0])
+        inverse_square = 1.0 / (s * s)
+        _add_rounded(s_j, factor * pi * inverse_square)
+        _add_rounded(sys.chain_pi[j], scale * (
+            pi * pi * inverse_square / (sys.masses_Q[j - 1] * s)
+            - confinement_force(sys.kT, s)))
 
     def adjoint(self, cotangents, ch):
-        """``a_pi += c h a_s / Q``."""
-        cotangents[PI] += ch / self.system.Q * cotangents[S]
+        """``a_pi_j += c h (a_s_j / (Q s**2) + a_pi_(j+1) 2 pi_j / (Q
+        s**3))``; ``a_s_(j+1) -= c h (a_s_j 2 pi_j / (Q s**3) + a_pi_(j+1)
+        (3 pi_j**2 / (Q s**4) + phi''(s)))``, ``s = s_(j+1)``, ``Q = Q_j``;
+        the last link: ``a_pi_M += c h a_s_M / Q_M``."""
+        sys, j = self.system, self.j
+        s_name, pi_name = chain_names(j)
+        Q = sys.masses_Q[j - 1]
+        if j == sys.tchain:
+            cotangents[pi_name] += ch / Q * cotangents[s_name]
+            return
+        next_s, next_pi = chain_names(j + 1)
+        a_s = float(cotangents[s_name][0])
+        a_next = float(cotangents[next_pi][0])
+        pi = float(sys.chain_pi[j - 1].floats[0])
+        s = float(sys.chain_s[j].floats[0])
+        s2 = s * s
+        cotangents[pi_name] += ch * (a_s / (Q * s2)
+                                     + a_next * 2.0 * pi / (Q * s2 * s))
+        cotangents[next_s] -= ch * (
+            a_s * 2.0 * pi / (Q * s2 * s)
+            + a_next * (3.0 * pi * pi / (Q * s2 * s2)
+                        + confinement_curvature(sys.kT, s)))
 
 
 class Tick(SubStep):
@@ -337,6 +531,56 @@ class Tick(SubStep):
 
     def adjoint(self, cotangents, ch):
         pass
+
+
+def _carry_keys(j):
+    """The keys of ``dL/ds_j`` and ``dL/dpi_j`` in ``Gradients.thermostat``."""
+    return ('s', 'pi') if j == 1 else (f's{j}', f'pi{j}')
+
+
+def _check_tloop(tloop):
+    if isinstance(tloop, bool) or tloop != 1:
+        raise ValueError(
+            f'tloop={tloop!r}: ReversibleNose accepts only tloop=1. ASE\'s '
+            'NoseHooverChainNVT sub-cycles its chain tloop times a step; '
+            'the exact chain is one Hamiltonian split into shears, with no '
+            'sub-cycles. For a finer integration of the chain, use a '
+            'smaller time step (or order=4).')
+
+
+def _checked_tchain(tchain):
+    if tchain is None:
+        return None
+    if (isinstance(tchain, bool) or not isinstance(tchain, (int, np.integer))
+            or tchain < 1):
+        raise ValueError(f'tchain must be a whole number of thermostats, '
+                         f'1 or more (e.g. 3), got {tchain!r}')
+    return int(tchain)
+
+
+def _chain_of_record(atoms, tchain, scheme):
+    """``(tchain, scheme)``: those given, else those of the frame's restart
+    record, else the defaults.  A frame written with another chain or
+    scheme is refused: resuming it with another dynamics would silently
+    be a different run."""
+    record = read_record(atoms.info, names=(), sections=('nose',))
+    section = record.get('nose') if record else None
+    if section is None:
+        return (TCHAIN if tchain is None else tchain,
+                SCHEME_DEFAULT if scheme is None else scheme)
+    written = (section.get('tchain', 1), section.get('scheme',
+                                                      SCHEME_DEFAULT))
+    wanted = (written[0] if tchain is None else tchain,
+              written[1] if scheme is None else scheme)
+    if wanted != written:
+        raise ValueError(
+            f'These atoms carry the restart record of a ReversibleNose run '
+            f'with tchain={written[0]}, scheme={written[1]!r}; asked for '
+            f'tchain={wanted[0]}, scheme={wanted[1]!r}. Leave tchain and '
+            'scheme out (or pass those of the record) to resume that run '
+            'exactly, or remove the record (atoms.info.pop(\'reversible\')) '
+            'to start a new run from these atoms.')
+    return wanted
 
 
 def _warn_if_moving(system):
@@ -360,16 +604,18 @@ class ReversibleNose(ReversibleDynamics):
     """Nosé's constant-temperature dynamics in fixed point, run back
     exactly with no buffer: a deterministic NVT.
 
-    The atoms, a thermostat coordinate ``s`` and its momentum ``pi``
-    evolve under Nosé's extended Hamiltonian (module docstring), split so
-    that every update is an exact shear.  After ``run(n)``,
-    :meth:`reverse` and ``run(n)``, positions, momenta, ``s``, ``pi`` and
-    the clock are bitwise those right after the constructor, however long
-    the run: nothing is stored.  The frames of a run sample the canonical
-    distribution at ``temperature_K`` if the dynamics is ergodic, which a
-    single Nosé thermostat is not for small or stiff systems (a handful of
-    atoms, a cold harmonic crystal): use
-    :class:`~ase_reversible.ReversibleLangevin` for those.
+    The atoms and a chain of thermostats -- coordinates ``s_j`` and
+    momenta ``pi_j``, ``s = s_1`` and ``pi = pi_1`` those of the first --
+    evolve under a Hamiltonian in Nosé's virtual time (module docstring),
+    split so that every update is an exact shear.  After ``run(n)``,
+    :meth:`reverse` and ``run(n)``, positions, momenta, every ``s_j`` and
+    ``pi_j`` and the clock are bitwise those right after the constructor,
+    however long the run: nothing is stored.  The frames of a run sample
+    the canonical distribution at ``temperature_K`` if the dynamics is
+    ergodic, which a single thermostat is not for small or stiff systems
+    (a handful of atoms, a cold harmonic crystal): a chain helps on a
+    crystal (docs/thermostats.md, "A chain of thermostats"); for a handful
+    of atoms use :class:`~ase_reversible.ReversibleLangevin`.
 
     The atoms show the real momenta ``p = p' / s``; the exact variable is
     the virtual momentum ``p'`` (``state`` and ``counts`` hold its
@@ -389,7 +635,22 @@ class ReversibleNose(ReversibleDynamics):
     tdamp : float
         Characteristic time of the thermostat, ASE time units (``100 *
         timestep`` is a common choice, as for ASE's
-        ``NoseHooverChainNVT``); its mass is ``Q = g kB T tdamp**2``.
+        ``NoseHooverChainNVT``); the masses are ASE's, ``Q_1 = g kB T
+        tdamp**2`` and ``kB T tdamp**2`` for the chain's others.
+    tchain : int, optional
+        Thermostats in the chain, 1 or more; default: that of the frame's
+        restart record, else :data:`TCHAIN` (1: Nosé's single
+        thermostat).  ASE's default, 3, samples a crystal better but
+        needs ``tdamp`` of 40 steps or more, and may still stop with an
+        error (docs/thermostats.md, "A chain of thermostats").
+    tloop : int
+        Accepted only as 1 (ASE's chain sub-cycles; this one has no
+        sub-cycles: use a smaller time step).
+    scheme : {'velocity', 'position'}, optional
+        The arrangement of a step (:func:`step_scheme`); default: the
+        record's, else ``'velocity'``, whose configurational averages
+        hardly move with the time step (docs/thermostats.md, "Large time
+        steps").
     trajectory, logfile, loginterval
         As for :class:`ase.md.verlet.VelocityVerlet`.
     order, composition
@@ -407,13 +668,16 @@ class ReversibleNose(ReversibleDynamics):
         Passed to :class:`ase.md.md.MolecularDynamics`.
 
     A frame the run wrote resumes it bit for bit: the restart record
-    (``atoms.info['reversible']``) holds ``s``, ``pi`` and their quanta.
+    (``atoms.info['reversible']``) holds every ``s_j``, ``pi_j``, their
+    quanta, ``tchain`` and ``scheme``.
 
     Raises
     ------
     ValueError, TypeError
-        A non-positive or non-finite temperature or tdamp, ``tchain`` or
-        ``tloop`` (arguments of ASE's chain), or the errors of
+        A non-positive or non-finite temperature or tdamp, a ``tchain``
+        that is not a whole number from 1, a ``tloop`` other than 1, an
+        unknown ``scheme``, a ``tchain`` or ``scheme`` other than those of
+        the frame's restart record, or the errors of
         :class:`~ase_reversible.ReversibleVerlet`.
     UnsupportedConstraintError
         As for :class:`~ase_reversible.ReversibleVerlet`.
@@ -424,20 +688,18 @@ class ReversibleNose(ReversibleDynamics):
     _retrace_end = None
 
     def __init__(self, atoms, timestep, temperature_K, tdamp, *,
+                 tchain=None, tloop=1, scheme=None,
                  trajectory=None, logfile=None, loginterval=1, order=2,
                  composition=None, position_quantum=None,
                  momentum_quantum=None,
                  force_purity='auto', force_noise=None,
                  energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
                  **kwargs):
-        for chain in ('tchain', 'tloop'):
-            if chain in kwargs:
-                raise TypeError(
-                    f'ReversibleNose is one Nosé thermostat, not a chain: '
-                    f'{chain} is an argument of ASE\'s NoseHooverChainNVT '
-                    'that has no counterpart here. Leave it out (a single '
-                    'thermostat samples liquids and large systems; use '
-                    'ReversibleLangevin for small or stiff ones).')
+        _check_tloop(tloop)
+        tchain = _checked_tchain(tchain)
+        if scheme is not None and scheme not in SCHEMES:
+            raise ValueError(f'scheme must be one of {SCHEMES}, got '
+                             f'{scheme!r}')
         timestep = check_timestep(timestep)
         temperature_K = _checked_positive(temperature_K, 'temperature_K',
                                           'K')
@@ -446,26 +708,30 @@ class ReversibleNose(ReversibleDynamics):
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
         composition = composition_for(order, composition)
+        tchain, scheme = _chain_of_record(atoms, tchain, scheme)
+        plan = step_scheme(scheme, tchain)
         system, record = self._hamiltonian(
-            atoms, largest_kick(SCHEME, composition, timestep, KICK),
+            atoms, largest_kick(plan, composition, timestep, KICK),
             position_quantum, momentum_quantum,
             force_purity, force_noise, system_class=NoseHamiltonian)
         counts, quanta = self._thermostat_start(system, record, timestep,
-                                                temperature_K, tdamp)
-        system.set_thermostat(counts, quanta, temperature_K, tdamp)
+                                                temperature_K, tdamp, tchain)
+        system.set_thermostat(counts, quanta, temperature_K, tdamp, tchain)
         if record is not None and record.get('nose') is not None:
             self._resume_virtual_momenta(system, record['nose'])
         _warn_if_moving(system)
         substep = {KICK: system.kick, DRIFT: system.drift,
-                   PI_KICK: ThermostatKick(system),
-                   S_DRIFT: ThermostatDrift(system), TICK: Tick(system)}
+                   PI_KICK: ThermostatKick(system), TICK: Tick(system)}
+        for j in range(1, tchain + 1):
+            substep[link(j)] = ThermostatDrift(system, j)
         invariant = InvariantCheck(
             energy_check, energy_tolerance, system.extended_energy,
             self._explain_drift, trigger=self._trigger)
         engine = Engine(system.variables,
-                        tuple((substep[k], c) for k, c in SCHEME),
+                        tuple((substep[k], c) for k, c in plan),
                         composition, timestep,
                         invariant=invariant)
+        self._scheme = scheme
         self._attach(system, engine, (force_purity, force_noise),
                      record['time'] if record else 0.0)
         super().__init__(atoms, timestep, trajectory=trajectory,
@@ -475,30 +741,41 @@ class ReversibleNose(ReversibleDynamics):
     # -- construction -------------------------------------------------------
 
     @staticmethod
-    def _thermostat_start(system, record, timestep, temperature_K, tdamp):
-        """Counts and quanta of ``s``, ``pi`` and the clock: from the
-        record's ``'nose'`` section if it has one, else ``s = 1``, ``pi =
-        0``.  The clock counts from 0 (the record's time is added)."""
+    def _thermostat_start(system, record, timestep, temperature_K, tdamp,
+                          tchain=1):
+        """Counts and quanta of ``s_j``, ``pi_j`` and the clock: from the
+        record's ``'nose'`` section if it has one, else ``s_j = 1``,
+        ``pi_j = 0``.  The clock counts from 0 (the record's time is
+        added)."""
         kT = units.kB * temperature_K
-        spread = math.sqrt(thermostat_mass(system.g, kT, tdamp) * kT)
-        quanta = {S: S_QUANTUM,
-                  PI: math.ldexp(_power_of_two_below(spread), -PI_BITS),
-                  CLOCK: math.ldexp(_power_of_two_below(abs(timestep)),
+        names = [name for j in range(1, tchain + 1)
+                 for name in chain_names(j)]
+        quanta = {CLOCK: math.ldexp(_power_of_two_below(abs(timestep)),
                                     -CLOCK_BITS)}
-        counts = {S: np.array([round(1.0 / S_QUANTUM)], np.int64),
-                  PI: np.zeros(1, np.int64), CLOCK: np.zeros(1, np.int64)}
+        counts = {CLOCK: np.zeros(1, np.int64)}
+        for j, Q in enumerate(chain_masses(system.g, kT, tdamp, tchain), 1):
+            s_name, pi_name = chain_names(j)
+            spread = math.sqrt(Q * kT)
+            quanta[s_name] = S_QUANTUM
+            quanta[pi_name] = math.ldexp(_power_of_two_below(spread),
+                                         -PI_BITS)
+            counts[s_name] = np.array([round(1.0 / S_QUANTUM)], np.int64)
+            counts[pi_name] = np.zeros(1, np.int64)
         section = record.get('nose') if record else None
         if section is not None:
-            saved = read_record(system.atoms.info, names=(S, PI))
+            saved = read_record(system.atoms.info, names=names)
             try:
-                s_count = int(section[S])
-                pi_count = int(section[PI])
+                pairs = [(int(section[S]), int(section[PI]))]
+                pairs += [(int(s), int(pi))
+                          for s, pi in section.get('chain', ())]
             except (KeyError, TypeError, ValueError):
                 saved = None
-            if saved is not None and s_count > 0:
-                quanta[S], quanta[PI] = saved[f'{S}_quantum'], \
-                    saved[f'{PI}_quantum']
-                counts[S][0], counts[PI][0] = s_count, pi_count
+            if (saved is not None and len(pairs) == tchain
+                    and all(s > 0 for s, _ in pairs)):
+                for j, pair in enumerate(pairs, 1):
+                    for name, count in zip(chain_names(j), pair):
+                        quanta[name] = saved[f'{name}_quantum']
+                        counts[name][0] = count
             else:
                 record['nose'] = None
         return counts, quanta
@@ -543,8 +820,9 @@ class ReversibleNose(ReversibleDynamics):
         counts = {'position': super()._encode(atoms, project)['position'],
                   'momentum': system.virtual_counts(
                       projected_momenta(atoms, project), system.s_value())}
-        for name in (S, PI, CLOCK):
-            counts[name] = system.variables[name].ints
+        for name, variable in system.variables.items():
+            if name not in counts:
+                counts[name] = variable.ints
         return counts
 
     # -- what the run reads -----------------------------------------------
@@ -580,7 +858,12 @@ class ReversibleNose(ReversibleDynamics):
         system = self.system
         section = {S: int(system.s.ints[0]), PI: int(system.pi.ints[0]),
                    'temperature_K': system.temperature_K,
-                   'tdamp': system.tdamp}
+                   'tdamp': system.tdamp, 'tchain': system.tchain,
+                   'scheme': self._scheme}
+        if system.tchain > 1:
+            section['chain'] = [[int(s.ints[0]), int(pi.ints[0])]
+                                for s, pi in zip(system.chain_s[1:],
+                                                 system.chain_pi[1:])]
         if not system.p.bound < RECOVERABLE:
             section['virtual_momentum'] = system.p.ints.reshape(-1).tolist()
         return {'nose': section}
@@ -605,10 +888,14 @@ class ReversibleNose(ReversibleDynamics):
                 'but the state has changed since: pass carry=False or none.')
         thermostat = carry.thermostat if carry else {}
         added = self._loss_cotangents(ax_nc, ap_nc)
-        return {'position': ax_nc, 'momentum': added['momentum'],
-                S: added[S] + float(thermostat.get('s', 0.0)),
-                PI: np.array([float(thermostat.get('pi', 0.0))]),
-                CLOCK: np.zeros(1)}
+        cotangents = {'position': ax_nc, 'momentum': added['momentum'],
+                      CLOCK: np.zeros(1)}
+        for j in range(1, self.system.tchain + 1):
+            for name, key in zip(chain_names(j), _carry_keys(j)):
+                cotangents[name] = np.array(
+                    [float(thermostat.get(key, 0.0))])
+        cotangents[S] += added[S]
+        return cotangents
 
     def _loss_cotangents(self, ax_nc, ap_nc):
         if ap_nc is None:
@@ -627,8 +914,12 @@ class ReversibleNose(ReversibleDynamics):
         a_s = float(cotangents[S][0]) + dot(cotangents['momentum'],
                                             system.shown_momenta())
         self._retrace_end = self._retrace_key()
-        return (cotangents['position'].copy(), ap_nc,
-                {'s': a_s, 'pi': float(cotangents[PI][0])})
+        thermostat = {}
+        for j in range(1, system.tchain + 1):
+            for name, key in zip(chain_names(j), _carry_keys(j)):
+                thermostat[key] = float(cotangents[name][0])
+        thermostat['s'] = a_s
+        return cotangents['position'].copy(), ap_nc, thermostat
 
     def _retrace_key(self):
         return tuple(v.label for v in self.system.variables.values())
@@ -671,6 +962,28 @@ class ReversibleNose(ReversibleDynamics):
         return float(self.system.pi.floats[0])
 
     @property
+    def tchain(self) -> int:
+        """The number of thermostats in the chain (fixed at
+        construction)."""
+        return self.system.tchain
+
+    @property
+    def scheme(self) -> str:
+        """``'velocity'`` or ``'position'`` (:func:`step_scheme`; fixed at
+        construction)."""
+        return self._scheme
+
+    @property
+    def thermostat_positions(self) -> tuple:
+        """The chain's ``s_1, ..., s_M`` (dimensionless)."""
+        return tuple(float(s.floats[0]) for s in self.system.chain_s)
+
+    @property
+    def thermostat_momenta(self) -> tuple:
+        """The chain's ``pi_1, ..., pi_M``, eV ASE time."""
+        return tuple(self.system.pi_values())
+
+    @property
     def degrees_of_freedom(self) -> int:
         """``N_f``; the thermostat uses ``g = N_f + 1`` (module docstring)."""
         return self.system.degrees_of_freedom
@@ -693,7 +1006,8 @@ class ReversibleNose(ReversibleDynamics):
         """ASE's description plus the thermostat's settings and the
         quanta."""
         return {**super().todict(), 'temperature_K': self.temperature_K,
-                'tdamp': self.tdamp, 'order': self.composition.order,
+                'tdamp': self.tdamp, 'tchain': self.tchain, 'tloop': 1,
+                'scheme': self.scheme, 'order': self.composition.order,
                 'composition': self.composition.name,
                 **self.system.grid.todict(),
                 'force_purity': self.force_purity.mode}

@@ -464,3 +464,152 @@ on the VelocityVerlet contestant, `get_forces()` repeated:
 
 {goal_lines(results)}
 """
+
+
+# -- the studies (benchmarks/nose.py --study timestep|chain) ----------------
+
+def _mean_se(block, digits=2):
+    return f"{block['mean']:.{digits}f} ± {block['standard_error']:.{digits}f}"
+
+
+def _study_line(study):
+    load = study['load_average']
+    return (f"*Measured {study['date']} by `{study['command']}` in "
+            f"{study['wall_seconds']:.0f} s, commit {study['git_commit']}, "
+            f"load average {load['start'][0]:.1f} at the start and "
+            f"{load['end'][0]:.1f} at the end (2 cores shared with other "
+            'jobs).*')
+
+
+def timestep_block(stored):
+    """docs/thermostats.md, "Large time steps": the measured table."""
+    study = stored['results'].get('timestep')
+    if study is None:
+        return ('Not measured yet: `python benchmarks/nose.py --study '
+                'timestep`.')
+    cases = study['cases']
+    by = {(c['kind'], c['timestep_fs']): c for c in cases}
+    steps = sorted({c['timestep_fs'] for c in cases})
+    kinds = (('velocity', "scheme='velocity'"),
+             ('position', "scheme='position'"),
+             ('velocity-tchain3', "scheme='velocity', tchain=3"),
+             ('ase_nose_hoover_chain', 'ASE NoseHooverChainNVT'))
+    kinds = tuple(k for k in kinds if (k[0], steps[0]) in by)
+    reference = {k: by[(k, steps[0])]['potential_energy_eV']['mean']
+                 for k, _ in kinds}
+    rows = []
+    for dt in steps:
+        for kind, label in kinds:
+            c = by.get((kind, dt))
+            if c is None:
+                continue
+            u = c['potential_energy_eV']
+            half = (c.get('half_kick_temperature_K')
+                    if kind.startswith('velocity') else None)
+            du = u['mean'] - reference[kind]
+            rows.append([
+                f'{dt:g}', label, _mean_se(c['temperature_K']),
+                _mean_se(half) if half else '',
+                f"{u['mean']:.3f} ± {u['standard_error']:.3f}",
+                f'{du:+.3f}' if dt != steps[0] else '(reference)',
+                f"{c['potential_std_eV']:.3f}"])
+    lengths = study['lengths']
+    return f"""\
+{study['system']}, thermostats at {study['temperature_K']:g} K with tdamp =
+{study['tdamp_steps']} steps; {lengths['equilibration']:,} steps of
+equilibration, then {lengths['sampled']:,} steps sampled every
+{study['sample_every']} (means ± standard errors of {study['blocks']}
+blocks). "Half kicked" is the temperature of `(p' + dt F / 2) / s`, the
+momenta the velocity scheme's thermostat kick reads; ⟨U⟩ − ⟨U⟩(2 fs) is
+taken against the same integrator's 2 fs run.
+
+{markdown_table(['dt (fs)', 'integrator', 'T on-step (K)',
+                 'T half kicked (K)', '⟨U⟩ (eV)', '⟨U⟩ − ⟨U⟩(2 fs) (eV)',
+                 'std U (eV)'], rows)}
+
+{_study_line(study)}
+"""
+
+
+def chain_block(stored):
+    """docs/thermostats.md, "A chain of thermostats": the measured table."""
+    study = stored['results'].get('chain')
+    if study is None:
+        return 'Not measured yet: `python benchmarks/nose.py --study chain`.'
+    rows = []
+    for c in study['cases']:
+        if c.get('failure'):
+            rows.append([f"{c['system']} {c['n_atoms']}, "
+                         f"{c['temperature_K']:g} K, {c['timestep_fs']:g} fs",
+                         c['tchain'], c['failure'], '', '', '', '',
+                         ', '.join(f'{a:.2f}–{b:.2f}'
+                                   for a, b in c['s_range']), '', ''])
+            continue
+        ks = c['sampling']['ks']
+        e = c['thermostat']['extended_energy_eV']
+        s_ranges = ', '.join(f'{a:.2f}–{b:.2f}' for a, b in c['s_range'])
+        exact = c.get('round_trip_equal')
+        rows.append([
+            f"{c['system']} {c['n_atoms']}, {c['temperature_K']:g} K, "
+            f"{c['timestep_fs']:g} fs", c['tchain'],
+            _mean_se(c['sampling']['temperature_K']),
+            f"{ks['p_value']:.2g}", f"{ks['shape_p_value']:.2g}",
+            f"{c['half_kicked']['ks']['p_value']:.2g}",
+            f"{e['std']:.2g} / {e['max_deviation']:.2g}", s_ranges,
+            f"{c['mean_square_displacement_A2']:.2g}",
+            '' if exact is None else yes(all(exact.values()))])
+    speed = study['speed']
+    median = speed['median_seconds']
+    lengths = study['lengths']
+    chain = median['reversible_nose_tchain3'] / median['reversible_nose']
+    ase = median['reversible_nose_tchain3'] / median['ase_nose_hoover_chain']
+    scheme = study['cases'][0]['scheme']
+    return f"""\
+Momenta drawn at twice the target on the lattice (copper; argon melted
+first by ASE's `Langevin` at the target), `scheme='{scheme}'`,
+tdamp = {study['tdamp_steps']} steps, {lengths['equilibration']:,} steps
+of equilibration and {lengths['sampled']:,} sampled, every step. KS: the
+Kolmogorov-Smirnov p-value of the internal kinetic energy against the
+canonical Gamma distribution on samples thinned to twice its correlation
+time; "shape" takes the scale from the measured mean (so it tests the
+distribution's shape, not the time-step offset of the mean); "half
+kicked" tests, with the scale kT, the kinetic energy of `(p' + dt F / 2) /
+s_1`, which the thermostat reads (section above). H: the
+extended energy's standard deviation / largest change from the start
+(eV). MSD: mean square displacement over the run (Å²), which tells the
+liquid from the crystal.
+
+{markdown_table(['system', 'tchain', 'T (K)', 'KS p', 'KS p (shape)',
+                 'KS p (half kicked)', 'H std / max change (eV)',
+                 's_1 … s_M range', 'MSD (Å²)', 'back bit for bit'], rows)}
+
+Cost per step, {speed['n_atoms']} copper atoms with asap3 EMT, interleaved
+rounds (medians): tchain=3 {median['reversible_nose_tchain3'] * 1e3:.2f}
+ms, tchain=1 {median['reversible_nose'] * 1e3:.2f} ms (ratio {chain:.3f}),
+ASE NoseHooverChainNVT {median['ase_nose_hoover_chain'] * 1e3:.2f} ms
+(tchain=3 over ASE: {ase:.3f}).
+
+{_study_line(study)}
+"""
+
+
+def chain_stability_block(stored):
+    """docs/thermostats.md, "A chain of thermostats": which runs lasted."""
+    study = stored['results'].get('chain')
+    if study is None or 'stability' not in study:
+        return 'Not measured yet: `python benchmarks/nose.py --study chain`.'
+    rows = []
+    for c in study['stability']:
+        rows.append([f"{c['system']} {c['n_atoms']}, {c['timestep_fs']:g} fs",
+                     c['tdamp_steps'], c['tchain'],
+                     c['failure'] or f"ran {c['steps']:,} steps",
+                     f"{c['largest_change_kT']:.3g}"])
+    return markdown_table(['system', 'tdamp (steps)', 'tchain', 'outcome',
+                           'largest change of H (kT)'], rows)
+
+
+#: docs pages this section writes numbers into (render.py replaces what
+#: lies between each block's markers).
+DOC_BLOCKS = {('thermostats.md', 'timestep'): timestep_block,
+              ('thermostats.md', 'chain-stability'): chain_stability_block,
+              ('thermostats.md', 'chain'): chain_block}
