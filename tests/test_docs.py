@@ -132,12 +132,13 @@ def links(text):
 
 #: Pages whose python blocks run, with the fewest blocks each must keep.
 RUNNABLE = {'user-guide.md': 10, 'flipbook.md': 1, 'architecture.md': 1,
-            'pressure.md': 1}
+            'pressure.md': 1, 'ase-dynamics.md': 6}
 
 
 # The flipbook page renders pictures: the long tier.
 @pytest.mark.parametrize('name', tiered(sorted(RUNNABLE),
                                         quick=['architecture.md',
+                                               'ase-dynamics.md',
                                                'pressure.md',
                                                'user-guide.md']))
 def test_page_examples_run_in_order(name, tmp_path, monkeypatch):
