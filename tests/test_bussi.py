@@ -597,6 +597,7 @@ else:
 '''
 
 
+@SLOW
 def test_the_same_bits_on_another_machine(tmp_path):
     """Leg 1 (native) writes a heating run's frame and buffer; legs on
     'native' and 'sse4' each compute 300 ratios from the draws, continue

@@ -207,7 +207,7 @@ def other(path):
 
 
 @pytest.mark.parametrize('ranks, options', [
-    pytest.param(2, dict(GUARDED, steps=100), id='2-guarded'),
+    pytest.param(2, dict(GUARDED, steps=100), id='2-guarded', marks=SLOW),
     pytest.param(1, dict(GUARDED, steps=60), id='1-guarded'),
     pytest.param(1, dict(system='copper', steps=300), id='1-copper',
                  marks=SLOW),

@@ -46,6 +46,7 @@ def built(tmp_path_factory):
     return cache / 'lammps', result
 
 
+@SLOW
 def test_concurrent_builds_make_one_file_and_both_ranks_load_it(built):
     directory, result = built
     # One plugin, and no partial file of a second compile left behind.
@@ -65,6 +66,7 @@ def build_command(directory, **env):
                   directory, env=env)
 
 
+@SLOW
 def test_a_built_plugin_is_reused_and_the_build_command_prints_it(built):
     directory, _ = built
     (plugin,) = directory.glob('reversible-*.so')
