@@ -24,13 +24,14 @@ from .app.flipbook import Flipbook
 from .calculators import LennardJones, PendulumChain, SoftenedGravity
 from .core.quanta import Grid
 from .core.record import INFO_KEY  # noqa: F401  (the restart record's key)
-from .md import (FixedPointState, ReversibleLangevin, ReversibleNose,
-                 ReversibleVerlet)
+from .md import (FixedPointState, ReversibleIsotropicNPT, ReversibleLangevin,
+                 ReversibleNose, ReversibleVerlet)
 from .purity import CalculatorCheck, check_calculator, probe_purity
 
 __version__ = '0.1.0'
 
 __all__ = ['ReversibleVerlet', 'ReversibleLangevin', 'ReversibleNose',
+           'ReversibleIsotropicNPT',
            'Grid', 'FixedPointState', 'probe_purity',
            'check_calculator', 'CalculatorCheck',
            'Gradients', 'LennardJones', 'PendulumChain', 'SoftenedGravity',

@@ -4,7 +4,8 @@
 change contract, the clock, ``backpropagate``);
 :class:`~.verlet.ReversibleVerlet` declares NVE on it,
 :class:`~.langevin.ReversibleLangevin` and :class:`~.nose.ReversibleNose`
-NVT.  :mod:`.hamiltonian` holds the drift and kick, :mod:`.watch` what is
+NVT, :class:`~.npt.ReversibleIsotropicNPT` NPT.  :mod:`.hamiltonian` holds
+the drift and kick, :mod:`.watch` what is
 checked around a run, :mod:`.constraints` the exact constraint
 projections.
 """
@@ -13,7 +14,8 @@ from .base import ReversibleDynamics
 from .state import FixedPointState
 from .langevin import ReversibleLangevin
 from .nose import ReversibleNose
+from .npt import ReversibleIsotropicNPT
 from .verlet import ReversibleVerlet
 
 __all__ = ['ReversibleDynamics', 'ReversibleVerlet', 'ReversibleLangevin',
-           'ReversibleNose', 'FixedPointState']
+           'ReversibleNose', 'ReversibleIsotropicNPT', 'FixedPointState']

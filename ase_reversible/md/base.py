@@ -73,10 +73,11 @@ def admit(atoms, force_purity, force_noise):
     too, so that its verdict is the integrators'."""
     if not isinstance(atoms, Atoms):
         raise TypeError(
-            f'The reversible integrators run ase.Atoms at a fixed cell, '
-            f'got {type(atoms).__name__}: filters that move the cell '
+            f'The reversible integrators run ase.Atoms, got '
+            f'{type(atoms).__name__}: filters that move the cell '
             '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
-            'pass the Atoms themselves.')
+            'pass the Atoms themselves. To let the cell move at constant '
+            'pressure, use ReversibleIsotropicNPT on the Atoms.')
     refuse_unholdable_values(atoms)
     check_calculator(atoms.calc, 'constructing the integrator')
     masses_n = checked_masses(atoms)
@@ -606,7 +607,7 @@ class ReversibleDynamics(MolecularDynamics):
         if changes and self._take_changes(changes):
             return
         momenta = atoms.arrays.get('momenta')
-        if (same_values(atoms.arrays['positions'], self.system.x.floats)
+        if (same_values(atoms.arrays['positions'], self._shown_positions())
                 and momenta is not None
                 and same_values(momenta, self.system.shown_momenta())):
             return
@@ -619,6 +620,11 @@ class ReversibleDynamics(MolecularDynamics):
             'this point (time '
             f'{self.get_time() / units.fs:.6g} fs), not beyond.',
             stacklevel=3)
+
+    def _shown_positions(self):
+        """The positions the atoms show of the exact state, ``[n_atoms,
+        3]`` (not to be modified)."""
+        return self.system.x.floats
 
     def _anchor_moved(self, kind, message, stacklevel):
         """Warn that the anchor moved (:class:`AnchorMovedWarning`); within

@@ -81,6 +81,12 @@ class SystemWatch:
         self._masses = None if masses is None else masses.copy()
         self._effective_masses = atoms.get_masses()
 
+    def accept_cell(self, atoms):
+        """Take the atoms' present cell as the accepted one (a dynamics
+        that moves the cell itself, after checking it is the one it
+        showed)."""
+        self._cell = atoms.cell.array.tobytes()
+
     def changes(self, atoms) -> list:
         """Names of what differs from the snapshot; empty if nothing.
 

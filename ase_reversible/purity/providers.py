@@ -22,11 +22,11 @@ class SpotCheck:
     The probe at construction moves the atoms away and back a few times;
     a calculator whose sums change from call to call (threads, GPUs,
     reductions in a varying order) can pass it by luck.  So once every
-    ``interval`` force calls the positions and forces are kept, and half an
-    interval later, when the calculator has moved on, the forces at the
-    kept positions are computed again and handed to the provider's
-    :meth:`~TrustedForces.compare_visit`, which raises if they betray a
-    history.  Costs one force call per ``interval``.
+    ``interval`` force calls the positions, cell and forces are kept, and
+    half an interval later, when the calculator has moved on, the forces at
+    the kept positions and cell are computed again and handed to the
+    provider's :meth:`~TrustedForces.compare_visit`, which raises if they
+    betray a history.  Costs one force call per ``interval``.
 
     Attributes
     ----------
@@ -50,18 +50,23 @@ class SpotCheck:
         half = self.interval // 2
         if self._kept is None:
             f_nc = provider.evaluate(atoms)
-            self._kept = (atoms.positions.copy(), np.array(f_nc))
+            # The cell too: a dynamics at constant pressure moves it.
+            self._kept = (atoms.positions.copy(), np.array(f_nc),
+                          atoms.cell.array.copy())
             self._countdown = half
             return f_nc
-        x_kept, f_kept = self._kept
+        x_kept, f_kept, cell_kept = self._kept
         self._kept = None
         self._countdown = self.interval - half
         x_now = atoms.positions.copy()
+        cell_now = atoms.cell.array.copy()
         atoms.positions = x_kept
+        atoms.cell.array[:] = cell_kept
         try:
             f_again = provider.evaluate(atoms)
         finally:
             atoms.positions = x_now
+            atoms.cell.array[:] = cell_now
         self.checks += 1
         provider.compare_visit(atoms, f_kept, np.array(f_again), half)
         return provider.evaluate(atoms)

@@ -1,0 +1,276 @@
+"""ReversibleIsotropicNPT: exact out and back with a moving cell, restarts,
+the piston's force against the energy, refusals.
+
+Every exact variable (scaled positions and momenta, the cell's scale and
+its momentum) and what the atoms show (positions, momenta, cell) is
+compared with ``np.array_equal``.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+from ase import units
+from ase.calculators.emt import EMT
+from ase.io import Trajectory, read
+
+from ase_reversible import (AnchorMovedWarning, ReversibleIsotropicNPT,
+                            UnstableIntegrationError,
+                            UnsupportedConstraintError)
+from ase_reversible.md.npt import LAMBDA_MIN, VirialKick, cell_volume
+from conftest import argon_bulk, asap_emt, ase_lj, copper_bulk
+from tiers import SLOW
+
+DT = 5 * units.fs
+
+
+def npt(atoms, **kwargs):
+    settings = dict(temperature_K=300, pressure_au=1.0 * units.GPa,
+                    tdamp=50 * units.fs, pdamp=100 * units.fs, seed=7)
+    settings.update(kwargs)
+    dt = settings.pop('timestep', DT)
+    return ReversibleIsotropicNPT(atoms, dt, **settings)
+
+
+def shown(atoms):
+    return (atoms.positions.copy(), atoms.get_momenta(),
+            atoms.cell.array.copy())
+
+
+def assert_back(dyn, state, seen, emptied=True):
+    now = dyn.engine.snapshot()
+    for name, counts in state.items():
+        assert np.array_equal(now[name], counts), name
+    for a, b in zip(shown(dyn.atoms), seen):
+        assert np.array_equal(a, b)
+    if emptied:  # back at the anchor: the friction's digits all returned
+        assert not dyn.friction_step.active_buffers()
+
+
+def out_and_back(dyn, steps):
+    """Run out ``steps``, check the cell moved, run back, demand the start
+    bit for bit."""
+    state, seen = dyn.engine.snapshot(), shown(dyn.atoms)
+    volume = dyn.atoms.get_volume()
+    dyn.run(steps)
+    assert abs(dyn.atoms.get_volume() / volume - 1) > 1e-3
+    assert not np.array_equal(dyn.atoms.cell.array, seen[2])
+    assert np.array_equal(dyn.atoms.cell.array,
+                          dyn.reference_cell * dyn.barostat_position)
+    dyn.reverse()
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', AnchorMovedWarning)
+        dyn.run(steps)
+    assert_back(dyn, state, seen)
+
+
+def copper():
+    atoms = copper_bulk((2, 2, 2), 300)
+    atoms.calc = EMT()
+    return atoms
+
+
+def argon():
+    # Liquid argon at 120 K: the solid's lattice, hot.
+    atoms = argon_bulk((2, 2, 2), 120)
+    atoms.calc = ase_lj()
+    return atoms
+
+
+def test_copper_emt_runs_out_and_back_with_the_cell():
+    out_and_back(npt(copper()), 30)
+
+
+def test_argon_lj_runs_out_and_back_with_the_cell():
+    dyn = npt(argon(), temperature_K=120, pressure_au=0.05 * units.GPa,
+              pdamp=200 * units.fs)
+    out_and_back(dyn, 30)
+
+
+def test_asap3_emt_runs_out_and_back_with_the_cell():
+    atoms = copper_bulk((2, 2, 2), 300)
+    atoms.calc = asap_emt()  # skips where asap3 is missing
+    out_and_back(npt(atoms), 30)
+
+
+def test_observers_see_positions_momenta_and_cell_of_the_exact_state():
+    dyn = npt(copper())
+    seen = []
+
+    def look():
+        s = dyn.system
+        lam = s.lam_value()
+        assert np.array_equal(dyn.atoms.positions, s.x.floats * lam)
+        assert np.array_equal(dyn.atoms.get_momenta(), s.p.floats / lam)
+        assert np.array_equal(dyn.atoms.cell.array, s.cell0 * lam)
+        seen.append(dyn.atoms.get_volume())
+    dyn.attach(look)
+    dyn.run(5)
+    assert len(set(seen)) == len(seen) == 6
+
+
+def test_the_piston_force_is_minus_the_energy_derivative_in_lambda():
+    """``G - 2kT/lambda + 3 P V0 lambda**2 = -dU/dlambda`` at fixed scaled
+    positions, by a central difference of the energy under a uniform
+    scaling of positions and cell: the stress's sign and factor."""
+    atoms = copper()
+    dyn = npt(atoms)
+    dyn.run(3)
+    s = dyn.system
+    lam = s.lam_value()
+    G = VirialKick(s).force(s.kick.stress_trace())
+    minus_dU = G - 2 * s.kT / lam + 3 * s.pressure * s.V0 * lam**2
+
+    probe = atoms.copy()
+    probe.calc = EMT()
+    d = 1e-5
+
+    def energy(scale):
+        probe.set_cell(atoms.cell.array * scale, scale_atoms=False)
+        probe.positions = atoms.positions * scale
+        return probe.get_potential_energy()
+    derivative = (energy(1 + d / lam) - energy(1 - d / lam)) / (2 * d)
+    assert minus_dU == pytest.approx(-derivative, rel=1e-5, abs=1e-6)
+    assert abs(minus_dU) > 1.0  # eV: a test that could fail on the sign
+
+
+def test_volume_is_computed_in_plain_arithmetic():
+    cell = np.array([[3.0, 0.1, 0.0], [0.2, 4.0, 0.3], [0.0, 0.1, 5.0]])
+    assert cell_volume(cell) == pytest.approx(abs(np.linalg.det(cell)),
+                                              rel=1e-14)
+
+
+def test_a_frame_and_its_buffer_resume_the_run_bit_for_bit(tmp_path):
+    atoms = copper()
+    dyn = npt(atoms)
+    with Trajectory(tmp_path / 'run.traj', 'w', atoms) as traj:
+        dyn.attach(traj.write, interval=10)
+        dyn.run(10)
+        dyn.write_buffer(tmp_path / 'buffer.npz')
+    state = dyn.engine.snapshot()
+    frame = read(tmp_path / 'run.traj', index=-1)
+    frame.calc = EMT()
+    again = npt(frame, seed=None, buffer=tmp_path / 'buffer.npz')
+    assert again.seed == dyn.seed
+    assert again.get_time() == dyn.get_time()
+    resumed = again.engine.snapshot()
+    for name in state:
+        assert np.array_equal(resumed[name], state[name]), name
+    for a, b in zip(shown(frame), shown(atoms)):
+        assert np.array_equal(a, b)
+    dyn.observers.clear()
+    dyn.run(8)
+    again.run(8)
+    for name, counts in dyn.engine.snapshot().items():
+        assert np.array_equal(again.engine.snapshot()[name], counts), name
+    # The resumed run goes back past the frame to the first run's start.
+    again.reverse()
+    again.run(18)
+    assert again.get_time() == 0.0
+
+
+def test_a_frame_alone_resumes_the_exact_state(tmp_path):
+    atoms = copper()
+    dyn = npt(atoms)
+    dyn.run(6)
+    path = tmp_path / 'frame.traj'
+    with Trajectory(path, 'w') as traj:
+        traj.write(atoms)
+    frame = read(path)
+    frame.calc = EMT()
+    again = npt(frame, seed=None)
+    for name, counts in dyn.engine.snapshot().items():
+        assert np.array_equal(again.engine.snapshot()[name], counts), name
+    assert_back(again, again.engine.snapshot(), shown(frame))
+    out_and_back(again, 20)
+    assert again.get_time() == dyn.get_time()
+
+
+@pytest.mark.parametrize('name', ['tchain', 'pchain', 'tloop', 'ploop',
+                                  'rng'])
+def test_arguments_of_ase_chains_are_refused_with_the_translation(name):
+    atoms = copper()
+    advice = 'seed=<int>' if name == 'rng' else f'leave {name} out'
+    with pytest.raises(TypeError, match=advice):
+        npt(atoms, **{name: 3})
+
+
+def test_a_cell_filter_is_refused_naming_the_npt_class():
+    from ase.filters import FrechetCellFilter
+    atoms = copper()
+    with pytest.raises(TypeError, match='ReversibleIsotropicNPT'):
+        npt(FrechetCellFilter(atoms))
+
+
+def test_a_calculator_without_stress_is_refused():
+    from ase_reversible import SoftenedGravity
+    atoms = copper()
+    atoms.calc = SoftenedGravity()
+    with pytest.raises(ValueError, match='needs the stress'):
+        npt(atoms, force_purity='trust')
+
+
+def test_a_cluster_and_constraints_are_refused():
+    from ase.constraints import FixAtoms
+    atoms = copper()
+    atoms.pbc = (True, True, False)
+    with pytest.raises(ValueError, match='periodic in all three'):
+        npt(atoms)
+    atoms = copper()
+    atoms.set_constraint(FixAtoms([0]))
+    with pytest.raises(UnsupportedConstraintError, match='no constraints'):
+        npt(atoms)
+
+
+def test_a_cell_set_between_runs_is_refused_and_put_back():
+    dyn = npt(copper())
+    dyn.run(4)
+    state, seen = dyn.engine.snapshot(), shown(dyn.atoms)
+    dyn.atoms.set_cell(seen[2] * 1.01, scale_atoms=True)
+    with pytest.raises(ValueError, match='moves the cell itself'):
+        dyn.run(1)
+    assert_back(dyn, state, seen, emptied=False)
+    dyn.reverse()
+    dyn.run(4)
+    assert dyn.get_time() == 0.0
+
+
+def test_a_collapsing_cell_stops_the_run_at_a_reversible_state():
+    atoms = copper()
+    dyn = npt(atoms, pressure_au=400 * units.GPa, pdamp=200 * units.fs,
+              energy_check=0)
+    state, seen = dyn.engine.snapshot(), shown(atoms)
+    with pytest.raises(UnstableIntegrationError, match='cell collapsed'):
+        dyn.run(200)
+    taken = dyn.nsteps
+    lam = dyn.barostat_position
+    assert taken > 5 and LAMBDA_MIN < lam < 1
+    assert np.array_equal(atoms.cell.array, dyn.reference_cell * lam)
+    dyn.reverse()
+    dyn.run(taken)
+    assert_back(dyn, state, seen)
+
+
+def test_backpropagate_refuses_clearly():
+    dyn = npt(copper())
+    dyn.run(2)
+    with pytest.raises(NotImplementedError, match='not available'):
+        dyn.backpropagate(2, grad_positions=np.ones((32, 3)))
+
+
+def test_conserved_energy_is_conserved():
+    # No thermostat to speak of (tdamp far beyond the run): the extended
+    # energy moves by the time-step error only.
+    dyn = npt(copper(), tdamp=1e6 * units.fs, energy_check=0)
+    e0 = dyn.get_conserved_energy()
+    dyn.run(40)
+    assert abs(dyn.get_conserved_energy() - e0) < 2e-3 * 32
+
+
+@SLOW
+def test_a_long_run_goes_out_and_back():
+    atoms = copper_bulk((3, 3, 3), 300)
+    atoms.calc = asap_emt()
+    dyn = npt(atoms, pdamp=200 * units.fs)
+    out_and_back(dyn, 2500)
+    assert dyn.force_purity.mode in ('sorted', 'guarded', 'trust')
