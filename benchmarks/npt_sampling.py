@@ -126,6 +126,8 @@ class Case:
     timestep_fs: float
     pressure_GPa: float
     round_trip: bool = True  # the reversible run goes back too
+    #: force_noise of ReversibleIsotropicNPT, eV/Å (None: its default).
+    force_noise: float = None
 
     @property
     def timestep(self):
@@ -152,7 +154,11 @@ CASES = (
     Case('Cu fcc, 0 GPa', 'copper', (4, 4, 4), 300.0, 5.0, 0.0),
     Case('Cu fcc, 1 GPa', 'copper', (4, 4, 4), 300.0, 5.0, 1.0,
          round_trip=False),
-    Case('Ar liquid, 50 bar', 'argon', (4, 4, 4), 100.0, 10.0, 50e-4),
+    # asap3's LennardJones in a moving cell: the spot check saw forces
+    # 1.85e-15 eV/Å off a fresh neighbour list's, over the guard of
+    # 8.9e-16, and its error asked for force_noise=3e-14; that is given.
+    Case('Ar liquid, 50 bar', 'argon', (4, 4, 4), 100.0, 10.0, 50e-4,
+         force_noise=3e-14),
 )
 
 
@@ -178,7 +184,8 @@ def reversible_class():
 def reversible_npt(atoms, case):
     h = case.timestep
     return reversible_class()(atoms, h, case.temperature_K, case.pressure_au,
-                              TDAMP_STEPS * h, PDAMP_STEPS * h, seed=SEED)
+                              TDAMP_STEPS * h, PDAMP_STEPS * h, seed=SEED,
+                              force_noise=case.force_noise)
 
 
 def ase_npt(atoms, case):
