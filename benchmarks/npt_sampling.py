@@ -300,9 +300,15 @@ def compare(start, end):
     return verdict
 
 
+def buffers(dyn):
+    """The thermostat's information buffers (the side state a step
+    changes), empty where a dynamics keeps none."""
+    step = getattr(dyn, 'friction_step', None)
+    return list(step.buffers.values()) if step is not None else []
+
+
 def buffer_bits(dyn):
-    bits = getattr(dyn, 'buffer_bits', None)
-    return None if bits is None else int(bits)
+    return int(sum(b.bits for b in buffers(dyn)))
 
 
 def run_one(case, name, lengths, repeat=None, round_trip=False):
@@ -333,6 +339,7 @@ def run_one(case, name, lengths, repeat=None, round_trip=False):
             dyn.run(lengths.total)
             back = time.perf_counter() - tic
             verdict = compare(start, exact_state(dyn))
+            verdict['buffers empty'] = all(b.is_empty() for b in buffers(dyn))
             record['round_trip'] = {
                 'steps_each_way': lengths.total, 'moved': moved,
                 'cell_moved': cell_moved, 'equal': verdict,
