@@ -1,7 +1,7 @@
 """The documentation cannot rot.
 
 - Every ```python block of docs/user-guide.md (and docs/flipbook.md,
-  docs/architecture.md) runs,
+  docs/architecture.md, docs/pressure.md) runs,
   in order, in one namespace, in a fresh directory: the guide's examples assert what the
   prose says, so a change of behaviour breaks this test, not the reader.
 - Every relative link (and #anchor) in README.md and docs/*.md leads to an
@@ -131,12 +131,14 @@ def links(text):
 # -- (a) the user guide runs ---------------------------------------------------
 
 #: Pages whose python blocks run, with the fewest blocks each must keep.
-RUNNABLE = {'user-guide.md': 10, 'flipbook.md': 1, 'architecture.md': 1}
+RUNNABLE = {'user-guide.md': 10, 'flipbook.md': 1, 'architecture.md': 1,
+            'pressure.md': 1}
 
 
 # The flipbook page renders pictures: the long tier.
 @pytest.mark.parametrize('name', tiered(sorted(RUNNABLE),
                                         quick=['architecture.md',
+                                               'pressure.md',
                                                'user-guide.md']))
 def test_page_examples_run_in_order(name, tmp_path, monkeypatch):
     page = DOCS / name

@@ -45,6 +45,7 @@ def assert_back(dyn, state, seen, emptied=True):
         assert np.array_equal(a, b)
     if emptied:  # back at the anchor: the friction's digits all returned
         assert not dyn.friction_step.active_buffers()
+        assert not dyn.friction_step.piston.active_buffers()
 
 
 def out_and_back(dyn, steps):
@@ -235,6 +236,35 @@ def test_a_cell_set_between_runs_is_refused_and_put_back():
     assert dyn.get_time() == 0.0
 
 
+def test_momenta_set_between_runs_are_taken_with_the_cell_kept():
+    dyn = npt(copper())
+    dyn.run(4)
+    cell = dyn.atoms.cell.array.copy()
+    dyn.atoms.set_momenta(dyn.atoms.get_momenta() * 0.5)
+    with pytest.warns(AnchorMovedWarning, match='Positions or momenta'):
+        dyn.run(3)
+    state, seen = dyn.engine.snapshot(), shown(dyn.atoms)
+    assert not np.array_equal(seen[2], cell)
+    dyn.run(10)
+    dyn.reverse()
+    dyn.run(10)
+    assert_back(dyn, state, seen, emptied=False)
+
+
+def test_a_calculator_without_stress_set_between_runs_is_refused():
+    from ase_reversible import SoftenedGravity
+    dyn = npt(copper())
+    dyn.run(2)
+    state, seen = dyn.engine.snapshot(), shown(dyn.atoms)
+    emt = dyn.atoms.calc
+    dyn.atoms.calc = SoftenedGravity()
+    with pytest.raises(ValueError, match='needs the stress'):
+        dyn.run(1)
+    dyn.atoms.calc = emt
+    dyn.run(0)
+    assert_back(dyn, state, seen, emptied=False)
+
+
 def test_a_collapsing_cell_stops_the_run_at_a_reversible_state():
     atoms = copper()
     dyn = npt(atoms, pressure_au=400 * units.GPa, pdamp=200 * units.fs,
@@ -251,11 +281,59 @@ def test_a_collapsing_cell_stops_the_run_at_a_reversible_state():
     assert_back(dyn, state, seen)
 
 
-def test_backpropagate_refuses_clearly():
+class WholeRun:
+    """L(x0, p0) = <a, x_T> + <b, p_T> over a fresh run of ``steps``."""
+
+    def __init__(self, steps, seed=5):
+        self.steps = steps
+        self.a_nc, self.b_nc = np.random.default_rng(seed).normal(
+            size=(2, 32, 3))
+
+    def dynamics(self, dx_nc=0.0, dp_nc=0.0):
+        atoms = copper()
+        atoms.positions = atoms.positions + dx_nc
+        atoms.set_momenta(atoms.get_momenta() + dp_nc)
+        # Fine quanta: a finite difference of a whole run sees the
+        # rounding as noise.
+        return npt(atoms, energy_check=0, position_quantum=2.0**-44,
+                   momentum_quantum=2.0**-46)
+
+    def __call__(self, dx_nc=0.0, dp_nc=0.0):
+        dyn = self.dynamics(dx_nc, dp_nc)
+        dyn.run(self.steps)
+        atoms = dyn.atoms
+        return float(np.sum(self.a_nc * atoms.positions)
+                     + np.sum(self.b_nc * atoms.get_momenta()))
+
+
+def test_gradients_match_whole_run_finite_differences():
+    loss = WholeRun(steps=3)
+    dyn = loss.dynamics()
+    start, seen = dyn.engine.snapshot(), shown(dyn.atoms)
+    dyn.run(loss.steps)
+    grads = dyn.backpropagate(loss.steps, loss.a_nc, loss.b_nc)
+    # The retrace ends at the start, bit for bit.
+    assert_back(dyn, start, seen)
+    assert set(grads.thermostat) == {'lambda', 'p_lambda'}
+    assert grads.products == 2 * loss.steps
+    u_nc, v_nc = np.random.default_rng(6).normal(size=(2, 32, 3))
+    # The step is large against the jitter of the piston's friction (its
+    # buffer's digits, 2**-20 of the spread of p_lambda a step), small
+    # against the curvature.
+    e = 1e-3
+    zero = np.zeros((32, 3))
+    for grad, dx, dp, w in ((grads.positions, u_nc, zero, u_nc),
+                            (grads.momenta, zero, v_nc, v_nc)):
+        fd = (loss(e * dx, e * dp) - loss(-e * dx, -e * dp)) / (2 * e)
+        assert float(np.sum(grad * w)) == pytest.approx(fd, rel=1e-4)
+
+
+def test_parameter_gradients_are_refused():
     dyn = npt(copper())
     dyn.run(2)
-    with pytest.raises(NotImplementedError, match='not available'):
-        dyn.backpropagate(2, grad_positions=np.ones((32, 3)))
+    with pytest.raises(NotImplementedError, match='potential parameters'):
+        dyn.backpropagate(2, grad_positions=np.ones((32, 3)),
+                          parameters=('sigma',))
 
 
 def test_conserved_energy_is_conserved():
@@ -274,3 +352,22 @@ def test_a_long_run_goes_out_and_back():
     dyn = npt(atoms, pdamp=200 * units.fs)
     out_and_back(dyn, 2500)
     assert dyn.force_purity.mode in ('sorted', 'guarded', 'trust')
+
+
+def test_guarded_roundings_recompute_cleanly_and_stay_exact(monkeypatch):
+    # A wide guard band and a fine quantum of p_lambda: the kicks and the
+    # piston's kicks come near a tie often, and each is then recomputed
+    # from a clean neighbour list.
+    from ase_reversible.md.npt import system as module
+    monkeypatch.setattr(module, 'TARGET_CLEAN_RATE', 1e9)
+    cleaned = []
+    clean = module.ScaledKick.clean_stress_trace
+    monkeypatch.setattr(module.ScaledKick, 'clean_stress_trace',
+                        lambda kick: cleaned.append(1) or clean(kick))
+    atoms = copper_bulk((2, 2, 2), 300)
+    atoms.calc = asap_emt()
+    dyn = npt(atoms, force_purity='guarded', force_noise=2.0**-30,
+              momentum_quantum=2.0**-32)
+    out_and_back(dyn, 30)
+    assert len(cleaned) > 0
+    assert dyn.force_purity.clean_recomputations > len(cleaned)

@@ -1,0 +1,180 @@
+"""The O step of :class:`~.isotropic.ReversibleIsotropicNPT`: Langevin's
+exact friction and noise on ``pi`` (mass ``m lambda**2``) and on the
+piston's momentum."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...core.infobuffer import BufferUnderflowError, InformationBuffer
+from ...core.noise import StepNoise
+from ...core.portable import dot
+from ...errors import RetraceLimitError
+from ..langevin import Friction, exact_ratio
+from .system import LAMBDA, P_LAMBDA
+
+
+class ScaledFriction(Friction):
+    """Langevin's exact O step on ``pi``, whose mass is ``m lambda**2``:
+    the noise's spread is ``lambda`` times that for the mass ``m``, and
+    the heat it adds is measured with ``1 / (m lambda**2)``.  With a
+    :class:`PistonFriction` (``piston``), the same step also applies it
+    to ``p_lambda``."""
+
+    def __init__(self, system, settings, step_of, piston=None):
+        super().__init__(system, settings, step_of)
+        self.piston = piston
+        if piston is not None:
+            # The piston's deviate comes from the atoms' draw: a draw costs
+            # 120 us however few deviates it makes (one deviate, timeit,
+            # load 4.5), so a draw of its own would add that to a step.
+            self.noise = _MoreNormals(self.noise.size, piston.size)
+
+    def prepare(self, ch):
+        return (super().prepare(ch),
+                None if self.piston is None else self.piston.prepare(ch))
+
+    def apply(self, prepared):
+        atoms_part, piston_part = prepared
+        lam = self.system.lam_value()
+        parts = list(atoms_part)
+        parts[3] = atoms_part[3] * lam
+        parts[6] = atoms_part[6] / (lam * lam)
+        super().apply(tuple(parts))
+        if piston_part is not None:
+            self.piston.apply(piston_part, self.noise.extra)
+
+    def forget(self):
+        super().forget()
+        if self.piston is not None:
+            self.piston.forget()
+
+    def active_buffers(self):
+        """The atoms' buffers that hold digits, by friction ratio ``n``
+        (the piston's: ``piston.active_buffers()``)."""
+        return super().active_buffers()
+
+    def checkpoint(self):
+        super().checkpoint()
+        if self.piston is not None:
+            self.piston.checkpoint()
+
+    def rollback(self):
+        super().rollback()
+        if self.piston is not None:
+            self.piston.rollback()
+
+    def adjoint(self, cotangents, ch):
+        """``pi' = c pi + lambda n`` (``n`` the noise for the mass ``m``,
+        the same both ways): ``a_lambda += a_pi' . n``, then ``a_pi = c
+        a_pi'``; the piston's ``a_p_lambda *= c_piston``."""
+        cotangents.flush()
+        s = self.system
+        atoms_part, piston_part = self.prepare(ch)
+        sigma_k, key, zero_sum = atoms_part[3], atoms_part[4], atoms_part[5]
+        n_k = s.p.quantum * sigma_k * self.noise.normals(key, self.step_of())
+        n_nc = n_k.reshape(self.shape)
+        if zero_sum is not None:
+            n_nc = n_nc - zero_sum[0] * n_nc.sum(axis=0)
+        cotangents[LAMBDA] += dot(cotangents['momentum'], n_nc)
+        cotangents['momentum'] *= exact_ratio(self.settings()[0], ch)[1]
+        if piston_part is not None:
+            cotangents[P_LAMBDA] *= exact_ratio(self.piston.friction, ch)[1]
+
+
+class _MoreNormals(StepNoise):
+    """The atoms' ``size`` deviates of a step, drawn together with
+    ``more``, kept as :attr:`extra` for the piston."""
+
+    def __init__(self, size, more):
+        super().__init__(size + more)
+        self.atoms_size = size
+        self.extra = None
+
+    def normals(self, key, step):
+        z = super().normals(key, step)
+        self.extra = z[self.atoms_size:]
+        return z[:self.atoms_size]
+
+
+class PistonFriction:
+    """The O step on ``p_lambda`` (a Langevin piston): ``p_lambda <- c
+    p_lambda + sqrt((1 - c**2) W kT) xi``, exact as the atoms' (the
+    friction through an information buffer, the deviates ``xi`` drawn
+    with the atoms' by the counter-based generator).
+
+    Parameters
+    ----------
+    system : NPTHamiltonian
+    friction : float
+        1 / ASE time unit (``1 / pdamp``).
+    size : int
+        Entries of ``p_lambda`` (1; 6 for the full cell's momentum).
+    """
+
+    def __init__(self, system, friction, size=1):
+        self.system = system
+        self.friction = friction
+        self.size = size
+        self.buffers = {}
+        self.heat = self._saved_heat = 0.0
+
+    def forget(self):
+        """Empty the buffers and zero the heat: the anchor moved here."""
+        for buffer in self.buffers.values():
+            buffer.clear()
+        self.heat = self._saved_heat = 0.0
+
+    def active_buffers(self):
+        """The buffers that hold digits, by friction ratio ``n``."""
+        return {n: b for n, b in self.buffers.items() if not b.is_empty()}
+
+    def prepare(self, ch):
+        """What :meth:`apply` needs at the coefficient ``ch``."""
+        s = self.system
+        n, ratio = exact_ratio(self.friction, ch)
+        buffer = self.buffers.get(n)
+        if buffer is None:
+            buffer = self.buffers[n] = InformationBuffer(self.size, n)
+        sigma = math.sqrt((1.0 - ratio * ratio) * s.W * s.kT) \
+            / s.p_lam.quantum
+        return ch > 0, buffer, sigma
+
+    def apply(self, prepared, xi_k):
+        """One O step of ``p_lambda`` with the standard normal deviates
+        ``xi_k`` (one per entry)."""
+        forward, buffer, sigma = prepared
+        p = self.system.p_lam
+        x_k = p.ints.reshape(-1)
+        noise_k = np.rint(sigma * xi_k).astype(np.int64)
+        if forward:
+            new_k = buffer.scale_down(x_k) + noise_k
+        else:
+            try:
+                new_k = buffer.scale_up(x_k - noise_k)
+            except BufferUnderflowError:
+                raise RetraceLimitError(
+                    'ReversibleIsotropicNPT can only retrace steps it has '
+                    'taken: this one goes back past the anchor of '
+                    'reversal, where the piston\'s friction would have to '
+                    'be undone that was never applied. The step was not '
+                    'taken; run forward (positive dt) from here.') from None
+        q = p.quantum
+        old_k, new_k_q = x_k * q, new_k * q
+        self.heat += 0.5 * (dot(new_k_q, new_k_q) - dot(old_k, old_k)) \
+            / self.system.W
+        p.add_integers((new_k - x_k).astype(np.float64))
+
+    def checkpoint(self):
+        """Remember the heat and the buffers."""
+        self._saved_heat = self.heat
+        for buffer in self.buffers.values():
+            buffer.checkpoint()
+
+    def rollback(self):
+        """Back to the last :meth:`checkpoint`."""
+        self.heat = self._saved_heat
+        for buffer in self.buffers.values():
+            buffer.rollback()
