@@ -108,6 +108,14 @@ def missing(results):
             + '\n\n' if lines else '')
 
 
+def warnings_seen(results):
+    lines = [f"- {c['label']}, {label}: {w}"
+             for c in results['cases'] for key, label in INTEGRATORS
+             for w in c['runs'].get(key, {}).get('warnings', [])]
+    return ('Warnings raised during the runs:\n\n' + '\n'.join(lines)
+            if lines else 'No warnings were raised during the runs.')
+
+
 def markdown(results):
     st = results['settings']
     load = results['load_average']
@@ -164,4 +172,6 @@ ReversibleIsotropicNPT's sampling run, reversed and run back as many steps
 (no observer), against its state right after the constructor:
 
 {round_trip_table(results)}
+
+{warnings_seen(results)}
 """
