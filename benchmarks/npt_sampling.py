@@ -161,6 +161,9 @@ CASES = (
     # advised 3.4e-13, which is given.
     Case('Ar liquid, 50 bar', 'argon', (4, 4, 4), 100.0, 10.0, 50e-4,
          force_noise=3.4e-13),
+    # Half the time step: what of a difference at 5 fs is time-step error.
+    Case('Cu fcc, 0 GPa, 2.5 fs', 'copper', (4, 4, 4), 300.0, 2.5, 0.0,
+         round_trip=False),
 )
 
 
@@ -210,6 +213,7 @@ class Sampler:
         self.dyn, self.atoms = dyn, dyn.atoms
         self.volume = np.full(steps + 1, np.nan)
         self.temperature = np.full(steps + 1, np.nan)
+        self.potential = np.full(steps + 1, np.nan)
         self.marks = set(marks)
         self.scaled = {}
 
@@ -217,6 +221,7 @@ class Sampler:
         i = self.dyn.nsteps
         self.volume[i] = self.atoms.get_volume()
         self.temperature[i] = self.atoms.get_temperature()
+        self.potential[i] = self.atoms.get_potential_energy()
         if i in self.marks:
             # Unwrapped: neither integrator wraps positions into the cell.
             self.scaled[i] = np.linalg.solve(self.atoms.cell.T,
@@ -277,6 +282,7 @@ def statistics_of(sampler, first, case, n_atoms):
         'temperature_K': {**block_mean(temperature),
                           'correlation_time_steps':
                               integrated_time(temperature)},
+        'potential_energy_eV': block_mean(sampler.potential[first:]),
         'msd_A2': {'half': sampler.mean_squared_displacement(start, half),
                    'end': sampler.mean_squared_displacement(start, last),
                    'half_steps': half - start, 'end_steps': last - start},
@@ -379,6 +385,9 @@ def compared(ours, theirs):
             compressibility_error(s['compressibility']))),
         'temperature': pair(lambda s: (s['temperature_K']['mean'],
                                        s['temperature_K']['standard_error'])),
+        'potential_energy': pair(lambda s: (
+            s['potential_energy_eV']['mean'],
+            s['potential_energy_eV']['standard_error'])),
     }
 
 
