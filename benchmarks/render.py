@@ -25,9 +25,9 @@ DOCS = ROOT / 'docs'
 #: and benchmarks/pages/<name>.py (renders).
 SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
             'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
-            'thermostat', 'nose', 'lammps_cost', 'portable', 'force_noise',
-            'full_precision', 'long_reversal', 'torch_products',
-            'training')
+            'thermostat', 'nose', 'npt_sampling', 'npt_cost', 'lammps_cost',
+            'portable', 'force_noise', 'full_precision', 'long_reversal',
+            'torch_products', 'training')
 
 
 def page_module(name):

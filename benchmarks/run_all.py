@@ -33,12 +33,14 @@ import render
 SECTIONS = render.SECTIONS
 #: Measured by a plain run.  force_noise and long_reversal are diagnostics
 #: kept out of it (long_reversal takes about an hour with ASE's
-#: LennardJones), and torch_products and training need the torch extra
-#: (training's 10^5-step memory point alone took 9 minutes); --only runs
-#: them, and the page shows them once stored.
+#: LennardJones), and so is npt_sampling (a 10^5-step run per integrator
+#: and case, and the round trip back); torch_products and training need
+#: the torch extra (training's 10^5-step memory point alone took 9
+#: minutes); --only runs them, and the page shows them once stored.
 DEFAULT_SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
                     'reversal_error', 'stress', 'gradient_accuracy',
-                    'adjoint', 'thermostat', 'nose', 'lammps_cost',
+                    'adjoint', 'thermostat', 'nose', 'npt_cost',
+                    'lammps_cost',
                     'portable')
 
 

@@ -1,0 +1,153 @@
+"""Cost per step of ReversibleIsotropicNPT against ASE's IsotropicMTKNPT,
+and where the extra time goes.
+
+A section of ``run_all.py``::
+
+    python benchmarks/run_all.py --only npt_cost           # ~10 minutes
+    python benchmarks/run_all.py --quick --only npt_cost   # < 60 s
+
+Cases: periodic fcc copper (asap3 EMT, 300 K, 5 fs, 0 GPa) of 256, 500
+and 2048 atoms, and argon at the liquid's density (asap3 LennardJones with
+npt_sampling.py's parameters, 100 K, 10 fs, 50 bar) of 256 and 864 atoms;
+tdamp = 100 dt, pdamp = 1000 dt as in npt_sampling.py.  Each integrator
+runs on its own copy of the same atoms with its own calculator; after a
+warm-up, blocks of the same number of steps (sized so that ASE's block
+takes ``block_seconds``) alternate between them, the order rotated each
+round, with ``step_cost.time_interleaved``; the ratio is of the medians.
+
+Then one case is profiled with ``cProfile`` (``PROFILE_STEPS`` steps of
+each integrator, after the timing): the functions with the largest own
+time (``tottime``) and the largest cumulative time, each as a share of the
+run, are stored so that the extra time of the exact integrator can be
+traced to its source.
+"""
+
+from __future__ import annotations
+
+import common  # noqa: F401  (first: pins BLAS threads before numpy)
+
+import cProfile
+import os
+import pstats
+import statistics
+import sys
+from dataclasses import asdict
+
+from npt_sampling import CASES, INTEGRATORS, reversible_class
+from step_cost import Contestant, Settings, choose_steps, time_interleaved
+
+#: (case of npt_sampling.CASES, repeat) of the cost measurement.
+COST_CASES = ((CASES[0], (4, 4, 4)), (CASES[0], (5, 5, 5)),
+              (CASES[0], (8, 8, 8)), (CASES[2], (4, 4, 4)),
+              (CASES[2], (6, 6, 6)))
+QUICK_COST_CASES = (COST_CASES[0], COST_CASES[3])
+FULL = Settings(rounds=9, block_seconds=0.5, min_steps=2, max_steps=2000,
+                warmup_steps=5)
+QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=2, max_steps=200,
+                 warmup_steps=2)
+#: The goal judged on the page: ReversibleIsotropicNPT over ASE's.
+RATIO_GOAL = 1.1
+#: The profiled case (index into COST_CASES) and its steps per integrator.
+PROFILE_CASE = 1
+PROFILE_STEPS, QUICK_PROFILE_STEPS = 400, 40
+#: Functions kept per profile listing.
+PROFILE_TOP = 15
+
+
+def contestant_names():
+    return (('reversible_npt', 'ase_npt') if reversible_class()
+            else ('ase_npt',))
+
+
+def cost_case(case, repeat, settings, names):
+    """Interleaved per-step times of ``names`` on copies of one start."""
+    contestants = []
+    for name in names:
+        label, atoms = case.atoms(repeat)
+        contestants.append(Contestant(name, INTEGRATORS[name](atoms, case)))
+    for c in contestants:
+        c.runner.run(settings.warmup_steps)
+    steps = choose_steps(contestants[-1], settings)
+    wall, cpu = time_interleaved(contestants, steps, settings.rounds)
+    median = {k: statistics.median(v) for k, v in wall.items()}
+    median_cpu = {k: statistics.median(v) for k, v in cpu.items()}
+    result = {
+        'label': case.label, 'calculator': label,
+        'n_atoms': len(contestants[0].runner.atoms),
+        'timestep_fs': case.timestep_fs,
+        'steps_per_block': steps, 'rounds': settings.rounds,
+        'per_step_seconds': wall, 'per_step_cpu_seconds': cpu,
+        'median_seconds': median, 'median_cpu_seconds': median_cpu,
+        'spread': {k: (max(v) - min(v)) / statistics.median(v)
+                   for k, v in wall.items()},
+    }
+    if 'reversible_npt' in median:
+        result['ratio'] = median['reversible_npt'] / median['ase_npt']
+        result['ratio_cpu'] = (median_cpu['reversible_npt']
+                               / median_cpu['ase_npt'])
+    print(f"  {label:10s} N={result['n_atoms']:5d} S={steps:4d}  "
+          + '  '.join(f'{k}={v * 1e6:.0f}µs' for k, v in median.items())
+          + (f"  ratio {result['ratio']:.3f}" if 'ratio' in result else ''),
+          flush=True)
+    return result
+
+
+def listing(stats, key, total):
+    """The PROFILE_TOP functions by ``key`` ('tottime' or 'cumtime')."""
+    rows = []
+    for (file, line, function), (cc, nc, tt, ct, _) in stats.stats.items():
+        rows.append({'function': f'{os.path.basename(file)}:{line}'
+                                 f'({function})',
+                     'calls': nc, 'tottime': tt, 'cumtime': ct})
+    rows.sort(key=lambda r: -r[key])
+    for r in rows:
+        r['share'] = r[key] / total
+    return rows[:PROFILE_TOP]
+
+
+def profile(case, repeat, steps, names):
+    """cProfile of ``steps`` steps of each integrator (after a warm-up)."""
+    out = {}
+    for name in names:
+        _, atoms = case.atoms(repeat)
+        dyn = INTEGRATORS[name](atoms, case)
+        dyn.run(5)
+        profiler = cProfile.Profile()
+        profiler.enable()
+        dyn.run(steps)
+        profiler.disable()
+        stats = pstats.Stats(profiler)
+        total = stats.total_tt
+        out[name] = {'steps': steps, 'seconds': total,
+                     'per_step_seconds': total / steps,
+                     'by_own_time': listing(stats, 'tottime', total),
+                     'by_cumulative_time': listing(stats, 'cumtime', total)}
+    return out
+
+
+def run(quick):
+    settings = QUICK if quick else FULL
+    cases = QUICK_COST_CASES if quick else COST_CASES
+    names = contestant_names()
+    load = {'start': os.getloadavg()}
+    costs = [cost_case(case, repeat, settings, names)
+             for case, repeat in cases]
+    load['before_profile'] = os.getloadavg()
+    case, repeat = cases[0] if quick else cases[PROFILE_CASE]
+    profiled = profile(case, repeat,
+                       QUICK_PROFILE_STEPS if quick else PROFILE_STEPS, names)
+    load['end'] = os.getloadavg()
+    return {'load_average': load,
+            'settings': {**asdict(settings), 'ratio_goal': RATIO_GOAL},
+            'reversible_missing': (
+                None if 'reversible_npt' in names else
+                'ase_reversible has no ReversibleIsotropicNPT at this commit'),
+            'costs': costs,
+            'profile': {'label': case.label,
+                        'n_atoms': costs[cases.index((case, repeat))][
+                            'n_atoms'], 'runs': profiled}}
+
+
+if __name__ == '__main__':
+    import run_all
+    sys.exit(run_all.main(['--only', 'npt_cost'] + sys.argv[1:]))
