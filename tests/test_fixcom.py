@@ -25,6 +25,7 @@ from ase_reversible.md.constraints import FixedCentre
 
 from conftest import DT, copper_bulk, copper_cluster
 from exactness import assert_same_state, snapshot
+from tiers import SLOW
 
 INTEGRATORS = {
     'verlet': lambda atoms: ReversibleVerlet(atoms, DT),
@@ -283,6 +284,7 @@ def test_gradients_match_whole_run_finite_differences(mixed):
     assert relative_error(np.vdot(g.momenta, v_nc), fd_p) < 1e-5
 
 
+@SLOW
 def test_the_balance_gives_the_same_bits_on_other_machines(tmp_path):
     # Its sums over atoms are matrix-vector products, whose kernels differ
     # between CPUs; on whole numbers below 2**53 every order is exact.

@@ -237,7 +237,8 @@ def test_both_paths_take_the_same_steps_and_undo_each_other(ranks, options,
 
 
 @pytest.mark.parametrize('ranks, path, options', [
-    pytest.param(1, 'compiled', dict(steps=100), id='1-compiled-then-python'),
+    pytest.param(1, 'compiled', dict(steps=100), id='1-compiled-then-python',
+                 marks=SLOW),
     pytest.param(1, 'python', dict(GUARDED, steps=50, sort_bin=8.0),
                  id='1-python-then-compiled-guarded'),
     pytest.param(2, 'compiled', dict(GUARDED, steps=50, sort_bin=8.0),
@@ -502,7 +503,8 @@ def test_timestep_after_reversible_nve_and_one_summary_line_per_run(
 
 
 @pytest.mark.parametrize('path', paths())
-@pytest.mark.parametrize('name, steps', [('in.melt', 30), ('in.min', 100)])
+@pytest.mark.parametrize('name, steps', [
+    ('in.melt', 30), pytest.param('in.min', 100, marks=SLOW)])
 def test_melt_and_2d_min_examples_run_out_and_back(name, steps, path,
                                                    tmp_path):
     # melt lists neighbours every 20 steps unchecked; min is 2d.

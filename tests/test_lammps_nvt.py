@@ -90,7 +90,7 @@ def test_guarded_kicks_are_taken_back_and_redone_exactly(tmp_path):
 
 
 @pytest.mark.parametrize('ranks, early_init', [
-    pytest.param(1, 0, marks=SLOW), (2, 1)])
+    (1, 0), pytest.param(2, 1, marks=SLOW)])
 def test_a_restart_file_continues_bit_for_bit(ranks, early_init, tmp_path):
     # 100 steps, write_restart, 100 more in one process; a new process
     # reads the file (s, pi and the clock from it, v' from v and s), runs

@@ -19,6 +19,7 @@ from ase_reversible import (AnchorMovedWarning, ReversibleLangevin,
 from conftest import (AR_EPSILON, AR_SIGMA, CALCULATORS, THERMOSTAT_CASES,
                       argon_bulk, argon_cluster)
 from exactness import assert_same_state, forward_and_back, snapshot
+from tiers import tiered
 
 FRICTION = 0.02 / units.fs
 
@@ -43,7 +44,7 @@ def assert_buffers_empty(dyn):
     assert buffers and all(b.is_empty() for b in buffers)
 
 
-@pytest.mark.parametrize('fixcm', [True, False])
+@pytest.mark.parametrize('fixcm', tiered([True, False], quick=[True]))
 @pytest.mark.parametrize('case', list(THERMOSTAT_CASES))
 def test_round_trip_is_exact(case, fixcm):
     build, calc, dt_fs, steps = THERMOSTAT_CASES[case]

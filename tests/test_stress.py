@@ -323,6 +323,7 @@ def argon_gas(n_atoms=4, cell_length=10.0, temperature_K=3000, seed=0):
     return with_calc(thermalize(atoms, temperature_K, seed), 'ase-lj')
 
 
+@SLOW
 def test_periodic_diffusion_over_cell_lengths_runs_back_exactly():
     atoms = argon_gas()
     length = atoms.cell[0, 0]
