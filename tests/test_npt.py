@@ -591,3 +591,10 @@ def test_a_step_back_past_the_anchor_is_refused_naming_the_class(build):
     with pytest.raises(RetraceLimitError, match=type(dyn).__name__):
         dyn.run(1)
     assert_back(dyn, state, seen)
+
+
+def test_a_pressure_that_looks_like_gpa_or_bar_is_warned_about():
+    atoms = copper()
+    with pytest.warns(UserWarning, match=r'for 1 GPa pass 1 \* ase.units.GPa'):
+        ReversibleIsotropicNPT(atoms, DT, temperature_K=300, pressure_au=1.0,
+                               tdamp=100 * DT, pdamp=1000 * DT, seed=1)

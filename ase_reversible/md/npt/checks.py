@@ -8,6 +8,7 @@ import math
 import warnings
 
 import numpy as np
+from ase import units
 from ase.calculators.calculator import PropertyNotImplementedError
 
 from ...errors import AnchorMovedWarning, UnsupportedConstraintError
@@ -44,6 +45,11 @@ def _warn_new_run(why):
         stacklevel=5)
 
 
+#: eV/Å**3 (80 GPa).  A target pressure at least this large is more likely
+#: a number meant in GPa or bar than one in ASE's unit: warned about.
+UNLIKELY_PRESSURE = 0.5
+
+
 def _checked_pressure(value):
     try:
         value = float(value)
@@ -53,6 +59,12 @@ def _checked_pressure(value):
     if not math.isfinite(value):
         raise ValueError(f'pressure_au must be finite (eV/Å**3), got '
                          f'{value!r}')
+    if abs(value) >= UNLIKELY_PRESSURE:
+        warnings.warn(
+            f'pressure_au={value:g} eV/Å**3 is {value / units.GPa:.4g} GPa. '
+            'pressure_au is in eV/Å**3, as for ASE\'s barostats: for '
+            f'{value:g} GPa pass {value:g} * ase.units.GPa, for {value:g} bar '
+            f'{value:g} * ase.units.bar.', UserWarning, stacklevel=3)
     return value
 
 
