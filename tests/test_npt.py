@@ -285,8 +285,9 @@ def test_a_calculator_without_stress_set_between_runs_is_refused():
 
 def test_a_collapsing_cell_stops_the_run_at_a_reversible_state():
     atoms = copper()
-    dyn = npt(atoms, pressure_au=400 * units.GPa, pdamp=200 * units.fs,
-              energy_check=0)
+    with pytest.warns(UserWarning, match='is 400 GPa'):
+        dyn = npt(atoms, pressure_au=400 * units.GPa, pdamp=200 * units.fs,
+                  energy_check=0)
     state, seen = dyn.engine.snapshot(), shown(atoms)
     with pytest.raises(UnstableIntegrationError, match='cell collapsed'):
         dyn.run(200)
