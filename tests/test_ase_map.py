@@ -30,76 +30,53 @@ def _kT(temperature_K):
     return units.kB * temperature_K
 
 
+#: What every ASE dynamics takes for its output, passed on to its base.
+FILES = {'trajectory': ('file', TAKEN), 'logfile': ('file', TAKEN),
+         'loginterval': (2, TAKEN), 'append_trajectory': (True, TAKEN)}
+
+#: ASE's MTK barostats' arguments (the isotropic and the whole cell's).
+MTK = {
+    'temperature_K': (300.0, TAKEN),
+    'pressure_au': (1 * units.GPa, TAKEN),
+    'tdamp': (100 * DT, TAKEN),
+    'pdamp': (1000 * DT, TAKEN),
+    'tchain': (3, 'leave tchain out'),
+    'pchain': (3, 'leave pchain out'),
+    'tloop': (1, 'leave tloop out'),
+    'ploop': (1, 'leave ploop out'),
+    **FILES,
+}
+
 #: ASE class -> (module, exact class, {parameter: (value, TAKEN or the
 #: words the refusal must hold)}).  Values that need a file are built by
 #: ``_value``.  ``append_trajectory`` is a keyword every ASE dynamics passes
 #: on to its base class.
 MAP = {
-    'VelocityVerlet': ('ase.md.verlet', 'ReversibleVerlet', {
-        'trajectory': ('file', TAKEN),
-        'logfile': ('file', TAKEN),
-        'loginterval': (2, TAKEN),
-        'append_trajectory': (True, TAKEN),
-    }),
+    'VelocityVerlet': ('ase.md.verlet', 'ReversibleVerlet', FILES),
     'Langevin': ('ase.md.langevin', 'ReversibleLangevin', {
         'temperature_K': (300.0, TAKEN),
         'friction': (0.02 / units.fs, TAKEN),
         'fixcm': (True, TAKEN),
         'temperature': (_kT(300.0), 'temperature_K=300'),
         'rng': (np.random.default_rng(1), 'seed='),
-        'trajectory': ('file', TAKEN),
-        'logfile': ('file', TAKEN),
-        'loginterval': (2, TAKEN),
-        'append_trajectory': (True, TAKEN),
+        **FILES,
     }),
     'Bussi': ('ase.md.bussi', 'ReversibleBussi', {
         'temperature_K': (300.0, TAKEN),
         'taut': (100 * units.fs, TAKEN),
         'rng': (np.random.default_rng(1), 'seed='),
-        'trajectory': ('file', TAKEN),
-        'logfile': ('file', TAKEN),
-        'loginterval': (2, TAKEN),
-        'append_trajectory': (True, TAKEN),
+        **FILES,
     }),
     'NoseHooverChainNVT': ('ase.md.nose_hoover_chain', 'ReversibleNose', {
         'temperature_K': (300.0, TAKEN),
         'tdamp': (100 * DT, TAKEN),
         'tchain': (3, TAKEN),
         'tloop': (1, TAKEN),
-        'trajectory': ('file', TAKEN),
-        'logfile': ('file', TAKEN),
-        'loginterval': (2, TAKEN),
-        'append_trajectory': (True, TAKEN),
+        **FILES,
     }),
     'IsotropicMTKNPT': ('ase.md.nose_hoover_chain', 'ReversibleIsotropicNPT',
-                        {
-        'temperature_K': (300.0, TAKEN),
-        'pressure_au': (1 * units.GPa, TAKEN),
-        'tdamp': (100 * DT, TAKEN),
-        'pdamp': (1000 * DT, TAKEN),
-        'tchain': (3, 'leave tchain out'),
-        'pchain': (3, 'leave pchain out'),
-        'tloop': (1, 'leave tloop out'),
-        'ploop': (1, 'leave ploop out'),
-        'trajectory': ('file', TAKEN),
-        'logfile': ('file', TAKEN),
-        'loginterval': (2, TAKEN),
-        'append_trajectory': (True, TAKEN),
-    }),
-    'MTKNPT': ('ase.md.nose_hoover_chain', 'ReversibleNPT', {
-        'temperature_K': (300.0, TAKEN),
-        'pressure_au': (1 * units.GPa, TAKEN),
-        'tdamp': (100 * DT, TAKEN),
-        'pdamp': (1000 * DT, TAKEN),
-        'tchain': (3, 'leave tchain out'),
-        'pchain': (3, 'leave pchain out'),
-        'tloop': (1, 'leave tloop out'),
-        'ploop': (1, 'leave ploop out'),
-        'trajectory': ('file', TAKEN),
-        'logfile': ('file', TAKEN),
-        'loginterval': (2, TAKEN),
-        'append_trajectory': (True, TAKEN),
-    }),
+                        MTK),
+    'MTKNPT': ('ase.md.nose_hoover_chain', 'ReversibleNPT', MTK),
 }
 
 #: Parameters that are two ways of giving one value: ASE takes exactly one.

@@ -53,9 +53,9 @@ from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
 from ..core.noise import step_key
 from ..core import portable
-from ..core.plans import SubStep
 from ..errors import RetraceLimitError
 from .base import ReversibleDynamics
+from .buffered import BufferedMomentumStep
 from .checks import check_energy_watch, check_timestep
 from .hamiltonian import largest_kick
 from .langevin import (_checked_positive, _checked_seed, _digest,
@@ -480,7 +480,7 @@ def alpha_ratio(two_k, kT, c, r, s):
     return round(math.sqrt(max(alpha2, 0.0)) * _D)
 
 
-class Rescale(SubStep):
+class Rescale(BufferedMomentumStep):
     """The rescaling of the momentum counts, exact (module docstring).
 
     Parameters
@@ -503,21 +503,11 @@ class Rescale(SubStep):
     """
 
     def __init__(self, system, settings, step_of):
-        self.system = system
+        super().__init__(system)
         self.settings = settings
         self.step_of = step_of
-        self.shape = system.p.ints.shape
         self.size = math.prod(self.shape)
-        self._ones_n = np.ones(self.shape[0], dtype=np.int64)
-        self.buffers = {}
         self._draws = None
-        self.heat = self._saved_heat = 0.0
-
-    def forget(self):
-        """Empty the buffers and zero the heat: the anchor moved here."""
-        for buffer in self.buffers.values():
-            buffer.clear()
-        self.heat = self._saved_heat = 0.0
 
     def buffer_for(self, h):
         """The buffer of steps of size ``|h|`` (made if new)."""
@@ -536,15 +526,7 @@ class Rescale(SubStep):
         if self._draws is None or self._draws.dof != dof:
             self._draws = BussiDraws(dof)
         free_k = self._free().reshape(-1) != 0
-        held = None
-        if s.centre is not None:
-            # FixCom: every free coordinate but one per component is
-            # scaled; that one is minus the others' sum, which keeps the
-            # total exactly zero and stays a bijection.
-            held = [(order[0], c) for c, order in enumerate(s.centre.order_c)
-                    if len(order)]
-            for i, c in held:
-                free_k[3 * i + c] = False
+        held = self._hold_one_per_component(free_k)
         mass_k = np.repeat(s.m_n1[:, 0], 3)
         return (ch > 0, self.buffer_for(ch), None if free_k.all() else free_k,
                 units.kB * temperature_K, decay(ch, taut), step_key(seed, ch),
@@ -571,27 +553,7 @@ class Rescale(SubStep):
                     'no rescaling was applied that could be undone. The '
                     'step was not taken; run forward (positive dt) from '
                     'here.') from None
-        if held is not None:
-            new_nc = new_k.reshape(self.shape)
-            total_c = np.dot(self._ones_n, new_nc)
-            for i, c in held:
-                new_nc[i, c] -= total_c[c]
-        r_k = (new_k - x_k).astype(np.float64)
-        # The kinetic energy the step adds, sum (x'^2 - x^2) q^2 / 2m.
-        both_k = (new_k + x_k).astype(np.float64)
-        both_k *= inverse_mass_k
-        self.heat += 0.5 * (p.quantum * p.quantum) * portable.dot(both_k, r_k)
-        p.add_integers(r_k.reshape(self.shape))
-
-    def checkpoint(self):
-        self._saved_heat = self.heat
-        for buffer in self.buffers.values():
-            buffer.checkpoint()
-
-    def rollback(self):
-        self.heat = self._saved_heat
-        for buffer in self.buffers.values():
-            buffer.rollback()
+        self._commit(x_k, new_k, held, inverse_mass_k)
 
     def adjoint(self, cotangents, ch):
         """Pull ``a = dL/dp'`` back through ``p' = alpha(K(p)) p``:
@@ -621,11 +583,6 @@ class Rescale(SubStep):
         projected = float(np.sum(np.where(free_nc, a_nc * p_nc, 0.0)))
         a_nc[...] = np.where(free_nc, ratio * a_nc, a_nc) \
             + (slope * projected) * p_nc / s.m_n1
-
-    def _free(self):
-        free_nc = np.ones(self.shape)
-        self.system.project(free_nc)
-        return free_nc
 
 
 _ZERO_MOMENTA = (

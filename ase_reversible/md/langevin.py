@@ -41,9 +41,9 @@ from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
                                InformationBuffer, friction_ratio)
 from ..core.noise import StepNoise, step_key
 from ..core import portable
-from ..core.plans import SubStep
 from ..errors import RetraceLimitError, UnsupportedConstraintError
 from .base import ReversibleDynamics
+from .buffered import BufferedMomentumStep
 from .checks import (check_energy_watch, check_temperature_K,
                      check_timestep)
 from .hamiltonian import largest_kick
@@ -60,7 +60,7 @@ SCHEME = ((KICK, 0.5), (DRIFT, 0.5), (FRICTION, 1.0), (DRIFT, 0.5),
 ENERGY_CHECK_INTERVAL = 100
 
 
-class Friction(SubStep):
+class Friction(BufferedMomentumStep):
     """The O step on the momentum counts, exact (see the module docstring).
 
     Parameters
@@ -92,24 +92,10 @@ class Friction(SubStep):
     """
 
     def __init__(self, system, settings, step_of):
-        self.system = system
+        super().__init__(system)
         self.settings = settings
         self.step_of = step_of
-        self.shape = system.p.ints.shape
         self.noise = StepNoise(math.prod(self.shape))
-        self._ones_n = np.ones(self.shape[0], dtype=np.int64)
-        self.buffers = {}
-        self.heat = self._saved_heat = 0.0
-
-    def forget(self):
-        """Empty the buffers and zero the heat: the anchor moved here."""
-        for buffer in self.buffers.values():
-            buffer.clear()
-        self.heat = self._saved_heat = 0.0
-
-    def active_buffers(self):
-        """The buffers that hold digits, by friction ratio ``n``."""
-        return {n: b for n, b in self.buffers.items() if not b.is_empty()}
 
     def load(self, saved):
         """Take the buffers of a file :meth:`ReversibleLangevin.write_buffer`
@@ -143,19 +129,9 @@ class Friction(SubStep):
         mass_k = np.repeat(s.m_n1[:, 0], 3)
         sigma_k = np.sqrt((1.0 - ratio * ratio) * mass_k * units.kB
                           * temperature_K) / s.p.quantum * free_k
-        centre = s.centre
         zero_sum = _zero_sum_weights(s.m_n1, free_nc) \
-            if fixcm or centre is not None else None
-        held = None
-        if centre is not None:
-            # FixCom: friction acts on every free coordinate but one per
-            # component, whose momentum is then minus the others' sum.
-            # That keeps the total exactly zero and stays a bijection the
-            # buffer undoes (the others determine it both ways).
-            held = [(order[0], c) for c, order in enumerate(centre.order_c)
-                    if len(order)]
-            for i, c in held:
-                free_k[3 * i + c] = False
+            if fixcm or s.centre is not None else None
+        held = self._hold_one_per_component(free_k)
         return (ch > 0, buffer, None if free_k.all() else free_k, sigma_k,
                 step_key(seed, ch), zero_sum, 1.0 / mass_k, held)
 
@@ -182,28 +158,7 @@ class Friction(SubStep):
                     'friction would have to be undone that was never '
                     'applied. The step was not taken; run forward (positive '
                     'dt) from here.') from None
-        if held is not None:
-            new_nc = new_k.reshape(self.shape)
-            # One held coordinate per component: each total is read once.
-            total_c = np.dot(self._ones_n, new_nc)
-            for i, c in held:
-                new_nc[i, c] -= total_c[c]
-        r_k = (new_k - x_k).astype(np.float64)
-        # The kinetic energy the step adds, sum (x'^2 - x^2) q^2 / 2m.
-        both_k = (new_k + x_k).astype(np.float64)
-        both_k *= inverse_mass_k
-        self.heat += 0.5 * (p.quantum * p.quantum) * portable.dot(both_k, r_k)
-        p.add_integers(r_k.reshape(self.shape))
-
-    def checkpoint(self):
-        self._saved_heat = self.heat
-        for buffer in self.buffers.values():
-            buffer.checkpoint()
-
-    def rollback(self):
-        self.heat = self._saved_heat
-        for buffer in self.buffers.values():
-            buffer.rollback()
+        self._commit(x_k, new_k, held, inverse_mass_k)
 
     def adjoint(self, cotangents, ch):
         """The O step is affine in the momenta with slope ``c``: ``a_p *=
@@ -212,13 +167,6 @@ class Friction(SubStep):
         cotangents.flush()
         ratio = exact_ratio(self.settings()[0], ch)[1]
         cotangents['momentum'] *= np.where(self._free() != 0, ratio, 1.0)
-
-    def _free(self):
-        """``[n_atoms, 3]``: nonzero where the constraints leave a momentum
-        free (the O step moves only those)."""
-        free_nc = np.ones(self.shape)
-        self.system.project(free_nc)
-        return free_nc
 
 
 # The software exp costs 4 us (idle; 19 us under load) and a retrace asks

@@ -12,6 +12,7 @@ from ...core.infobuffer import BufferUnderflowError, InformationBuffer
 from ...core.noise import StepNoise
 from ...core.portable import dot
 from ...errors import RetraceLimitError
+from ..buffered import BufferedStep
 from ..langevin import Friction, exact_ratio
 from .system import LAMBDA, P_LAMBDA
 
@@ -111,7 +112,7 @@ class _MoreNormals(StepNoise):
         return z[:self.atoms_size]
 
 
-class PistonFriction:
+class PistonFriction(BufferedStep):
     """The O step on ``p_lambda`` (a Langevin piston): ``p_lambda <- c
     p_lambda + sqrt((1 - c**2) W kT) xi``, exact as the atoms' (the
     friction through an information buffer, the deviates ``xi`` drawn
@@ -127,21 +128,10 @@ class PistonFriction:
     """
 
     def __init__(self, system, friction, size=1):
+        super().__init__()
         self.system = system
         self.friction = friction
         self.size = size
-        self.buffers = {}
-        self.heat = self._saved_heat = 0.0
-
-    def forget(self):
-        """Empty the buffers and zero the heat: the anchor moved here."""
-        for buffer in self.buffers.values():
-            buffer.clear()
-        self.heat = self._saved_heat = 0.0
-
-    def active_buffers(self):
-        """The buffers that hold digits, by friction ratio ``n``."""
-        return {n: b for n, b in self.buffers.items() if not b.is_empty()}
 
     def prepare(self, ch):
         """What :meth:`apply` needs at the coefficient ``ch``."""
@@ -174,15 +164,3 @@ class PistonFriction:
         self.heat += 0.5 * (dot(new_k_q, new_k_q) - dot(old_k, old_k)) \
             / self.system.W
         p.add_integers((new_k - x_k).astype(np.float64))
-
-    def checkpoint(self):
-        """Remember the heat and the buffers."""
-        self._saved_heat = self.heat
-        for buffer in self.buffers.values():
-            buffer.checkpoint()
-
-    def rollback(self):
-        """Back to the last :meth:`checkpoint`."""
-        self.heat = self._saved_heat
-        for buffer in self.buffers.values():
-            buffer.rollback()

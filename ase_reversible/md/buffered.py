@@ -1,0 +1,112 @@
+"""Sub-steps that change momenta through information buffers.
+
+Langevin's friction, Bussi's rescaling and the NPT piston's friction each
+multiply momentum counts by a factor that is not a power of two, keeping
+the digits that drops in buffers (:mod:`ase_reversible.core.infobuffer`,
+:class:`~.bussi.ScalingBuffer`) so that the way back can restore them.
+What they share lives here: the buffers, keyed by what sets the factor;
+the heat the step adds, which the energy check subtracts; both rolled
+back with a failed step; and, for the atoms' momenta, which coordinates
+are free and the FixCom balance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core import portable
+from ..core.plans import SubStep
+
+
+class BufferedStep:
+    """Information buffers and the heat a step added since the anchor,
+    rolled back with a failed step.
+
+    Attributes
+    ----------
+    heat : float
+        Kinetic energy the step added since the anchor (eV).
+    buffers : dict
+        The step's buffers, by what sets their factor.
+    """
+
+    def __init__(self):
+        self.buffers = {}
+        self.heat = self._saved_heat = 0.0
+
+    def forget(self):
+        """Empty the buffers and zero the heat: the anchor moved here."""
+        for buffer in self.buffers.values():
+            buffer.clear()
+        self.heat = self._saved_heat = 0.0
+
+    def active_buffers(self):
+        """The buffers that hold digits, by their key."""
+        return {n: b for n, b in self.buffers.items() if not b.is_empty()}
+
+    def checkpoint(self):
+        """Remember the heat and the buffers."""
+        self._saved_heat = self.heat
+        for buffer in self.buffers.values():
+            buffer.checkpoint()
+
+    def rollback(self):
+        """Back to the last :meth:`checkpoint`."""
+        self.heat = self._saved_heat
+        for buffer in self.buffers.values():
+            buffer.rollback()
+
+
+class BufferedMomentumStep(BufferedStep, SubStep):
+    """A sub-step on the atoms' momentum counts (``system.p``, ``[n_atoms,
+    3]``) through buffers: :class:`BufferedStep`'s rollback comes before
+    :class:`~ase_reversible.core.plans.SubStep`'s."""
+
+    def __init__(self, system):
+        super().__init__()
+        self.system = system
+        self.shape = system.p.ints.shape
+        self._ones_n = np.ones(self.shape[0], dtype=np.int64)
+
+    def _free(self):
+        """``[n_atoms, 3]``: nonzero where the constraints leave a momentum
+        free (the step moves only those)."""
+        free_nc = np.ones(self.shape)
+        self.system.project(free_nc)
+        return free_nc
+
+    def _hold_one_per_component(self, free_k):
+        """Under FixCom, take one free coordinate per Cartesian component
+        out of ``free_k`` (flat, bool, changed in place) and return them as
+        ``[(atom, component)]``; else None.
+
+        The step then moves every other free coordinate, and each held one
+        becomes minus the others' sum: the total stays exactly zero, and
+        the step stays a bijection the buffer undoes, since the others
+        determine it both ways.
+        """
+        centre = self.system.centre
+        if centre is None:
+            return None
+        held = [(order[0], c) for c, order in enumerate(centre.order_c)
+                if len(order)]
+        for i, c in held:
+            free_k[3 * i + c] = False
+        return held
+
+    def _commit(self, x_k, new_k, held, inverse_mass_k):
+        """Move the momentum counts from ``x_k`` to ``new_k`` (flat int64),
+        the held coordinates balanced, and add the kinetic energy that
+        adds, ``sum (x'**2 - x**2) q**2 / 2m``, to :attr:`heat`."""
+        p = self.system.p
+        if held is not None:
+            new_nc = new_k.reshape(self.shape)
+            # One held coordinate per component: each total is read once.
+            total_c = np.dot(self._ones_n, new_nc)
+            for i, c in held:
+                new_nc[i, c] -= total_c[c]
+        r_k = (new_k - x_k).astype(np.float64)
+        both_k = (new_k + x_k).astype(np.float64)
+        both_k *= inverse_mass_k
+        self.heat += 0.5 * (p.quantum * p.quantum) * portable.dot(both_k, r_k)
+        p.add_integers(r_k.reshape(self.shape))
