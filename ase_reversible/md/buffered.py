@@ -13,9 +13,11 @@ are free and the FixCom balance.
 from __future__ import annotations
 
 import numpy as np
+from ase import units
 
 from ..core import portable
 from ..core.plans import SubStep
+from .base import ReversibleDynamics
 
 
 class BufferedStep:
@@ -110,3 +112,46 @@ class BufferedMomentumStep(BufferedStep, SubStep):
         both_k *= inverse_mass_k
         self.heat += 0.5 * (p.quantum * p.quantum) * portable.dot(both_k, r_k)
         p.add_integers(r_k.reshape(self.shape))
+
+
+class BufferedDynamics(ReversibleDynamics):
+    """What the dynamics with a :class:`BufferedStep` share: the index of
+    the step whose noise is drawn (the same both ways), the energy less
+    the heat the step added (what the energy check watches), and the
+    buffers emptied when the anchor moves.  A subclass sets
+    :attr:`buffered_step` before the run starts."""
+
+    #: The sub-step whose buffers and heat the run keeps.
+    buffered_step = None
+
+    def _step_of(self):
+        # Going back, a step is undone with the noise it was taken with:
+        # that of the step before the present index.
+        engine = self.engine
+        return engine.step_index if engine.direction > 0 \
+            else engine.step_index - 1
+
+    def _balance(self):
+        energy, proposed = self.system.energy()
+        return energy - self.buffered_step.heat, proposed
+
+    def _balance_trigger(self):
+        return self.system.kinetic_energy() - self.buffered_step.heat
+
+    def _explain_drift(self, number, drift, tolerance):
+        return (
+            f'The total energy minus the heat the thermostat added has '
+            f'changed by {drift:.4g} eV since the anchor of reversal '
+            f'(tolerance {tolerance:.4g} eV) after step {number}: the '
+            'integration is unstable. Use a smaller time step (now '
+            f'{abs(self.dt) / units.fs:g} fs). The step was not taken; the '
+            'state is valid and reverse() leads back exactly. If the change '
+            'is expected, raise energy_tolerance or pass energy_check=0.')
+
+    def _ready(self):
+        self.system.kick.forces()
+
+    def _install(self, counts):
+        # Steps before the new anchor cannot be retraced: their digits go.
+        self.buffered_step.forget()
+        super()._install(counts)

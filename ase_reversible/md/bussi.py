@@ -54,8 +54,7 @@ from ..core.engine import Engine, InvariantCheck
 from ..core.noise import step_key
 from ..core import portable
 from ..errors import RetraceLimitError
-from .base import ReversibleDynamics
-from .buffered import BufferedMomentumStep
+from .buffered import BufferedDynamics, BufferedMomentumStep
 from .checks import check_energy_watch, check_timestep
 from .hamiltonian import largest_kick
 from .langevin import (_checked_positive, _checked_seed, _digest,
@@ -607,7 +606,7 @@ def _checked_ratio(two_k, kT, c, r, s):
     return n
 
 
-class ReversibleBussi(ReversibleDynamics):
+class ReversibleBussi(BufferedDynamics):
     """Stochastic velocity rescaling (NVT) in fixed point that runs back
     exactly.
 
@@ -723,7 +722,7 @@ class ReversibleBussi(ReversibleDynamics):
                         tuple((substep[k], c) for k, c in SCHEME),
                         composition_for(2, None), timestep,
                         invariant=invariant)
-        self.rescale_step = rescale
+        self.rescale_step = self.buffered_step = rescale
         # The draws go on from the step the record was written at.
         engine.step_index = engine.anchor_index = step
         if saved is not None:
@@ -745,40 +744,10 @@ class ReversibleBussi(ReversibleDynamics):
     def _settings(self):
         return self._temperature_K, self._taut, self._seed
 
-    def _step_of(self):
-        engine = self.engine
-        return engine.step_index if engine.direction > 0 \
-            else engine.step_index - 1
-
-    def _balance(self):
-        energy, proposed = self.system.energy()
-        return energy - self.rescale_step.heat, proposed
-
-    def _balance_trigger(self):
-        return self.system.kinetic_energy() - self.rescale_step.heat
-
-    def _explain_drift(self, number, drift, tolerance):
-        return (
-            f'The total energy minus the heat the thermostat added has '
-            f'changed by {drift:.4g} eV since the anchor of reversal '
-            f'(tolerance {tolerance:.4g} eV) after step {number}: the '
-            'integration is unstable. Use a smaller time step (now '
-            f'{abs(self.dt) / units.fs:g} fs). The step was not taken; the '
-            'state is valid and reverse() leads back exactly. If the change '
-            'is expected, raise energy_tolerance or pass energy_check=0.')
-
-    def _ready(self):
-        self.system.kick.forces()
-
     def _take_changes(self, changes):
         _refuse_projections(self.atoms, 'ReversibleBussi',
                             'the rescaling')
         return super()._take_changes(changes)
-
-    def _install(self, counts):
-        # Steps before the new anchor cannot be retraced: their digits go.
-        self.rescale_step.forget()
-        super()._install(counts)
 
     def _record_sections(self):
         return {'bussi': {'seed': self._seed,

@@ -42,8 +42,7 @@ from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
 from ..core.noise import StepNoise, step_key
 from ..core import portable
 from ..errors import RetraceLimitError, UnsupportedConstraintError
-from .base import ReversibleDynamics
-from .buffered import BufferedMomentumStep
+from .buffered import BufferedDynamics, BufferedMomentumStep
 from .checks import (check_energy_watch, check_temperature_K,
                      check_timestep)
 from .hamiltonian import largest_kick
@@ -214,7 +213,7 @@ def _without_net_momentum(noise_k, weights_nc, heaviest_c):
     return (noise_nc - share_nc).reshape(-1)
 
 
-class ReversibleLangevin(ReversibleDynamics):
+class ReversibleLangevin(BufferedDynamics):
     """Langevin dynamics (NVT) in fixed point that can be run back exactly.
 
     A drop-in for :class:`ase.md.langevin.Langevin`: the same thermostat
@@ -340,7 +339,7 @@ class ReversibleLangevin(ReversibleDynamics):
                         tuple((substep[k], c) for k, c in SCHEME),
                         composition_for(2, None), timestep,
                         invariant=invariant)
-        self.friction_step = friction_step
+        self.friction_step = self.buffered_step = friction_step
         # The noise goes on from the step the record was written at, so a
         # run resumed from a frame draws what the original run drew.
         engine.step_index = engine.anchor_index = step
@@ -360,40 +359,10 @@ class ReversibleLangevin(ReversibleDynamics):
     def _settings(self):
         return self._friction, self._temperature_K, self._fixcm, self._seed
 
-    def _step_of(self):
-        engine = self.engine
-        return engine.step_index if engine.direction > 0 \
-            else engine.step_index - 1
-
-    def _balance(self):
-        energy, proposed = self.system.energy()
-        return energy - self.friction_step.heat, proposed
-
-    def _balance_trigger(self):
-        return self.system.kinetic_energy() - self.friction_step.heat
-
-    def _explain_drift(self, number, drift, tolerance):
-        return (
-            f'The total energy minus the heat the thermostat added has '
-            f'changed by {drift:.4g} eV since the anchor of reversal '
-            f'(tolerance {tolerance:.4g} eV) after step {number}: the '
-            'integration is unstable. Use a smaller time step (now '
-            f'{abs(self.dt) / units.fs:g} fs). The step was not taken; the '
-            'state is valid and reverse() leads back exactly. If the change '
-            'is expected, raise energy_tolerance or pass energy_check=0.')
-
-    def _ready(self):
-        self.system.kick.forces()
-
     def _take_changes(self, changes):
         # A plane or line set between runs is refused as at construction.
         _refuse_projections(self.atoms)
         return super()._take_changes(changes)
-
-    def _install(self, counts):
-        # Steps before the new anchor cannot be retraced: their digits go.
-        self.friction_step.forget()
-        super()._install(counts)
 
     def _record_sections(self):
         return {'langevin': {'seed': self._seed,

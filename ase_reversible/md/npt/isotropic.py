@@ -15,7 +15,7 @@ from ...core.engine import Engine, InvariantCheck
 from ...core.portable import dot
 from ...core.record import read_record
 from ...errors import MachineChangedWarning
-from ..base import ReversibleDynamics
+from ..buffered import BufferedDynamics
 from ..checks import check_energy_watch, check_timestep, fixed
 from ..hamiltonian import largest_kick
 from ..langevin import _checked_friction, _checked_positive, _checked_seed
@@ -71,7 +71,7 @@ def _settings(system):
             'pdamp': system.pdamp}
 
 
-class ReversibleIsotropicNPT(ReversibleDynamics):
+class ReversibleIsotropicNPT(BufferedDynamics):
     """Constant pressure and temperature (NPT) in fixed point, run back
     exactly: the counterpart of ASE's
     :class:`ase.md.nose_hoover_chain.IsotropicMTKNPT`.
@@ -240,7 +240,7 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
                         tuple((substep[k], c) for k, c in SCHEME),
                         composition_for(2, None), timestep,
                         invariant=invariant)
-        self.friction_step = friction_step
+        self.friction_step = self.buffered_step = friction_step
         engine.step_index = engine.anchor_index = step
         saved = None if buffer is None else self._read_buffer(
             buffer, system, timestep, step)
@@ -436,11 +436,6 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
 
     # -- what the steps read ------------------------------------------------
 
-    def _step_of(self):
-        engine = self.engine
-        return engine.step_index if engine.direction > 0 \
-            else engine.step_index - 1
-
     def _balance(self):
         energy, proposed = self.system.energy()
         return (energy + self.system.barostat_energy() - self.heat,
@@ -462,9 +457,6 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
             'the state is valid and reverse() leads back exactly. If the '
             'change is expected, raise energy_tolerance or pass '
             'energy_check=0.')
-
-    def _ready(self):
-        self.system.kick.forces()
 
     def _record_sections(self):
         system, engine = self.system, self.engine
@@ -533,8 +525,6 @@ class ReversibleIsotropicNPT(ReversibleDynamics):
                 LAMBDA: system.lam.ints, P_LAMBDA: system.p_lam.ints}
 
     def _install(self, counts):
-        # Steps before the new anchor cannot be retraced: their digits go.
-        self.friction_step.forget()
         super()._install(counts)
         self.system.show_cell()
 
