@@ -573,6 +573,12 @@ def _read_buffer(path, system, seed, timestep, step, settings):
     ``friction``; a file from before they were written has none)."""
     with np.load(path) as f:
         saved = {key: f[key] for key in f.files}
+    for key, writer in (('buffer_ratios', 'ReversibleBussi'),
+                        ('pressure_au', 'a barostat')):
+        if key in saved:
+            raise ValueError(f'{path} is not a ReversibleLangevin buffer file '
+                             f'(written by {writer}): pass the file the '
+                             'ReversibleLangevin run wrote, or no buffer.')
     state = {'position': system.x.ints, 'momentum': system.p.ints}
     problems = []
     if int(saved['seed']) != seed:
