@@ -12,12 +12,38 @@ are free and the FixCom balance.
 
 from __future__ import annotations
 
+import hashlib
+import json
+
 import numpy as np
 from ase import units
 
 from ..core import portable
 from ..core.plans import SubStep
 from .base import ReversibleDynamics
+from .machine import frame_section
+
+
+def state_digest(counts):
+    """A digest of the exact state (int64 counts by name): what ties a
+    buffer file to the frame it was written with."""
+    h = hashlib.sha256()
+    for name in sorted(counts):
+        h.update(np.ascontiguousarray(counts[name], dtype=np.int64).tobytes())
+    return h.hexdigest()
+
+
+def buffer_arrays(prefix, buffers):
+    """The arrays of information buffers (by their ratio ``n``) in a
+    buffer file: ``{prefix}_{n}_state``, ``_top`` and the used rows of
+    ``_words``."""
+    arrays = {}
+    for n, b in buffers.items():
+        depth = int(b.top_k.max(initial=0))
+        arrays[f'{prefix}_{n}_state'] = b.state_k
+        arrays[f'{prefix}_{n}_top'] = b.top_k
+        arrays[f'{prefix}_{n}_words'] = b.words_jk[:depth]
+    return arrays
 
 
 class BufferedStep:
@@ -155,3 +181,43 @@ class BufferedDynamics(ReversibleDynamics):
         # Steps before the new anchor cannot be retraced: their digits go.
         self.buffered_step.forget()
         super()._install(counts)
+
+    @property
+    def seed(self) -> int:
+        """The key of the noise (fixed at construction)."""
+        return self._seed
+
+    def _buffer_arrays(self, machine=True):
+        """What every buffer file holds (by array name): the seed, the
+        time step, the step and the anchor's step, the anchor's counts,
+        the digest of the state now and, if ``machine``, the record's
+        machine section.  Refused while steps of another size are on the
+        way back to the anchor (one buffer file holds one time step)."""
+        self._sync()
+        engine = self.engine
+        if engine.other_step_sizes:
+            raise ValueError(
+                'Steps with another time step are on the way back to the '
+                'anchor; write the buffer after retracing them, or from a '
+                'run at one time step.')
+        arrays = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
+                  'step': engine.step_index,
+                  'anchor_step': engine.anchor_index,
+                  'digest': state_digest(engine.snapshot())}
+        if machine:
+            arrays['machine'] = json.dumps(self._buffer_machine_section())
+        for name, counts in engine.anchor.items():
+            arrays[f'anchor_{name}'] = counts
+        return arrays
+
+    def _buffer_machine_section(self):
+        """The record's machine section for the buffer file, with the
+        digest of the forces here (computed if no step left them)."""
+        system = self.system
+        section = frame_section(system, self.atoms.calc, system.purity.mode)
+        if 'forces' not in section and 'kick' not in section \
+                and system.purity.mode != 'guarded':
+            system.kick.forces()
+            section = frame_section(system, self.atoms.calc,
+                                    system.purity.mode)
+        return section

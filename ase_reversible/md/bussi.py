@@ -54,12 +54,11 @@ from ..core.engine import Engine, InvariantCheck
 from ..core.noise import step_key
 from ..core import portable
 from ..errors import RetraceLimitError
-from .buffered import BufferedDynamics, BufferedMomentumStep
+from .buffered import BufferedDynamics, BufferedMomentumStep, state_digest
 from .checks import check_energy_watch, check_timestep
 from .hamiltonian import largest_kick
-from .langevin import (_checked_positive, _checked_seed, _digest,
+from .langevin import (_checked_positive, _checked_seed,
                        _refuse_projections)
-from .machine import frame_section
 from .watch import SystemWatch
 
 DRIFT, KICK, RESCALE = 'drift', 'kick', 'rescale'
@@ -763,36 +762,14 @@ class ReversibleBussi(BufferedDynamics):
         bit for bit and runs back past the restart point to the anchor:
         ``ReversibleBussi(frame, dt, T, taut, buffer=path)``.
         """
-        self._sync()
-        engine, step = self.engine, self.engine.step_index
-        if engine.other_step_sizes:
-            raise ValueError(
-                'Steps with another time step are on the way back to the '
-                'anchor; write the buffer after retracing them, or from a '
-                'run at one time step.')
-        b = self.rescale_step.buffer_for(engine.dt)
+        arrays = self._buffer_arrays()
+        b = self.rescale_step.buffer_for(self.engine.dt)
         base, words = b.used_rows()
-        arrays = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
-                  'step': step, 'anchor_step': engine.anchor_index,
-                  'digest': _digest(engine.snapshot()),
-                  'machine': json.dumps(self._buffer_machine_section()),
-                  'buffer_state': b.state_k, 'buffer_top': b.top_k,
-                  'buffer_base': base, 'buffer_words': words,
-                  'buffer_ratios': b.ratios[:b.count]}
-        for name, counts in engine.anchor.items():
-            arrays[f'anchor_{name}'] = counts
+        arrays.update(buffer_state=b.state_k, buffer_top=b.top_k,
+                      buffer_base=base, buffer_words=words,
+                      buffer_ratios=b.ratios[:b.count])
         with open(path, 'wb') as f:
             np.savez(f, **arrays)
-
-    def _buffer_machine_section(self):
-        section = frame_section(self.system, self.atoms.calc,
-                                self.system.purity.mode)
-        if 'forces' not in section and 'kick' not in section \
-                and self.system.purity.mode != 'guarded':
-            self.system.kick.forces()
-            section = frame_section(self.system, self.atoms.calc,
-                                    self.system.purity.mode)
-        return section
 
     # -- the thermostat's settings -----------------------------------------
 
@@ -805,11 +782,6 @@ class ReversibleBussi(BufferedDynamics):
     def taut(self) -> float:
         """Time constant of the coupling, ASE time units."""
         return self._taut
-
-    @property
-    def seed(self) -> int:
-        """The key of the random draws (fixed at construction)."""
-        return self._seed
 
     @property
     def heat(self) -> float:
@@ -875,7 +847,7 @@ def _read_buffer(path, system, seed, timestep, step):
     if float(saved['timestep']) != abs(timestep):
         problems.append('its time step is '
                         f'{float(saved["timestep"]) / units.fs:g} fs')
-    if int(saved['step']) != step or str(saved['digest']) != _digest(state):
+    if int(saved['step']) != step or str(saved['digest']) != state_digest(state):
         problems.append(f'it was written at step {int(saved["step"])} of '
                         'another state (these atoms are at step '
                         f'{step} by their restart record)')

@@ -27,7 +27,6 @@ within 2**-17 / h of the one asked for).
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
 import math
 
@@ -42,11 +41,11 @@ from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
 from ..core.noise import StepNoise, step_key
 from ..core import portable
 from ..errors import RetraceLimitError, UnsupportedConstraintError
-from .buffered import BufferedDynamics, BufferedMomentumStep
+from .buffered import (BufferedDynamics, BufferedMomentumStep, buffer_arrays,
+                       state_digest)
 from .checks import (check_energy_watch, check_temperature_K,
                      check_timestep)
 from .hamiltonian import largest_kick
-from .machine import frame_section
 from .watch import SystemWatch
 
 DRIFT, KICK, FRICTION = 'drift', 'kick', 'friction'
@@ -381,42 +380,15 @@ class ReversibleLangevin(BufferedDynamics):
         a fresh buffer, whose digits enter the friction's rounding: the
         same statistics, not the same bits, and no way back past it.
         """
-        self._sync()
-        engine, step = self.engine, self.engine.step_index
-        if engine.other_step_sizes:
-            raise ValueError(
-                'Steps with another time step are on the way back to the '
-                'anchor; write the buffer after retracing them, or from a '
-                'run at one time step.')
-        buffers = self.friction_step.active_buffers()
+        arrays = self._buffer_arrays()
         # The way back past the frame draws the noise again: at the
         # temperature and friction it was drawn with, or it misses.
-        arrays = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
-                  'temperature_K': self._temperature_K,
-                  'friction': self._friction, 'step': step, 'anchor_step': engine.anchor_index,
-                  'digest': _digest(engine.snapshot()),
-                  'machine': json.dumps(self._buffer_machine_section())}
-        for name, counts in engine.anchor.items():
-            arrays[f'anchor_{name}'] = counts
-        for n, b in buffers.items():
-            depth = int(b.top_k.max(initial=0))
-            arrays[f'buffer_{n}_state'] = b.state_k
-            arrays[f'buffer_{n}_top'] = b.top_k
-            arrays[f'buffer_{n}_words'] = b.words_jk[:depth]
+        arrays.update(temperature_K=self._temperature_K,
+                      friction=self._friction)
+        arrays.update(buffer_arrays('buffer',
+                                    self.friction_step.active_buffers()))
         with open(path, 'wb') as f:
             np.savez(f, **arrays)
-
-    def _buffer_machine_section(self):
-        """The record's machine section for the buffer file, with the
-        digest of the forces here (computed if no step left them)."""
-        section = frame_section(self.system, self.atoms.calc,
-                                self.system.purity.mode)
-        if 'forces' not in section and 'kick' not in section \
-                and self.system.purity.mode != 'guarded':
-            self.system.kick.forces()
-            section = frame_section(self.system, self.atoms.calc,
-                                    self.system.purity.mode)
-        return section
 
     # -- the thermostat's settings -----------------------------------------
 
@@ -443,11 +415,6 @@ class ReversibleLangevin(BufferedDynamics):
     def fixcm(self) -> bool:
         """Whether the noise has zero net momentum (fixed at construction)."""
         return self._fixcm
-
-    @property
-    def seed(self) -> int:
-        """The key of the noise (fixed at construction)."""
-        return self._seed
 
     @property
     def heat(self) -> float:
@@ -559,14 +526,6 @@ def _resumed_noise(record, timestep):
     return None
 
 
-def _digest(counts):
-    """A digest of the exact state (int64 counts by name)."""
-    h = hashlib.sha256()
-    for name in sorted(counts):
-        h.update(np.ascontiguousarray(counts[name], dtype=np.int64).tobytes())
-    return h.hexdigest()
-
-
 def _read_buffer(path, system, seed, timestep, step, settings):
     """The arrays of a buffer file, refused unless written at this very
     state, seed, time step, step and ``settings`` (``temperature_K`` and
@@ -591,7 +550,7 @@ def _read_buffer(path, system, seed, timestep, step, settings):
             problems.append(f'it was written with {name}='
                             f'{float(saved[name])!r}, not {value!r} (the '
                             'way back draws the noise again with them)')
-    if int(saved['step']) != step or str(saved['digest']) != _digest(state):
+    if int(saved['step']) != step or str(saved['digest']) != state_digest(state):
         problems.append(f'it was written at step {int(saved["step"])} of '
                         'another state (these atoms are at step '
                         f'{step} by their restart record)')

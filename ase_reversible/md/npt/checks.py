@@ -3,7 +3,6 @@ arguments and atoms, and reads of restart records and buffer files."""
 
 from __future__ import annotations
 
-import hashlib
 import math
 import warnings
 
@@ -13,13 +12,6 @@ from ase.calculators.calculator import PropertyNotImplementedError
 
 from ...errors import AnchorMovedWarning, UnsupportedConstraintError
 from .system import cell_volume
-
-
-def _digest(counts):
-    h = hashlib.sha256()
-    for name in sorted(counts):
-        h.update(np.ascontiguousarray(counts[name], dtype=np.int64).tobytes())
-    return h.hexdigest()
 
 
 def _load_piston(piston, saved):

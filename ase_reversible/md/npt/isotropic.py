@@ -15,7 +15,7 @@ from ...core.engine import Engine, InvariantCheck
 from ...core.portable import dot
 from ...core.record import read_record
 from ...errors import MachineChangedWarning
-from ..buffered import BufferedDynamics
+from ..buffered import BufferedDynamics, buffer_arrays, state_digest
 from ..checks import check_energy_watch, check_timestep, fixed
 from ..hamiltonian import largest_kick
 from ..langevin import _checked_friction, _checked_positive, _checked_seed
@@ -25,7 +25,7 @@ from .friction import PistonFriction, ScaledFriction
 from .system import (DRIFT, FRICTION, KICK, KINETIC, LAMBDA, LAMBDA_QUANTUM,
                      P_LAMBDA, PISTON, RECOVERABLE, VIRIAL, KineticKick,
                      NPTHamiltonian, Piston, VirialKick, p_lambda_quantum)
-from .checks import (_checked_pressure, _digest, _load_piston, _refuse_cell,
+from .checks import (_checked_pressure, _load_piston, _refuse_cell,
                      _refuse_constraints, _refuse_stressless, _resumed_noise,
                      _warn_new_run)
 
@@ -359,7 +359,7 @@ class ReversibleIsotropicNPT(BufferedDynamics):
                                 f'{float(saved[name]):g}, not {value:g}')
         state = {name: v.ints for name, v in system.variables.items()}
         if int(saved['step']) != step or str(saved['digest']) != \
-                _digest(state):
+                state_digest(state):
             problems.append(f'it was written at step {int(saved["step"])} '
                             'of another state')
         if problems:
@@ -375,30 +375,15 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         does: a frame written now and this file restart the run bit for
         bit (``ReversibleIsotropicNPT(frame, ..., buffer=path)``), and
         the restarted run goes back past the restart point."""
-        self._sync()
-        engine = self.engine
-        if engine.other_step_sizes:
-            raise ValueError(
-                'Steps with another time step are on the way back to the '
-                'anchor; write the buffer after retracing them, or from a '
-                'run at one time step.')
-        arrays = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
-                  'step': engine.step_index,
-                  'anchor_step': engine.anchor_index,
-                  'digest': _digest(engine.snapshot()),
-                  **_settings(self.system)}
-        for name, counts in engine.anchor.items():
-            arrays[f'anchor_{name}'] = counts
+        # The machine is checked through the frame's record (the stress's
+        # digest), not the file.
+        arrays = self._buffer_arrays(machine=False)
+        arrays.update(_settings(self.system))
+        arrays.update(buffer_arrays('buffer',
+                                    self.friction_step.active_buffers()))
         piston = self.friction_step.piston
-        for prefix, buffers in (
-                ('buffer', self.friction_step.active_buffers()),
-                ('piston', {} if piston is None else
-                 piston.active_buffers())):
-            for n, b in buffers.items():
-                depth = int(b.top_k.max(initial=0))
-                arrays[f'{prefix}_{n}_state'] = b.state_k
-                arrays[f'{prefix}_{n}_top'] = b.top_k
-                arrays[f'{prefix}_{n}_words'] = b.words_jk[:depth]
+        if piston is not None:
+            arrays.update(buffer_arrays('piston', piston.active_buffers()))
         with open(path, 'wb') as f:
             np.savez(f, **arrays)
 
@@ -647,11 +632,6 @@ class ReversibleIsotropicNPT(BufferedDynamics):
     @pdamp.setter
     def pdamp(self, value):
         fixed('pdamp')
-
-    @property
-    def seed(self) -> int:
-        """The key of the thermostat's noise."""
-        return self._seed
 
     @property
     def barostat_position(self) -> float:
