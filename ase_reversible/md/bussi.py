@@ -629,9 +629,10 @@ class ReversibleBussi(BufferedDynamics):
         Time constant of the coupling, ASE time units (``100 *
         ase.units.fs``); positive.
     seed : int, optional
-        Key of the random draws, stored as :attr:`seed`.  Default: the seed
-        in the atoms' restart record if it was written at this time step,
-        else drawn from the operating system.
+        Key of the random draws, stored as ``seed``
+        (:attr:`~ase_reversible.md.buffered.BufferedDynamics.seed`).
+        Default: the seed in the atoms' restart record if it was written
+        at this time step, else drawn from the operating system.
     buffer : str or path, optional
         A file :meth:`write_buffer` wrote together with the frame these
         atoms come from: the run then goes on bit for bit as the one that

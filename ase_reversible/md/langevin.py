@@ -249,10 +249,12 @@ class ReversibleLangevin(BufferedDynamics):
         FixCom here holds the total momentum at exactly zero, friction
         included (:class:`Friction`), whatever ``fixcm`` says.
     seed : int, optional
-        Key of the noise, stored as :attr:`seed`.  Default: the seed in the
-        atoms' restart record if it was written at this time step (a frame
-        of an earlier run goes on with its noise), else drawn from the
-        operating system.  The same seed and start give the same run.
+        Key of the noise, stored as ``seed``
+        (:attr:`~ase_reversible.md.buffered.BufferedDynamics.seed`).
+        Default: the seed in the atoms' restart record if it was written
+        at this time step (a frame of an earlier run goes on with its
+        noise), else drawn from the operating system.  The same seed and
+        start give the same run.
     buffer : str or path, optional
         A file :meth:`write_buffer` wrote together with the frame these
         atoms come from: the run then goes on bit for bit as the one that
