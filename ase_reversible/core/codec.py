@@ -56,6 +56,12 @@ def quantum_for(max_abs: float) -> float:
     return math.ldexp(1.0, exponent - 53)
 
 
+def power_of_two_below(value: float) -> float:
+    """The largest power of two at most ``value`` (positive, finite): the
+    scale a quantum is taken below, for a spread or a time step."""
+    return math.ldexp(1.0, math.frexp(value)[1] - 1)
+
+
 def value_range(quantum: float) -> float:
     """Largest representable ``|value|`` (exclusive) for ``quantum``."""
     return _FLIMIT * quantum

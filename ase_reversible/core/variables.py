@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from .codec import LIMIT, check_range, decode
+from .codec import LIMIT, check_range, decode, round_odd
 
 #: Labels of values: every update gets a new one, a rollback restores the
 #: old one, so a cache keyed by a label is valid exactly while its value is.
@@ -108,6 +108,14 @@ class ExactVariable:
     def bound(self) -> float:
         """An upper bound on the largest ``|count|`` of the current value."""
         return self._bounds[self._current]
+
+    def add_rounded(self, y):
+        """Add ``round_odd(y)``: ``y`` in quanta, of the variable's shape
+        (a float for a variable of one entry).  The rounded increment's
+        own magnitude is the bound, so no pass over it is needed: for the
+        few-entry variables of thermostats and barostats."""
+        r = round_odd(np.array(y, dtype=np.float64, ndmin=1))
+        self.add_integers(r, float(np.abs(r).max()))
 
     def add_integers(self, r: np.ndarray, r_max=None) -> float:
         """Add the integer-valued float array ``r`` (not modified).

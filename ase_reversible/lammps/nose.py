@@ -30,9 +30,10 @@ import warnings
 
 import numpy as np
 
+from ..core.codec import power_of_two_below
 from ..errors import UnstableIntegrationError
-from ..md.nose import CLOCK_BITS, PI_BITS, RECOVERABLE, S_QUANTUM
-from ..md.nose import CENTRE_OF_MASS_TOLERANCE, _power_of_two_below
+from ..md.nose import (CENTRE_OF_MASS_TOLERANCE, CLOCK_BITS, PI_BITS,
+                       RECOVERABLE, S_QUANTUM)
 from .integrator import FORCE_NOISE, ReversibleLammps, fix_vector
 
 _S_NOT_POSITIVE = 8  # the fix's verdict: s would have reached zero
@@ -111,7 +112,7 @@ class ReversibleLammpsNose(ReversibleLammps):
         self.kT = float(self.lmp.extract_global('boltz')) * self.temperature
         #: Nosé's mass, LAMMPS energy x time^2.
         self.Q = self.g * self.kT * (self.tdamp * self.tdamp)
-        self._quanta = [S_QUANTUM, math.ldexp(_power_of_two_below(
+        self._quanta = [S_QUANTUM, math.ldexp(power_of_two_below(
             math.sqrt(self.Q * self.kT)), -PI_BITS), None]
         self._state = [1.0, 0.0, 0.0]
         # Defined already by take_restart_state, or now.
@@ -168,7 +169,7 @@ class ReversibleLammpsNose(ReversibleLammps):
     def _prepare(self):
         super()._prepare()
         if self._quanta[2] is None:
-            self._quanta[2] = math.ldexp(_power_of_two_below(
+            self._quanta[2] = math.ldexp(power_of_two_below(
                 abs(self._timestep())), -CLOCK_BITS)
         self._check_thermostat_grid()
         if not self._warned_moving:

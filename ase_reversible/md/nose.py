@@ -80,7 +80,7 @@ import warnings
 import numpy as np
 from ase import units
 
-from ..core.codec import round_odd
+from ..core.codec import power_of_two_below, round_odd
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
 from ..core.plans import SubStep
@@ -179,9 +179,6 @@ CLOCK_BITS = 24
 #: above, the record stores them.
 RECOVERABLE = 2.0**50
 
-
-def _power_of_two_below(value):
-    return math.ldexp(1.0, math.frexp(value)[1] - 1)
 
 
 def thermostat_mass(g, kT, tdamp):
@@ -372,13 +369,6 @@ class ScaledDrift(Drift):
         cotangents['momentum'] += (ch / (s * s)) * w_nc
 
 
-def _add_rounded(variable, y):
-    """Add ``round_odd(y)`` (a float, in quanta) to a variable of shape
-    ``[1]``; its magnitude is the bound, so no pass over it is needed."""
-    r = np.array([y])
-    round_odd(r, out=r)
-    variable.add_integers(r, abs(float(r[0])))
-
 
 class ThermostatKick(SubStep):
     """``pi += round_odd(c h (sum p'**2 / (m s**3) - g kT / s) / q_pi)``.
@@ -407,7 +397,7 @@ class ThermostatKick(SubStep):
         return self._force
 
     def apply(self, scale):
-        _add_rounded(self.system.pi, scale * self.force())
+        self.system.pi.add_rounded(scale * self.force())
 
     def adjoint(self, cotangents, ch):
         """``a_p' += c h a_pi 2 p' / (m s**3)``; ``a_s += c h a_pi (g kT /
@@ -457,7 +447,7 @@ class ThermostatDrift(SubStep):
         pi = float(sys.chain_pi[j - 1].floats[0])
         s_j = sys.chain_s[j - 1]
         if sys.tchain == 1:
-            _add_rounded(s_j, prepared * pi)
+            s_j.add_rounded(prepared * pi)
         else:
             try:
                 self._apply_link(prepared, pi)
@@ -481,13 +471,13 @@ class ThermostatDrift(SubStep):
         sys, j = self.system, self.j
         s_j = sys.chain_s[j - 1]
         if j == sys.tchain:
-            _add_rounded(s_j, prepared * pi)
+            s_j.add_rounded(prepared * pi)
             return
         factor, scale = prepared
         s = float(sys.chain_s[j].floats[0])
         inverse_square = 1.0 / (s * s)
-        _add_rounded(s_j, factor * pi * inverse_square)
-        _add_rounded(sys.chain_pi[j], scale * (
+        s_j.add_rounded(factor * pi * inverse_square)
+        sys.chain_pi[j].add_rounded(scale * (
             pi * pi * inverse_square / (sys.masses_Q[j - 1] * s)
             - confinement_force(sys.kT, s)))
 
@@ -527,7 +517,7 @@ class Tick(SubStep):
         return ch / self.system.clock.quantum
 
     def apply(self, scale):
-        _add_rounded(self.system.clock, scale / self.system.s_value())
+        self.system.clock.add_rounded(scale / self.system.s_value())
 
     def adjoint(self, cotangents, ch):
         pass
@@ -750,14 +740,14 @@ class ReversibleNose(ReversibleDynamics):
         kT = units.kB * temperature_K
         names = [name for j in range(1, tchain + 1)
                  for name in chain_names(j)]
-        quanta = {CLOCK: math.ldexp(_power_of_two_below(abs(timestep)),
+        quanta = {CLOCK: math.ldexp(power_of_two_below(abs(timestep)),
                                     -CLOCK_BITS)}
         counts = {CLOCK: np.zeros(1, np.int64)}
         for j, Q in enumerate(chain_masses(system.g, kT, tdamp, tchain), 1):
             s_name, pi_name = chain_names(j)
             spread = math.sqrt(Q * kT)
             quanta[s_name] = S_QUANTUM
-            quanta[pi_name] = math.ldexp(_power_of_two_below(spread),
+            quanta[pi_name] = math.ldexp(power_of_two_below(spread),
                                          -PI_BITS)
             counts[s_name] = np.array([round(1.0 / S_QUANTUM)], np.int64)
             counts[pi_name] = np.zeros(1, np.int64)

@@ -341,11 +341,6 @@ class CellKick(ScaledKick):
         cotangents[LAMBDA] += ch * np.array([dot(a_nc, d) for d in d_knc])
 
 
-def _add_rounded(variable, y_k):
-    r_k = round_odd(np.asarray(y_k, dtype=float))
-    variable.add_integers(r_k, float(np.abs(r_k).max()))
-
-
 class CellVirial(SubStep):
     """``P += round_odd(c h (-V M^-T (sigma + P_ext) - J) / q)`` on the
     six entries; guarded like :class:`~.system.VirialKick`."""
@@ -423,7 +418,7 @@ class CellKinetic(SubStep):
             self._force = np.array([dot(v_nc[:, a], p_nc[:, b])
                                     for a, b in zip(ROWS, COLUMNS)])
             self._key = key
-        _add_rounded(s.p_lam, scale * self._force)
+        s.p_lam.add_rounded(scale * self._force)
 
     def adjoint(self, cotangents, ch):
         """With ``A`` the lower-triangular matrix of ``a = a_P``: ``a_pi
@@ -463,7 +458,7 @@ class CellPiston(SubStep):
 
     def apply(self, factor):
         s = self.system
-        _add_rounded(s.lam, factor * s.p_lam.floats)
+        s.lam.add_rounded(factor * s.p_lam.floats)
         m = s.matrices()[0]
         diagonal = (m[0, 0], m[1, 1], m[2, 2])
         if not min(diagonal) > LAMBDA_MIN:

@@ -10,7 +10,7 @@ import numpy as np
 from ase import units
 
 from ...adjoint.hessian import DEFAULT_FD_STEP
-from ...core.codec import encode, round_odd
+from ...core.codec import encode, power_of_two_below, round_odd
 from ...core.plans import SubStep
 from ...core.portable import dot
 from ...core.variables import ExactVariable
@@ -42,9 +42,6 @@ LAMBDA_MIN = 0.25
 #: 2**-53 each); above, the record stores them.
 RECOVERABLE = 2.0**50
 
-
-def _power_of_two_below(value):
-    return math.ldexp(1.0, math.frexp(value)[1] - 1)
 
 
 def cell_volume(cell):
@@ -374,13 +371,6 @@ class ScaledKick(Kick):
         self._applied = None
 
 
-def _add_rounded(variable, y):
-    """Add ``round_odd(y)`` (a float, in quanta) to a variable of shape
-    ``[1]``."""
-    r = np.array([y])
-    round_odd(r, out=r)
-    variable.add_integers(r, abs(float(r[0])))
-
 
 class VirialKick(SubStep):
     """``p_lambda += round_odd(c h G / q)``, ``G = -lambda**2 V0 (tr(sigma)
@@ -459,7 +449,7 @@ def p_lambda_quantum(atoms, purity, spread, max_kick):
     recomputation of the stress is needed in at most
     ``TARGET_CLEAN_RATE`` of the piston's kicks of up to ``max_kick``
     (ASE time units)."""
-    q = math.ldexp(_power_of_two_below(spread), -P_LAMBDA_BITS)
+    q = math.ldexp(power_of_two_below(spread), -P_LAMBDA_BITS)
     if purity.mode != 'guarded':
         return q
     # A rounding comes within the bound b (in quanta) of a tie with a
@@ -487,7 +477,7 @@ class KineticKick(SubStep):
             lam = s.lam_value()
             self._force = s.momentum_square() / (lam * lam * lam)
             self._key = key
-        _add_rounded(s.p_lam, scale * self._force)
+        s.p_lam.add_rounded(scale * self._force)
 
     def adjoint(self, cotangents, ch):
         """``a_pi += c h a_p_lambda 2 pi / (m lambda**3)``; ``a_lambda -=
@@ -519,7 +509,7 @@ class Piston(SubStep):
 
     def apply(self, factor):
         s = self.system
-        _add_rounded(s.lam, factor * float(s.p_lam.floats[0]))
+        s.lam.add_rounded(factor * float(s.p_lam.floats[0]))
         lam = s.lam_value()
         if not lam > LAMBDA_MIN:
             raise UnstableIntegrationError(
