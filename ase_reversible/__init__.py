@@ -27,7 +27,8 @@ from .core.record import INFO_KEY  # noqa: F401  (the restart record's key)
 from .md import (FixedPointState, ReversibleBussi, ReversibleIsotropicNPT,
                  ReversibleLangevin, ReversibleNose, ReversibleNPT,
                  ReversibleVerlet)
-from .purity import CalculatorCheck, check_calculator, probe_purity
+from .md.verdict import check_calculator
+from .purity import CalculatorCheck, probe_purity
 
 __version__ = '0.1.0'
 

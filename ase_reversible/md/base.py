@@ -8,105 +8,33 @@ around a run is taken exactly (the anchor of reversal moves, with an
 show the exact state, and every frame carries the restart record.  A
 subclass declares the dynamics: it builds ``self.system`` (the exact
 variables and sub-steps over the atoms) and ``self.engine``.
+
+This module holds the run loop, the clock and the views of the state;
+the other parts live in their own modules: what a constructor checks and
+chooses (:mod:`.admission`), the change contract (:mod:`.changes`), the
+restart record and the checks of a resumed frame (:mod:`.restart`) and the
+retrace of ``backpropagate`` (:mod:`ase_reversible.adjoint.retrace`).
 """
 
 from __future__ import annotations
 
-import warnings
-
-import numpy as np
-from ase import Atoms, units
+from ase import units
 from ase.md.md import MolecularDynamics
 
-from ..adjoint import Cotangents, Gradients
-from ..adjoint.cotangents import checked_gradient
-from ..adjoint.products import checked_parameters, product_for, \
-    zero_gradients
-from ..adjoint.schedule import LossSchedule, checked_schedule
-from ..core.codec import LIMIT, encode
-from ..core.quanta import choose_grid
-from ..core.record import (INFO_KEY, RecordWriter, read_record,
-                           record_mismatch)
-from ..errors import (AnchorMovedWarning, MachineChangedWarning,
-                      NonFiniteStateError, QuantumRangeError)
-from ..purity import calculator_members, discard_results, force_provider
-from .checks import (check_calculator, check_energy_watch, check_steps,
-                     check_timestep, checked_masses, fixed,
-                     refuse_coarse_momentum_quantum)
-from .constraints import constraint_projection
+from ..adjoint.retrace import retrace_gradients
+from ..adjoint.schedule import checked_schedule
+from ..core.record import RecordWriter
+from .admission import admit, checked_grid, encoded
+from .changes import ChangeContract
+from .checks import check_energy_watch, check_steps, check_timestep, fixed
 from .hamiltonian import Hamiltonian
-from .machine import SECTION as MACHINE, compare, differences, explain, \
-    frame_section, platform
+from .machine import SECTION as MACHINE
+from .restart import RestartRecord
 from .state import FixedPointState
-from .watch import (EQUAL_CALCULATOR, AnchorMoves, check_finite_cell,
-                    non_finite, refuse_unholdable_values, same_values)
+from .watch import AnchorMoves
 
 
-
-
-def projected_momenta(atoms, project):
-    """The atoms' momenta ``[n_atoms, 3]`` projected onto the constraints."""
-    p_nc = atoms.get_momenta()
-    project(p_nc)
-    return p_nc
-
-
-def encoded(atoms, position_quantum, momentum_quantum, project):
-    """The atoms' positions and projected momenta snapped to the grid, as
-    int64 counts by variable name; under FixCom the momentum counts sum to
-    zero (a net momentum removed in proportion to mass, as ASE does)."""
-    counts = encode(projected_momenta(atoms, project), momentum_quantum,
-                    'momentum')
-    centre = getattr(project, 'centre', None)
-    if centre is not None:
-        counts = centre.balanced_counts(counts)
-    return {'position': encode(atoms.positions, position_quantum, 'position'),
-            'momentum': counts}
-
-
-def admit(atoms, force_purity, force_noise):
-    """What every reversible dynamics checks of the atoms it is
-    constructed on, and chooses from them: ``(masses_n, project,
-    purity)``, the masses ``[n_atoms]`` (amu), the constraint projection
-    and the force provider.  Raises as the constructors do, before
-    anything is changed; :func:`ase_reversible.check_calculator` runs it
-    too, so that its verdict is the integrators'."""
-    if not isinstance(atoms, Atoms):
-        raise TypeError(
-            f'The reversible integrators run ase.Atoms, got '
-            f'{type(atoms).__name__}: filters that move the cell '
-            '(UnitCellFilter, FrechetCellFilter, ...) are not supported; '
-            'pass the Atoms themselves. To let the cell move at constant '
-            'pressure, use ReversibleIsotropicNPT on the Atoms (or '
-            'ReversibleNPT for a cell that changes shape).')
-    refuse_unholdable_values(atoms)
-    check_calculator(atoms.calc, 'constructing the integrator')
-    masses_n = checked_masses(atoms)
-    project = constraint_projection(atoms)
-    purity = force_provider(atoms, force_purity, force_noise)
-    return masses_n, project, purity
-
-
-def checked_grid(atoms, masses_n, project, purity, max_kick,
-                 position_quantum=None, momentum_quantum=None, record=None):
-    """The grid a dynamics runs the atoms on (the momentum quantum no finer
-    than ``purity`` needs for kicks of up to ``max_kick`` ASE time units),
-    refused (:class:`~ase_reversible.CoarseQuantumError`) if its momentum
-    quantum would visibly change the momenta."""
-    momenta = atoms.arrays.get('momenta', np.zeros((len(atoms), 3)))
-    grid, origin = choose_grid(
-        atoms.positions, atoms.cell, atoms.pbc, masses_n, momenta,
-        position_quantum=position_quantum,
-        momentum_quantum=momentum_quantum, record=record,
-        momentum_floor=purity.min_momentum_quantum(
-            len(atoms), max_kick,
-            extent=float(np.abs(atoms.positions).max(initial=0.0))))
-    refuse_coarse_momentum_quantum(
-        masses_n, projected_momenta(atoms, project), grid, origin, purity)
-    return grid
-
-
-class ReversibleDynamics(MolecularDynamics):
+class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
     """Base of the reversible integrators; see
     :class:`ase_reversible.md.verlet.ReversibleVerlet`.
 
@@ -116,12 +44,6 @@ class ReversibleDynamics(MolecularDynamics):
     """
 
     engine = None
-    #: The running run's :class:`~.watch.AnchorMoves`, None between runs.
-    _moves = None
-    _forces_match_record = None
-    #: Sections of the restart record a subclass writes and reads besides
-    #: the quanta and the time (written by ``_record_sections``).
-    record_sections = ()
 
     def _attach(self, system, engine, purity_choice, time0):
         """Take the declared system and engine (before ASE's constructor)."""
@@ -293,20 +215,6 @@ class ReversibleDynamics(MolecularDynamics):
         self.system.show_momenta()
         self._write_frame_record()
 
-    def _write_frame_record(self):
-        """The restart record of the present state into ``atoms.info``: the
-        subclass's sections and the platform with the digest of the forces
-        the run holds here (:mod:`.machine`)."""
-        sections = self._record_sections() or {}
-        sections[MACHINE] = frame_section(self.system, self.atoms.calc,
-                                          self.system.purity.mode)
-        self._write_record(self.atoms.info, self.get_time(), sections)
-
-    def _record_sections(self):
-        """``{name: dict}`` for the sections in :attr:`record_sections`, or
-        None: what a resumed run needs besides the quanta and the time."""
-        return None
-
     # -- state and settings ----------------------------------------------
 
     @property
@@ -377,69 +285,6 @@ class ReversibleDynamics(MolecularDynamics):
         ``.clean_recomputations`` and keeps ``.max_observed_noise`` (eV/Å).
         """
         return self.system.purity
-
-    def _grid_values(self, atoms):
-        """``{name: float array or None}``: what the atoms show that an
-        unedited frame holds on the grid of its record."""
-        return {'position': atoms.positions,
-                'momentum': atoms.arrays.get('momenta')}
-
-    def _resumable_record(self, atoms):
-        """The restart record in ``atoms.info`` if it fits the atoms."""
-        record = read_record(atoms.info,
-                             sections=(*self.record_sections, MACHINE))
-        if record is None:
-            return None
-        mismatch = record_mismatch(record, self._grid_values(atoms))
-        if mismatch is None:
-            return record
-        warnings.warn(
-            f'The restart record in atoms.info does not fit these '
-            f'atoms ({mismatch}); this is a new run: new quanta, '
-            'time from 0. To resume a run exactly, start from an '
-            'unedited trajectory frame; to silence this, remove the '
-            f'record (atoms.info.pop({INFO_KEY!r})).',
-            AnchorMovedWarning, stacklevel=4)
-        return None
-
-    @property
-    def forces_match_record(self):
-        """Whether the forces at the restart frame this integrator resumed
-        are bitwise those of the run that wrote it (the digest in its
-        record): True; False, after a
-        :class:`~ase_reversible.MachineChangedWarning` (running back past
-        the frame cannot be trusted to reach that run's earlier states);
-        None if the integrator did not resume a frame, or its record has no
-        digest or was written at other positions."""
-        return self._forces_match_record
-
-    def _check_machine(self, section):
-        """Compare the forces at a resumed frame with the digest its record
-        (``section``, the record's ``'machine'`` dict, or None) holds;
-        warn if they differ, or if there is no digest and the platform
-        differs.  Returns what :attr:`forces_match_record` reports."""
-        if not isinstance(section, dict):
-            return None
-        same = compare(section, self.system)
-        if same is None and 'positions' in section:
-            return None  # written at other positions: not this frame's
-        there, here = section.get('platform'), platform(self.atoms.calc)
-        if same is None and not differences(there, here):
-            return None
-        if same:
-            self._write_frame_record()  # with this machine's digest
-            return True
-        dropped = self.engine.anchor_index != self.engine.step_index
-        if dropped:
-            # The steps behind the frame ran under other forces: what was
-            # kept to retrace them leads elsewhere here.
-            self._install(self.engine.snapshot())
-        else:
-            self._write_frame_record()
-        warnings.warn(explain(same is False, there, here,
-                              self.get_time() / units.fs, dropped),
-                      MachineChangedWarning, stacklevel=4)
-        return False if same is False else None
 
     # -- the adjoint ------------------------------------------------------
 
@@ -534,48 +379,13 @@ class ReversibleDynamics(MolecularDynamics):
         steps = check_steps(steps)
         every, window = checked_schedule(loss, every, window)
         self._sync()
-        available = self.engine.steps_since_anchor
-        if steps > available:
-            raise ValueError(
-                f'Cannot retrace {steps} steps: only {available} were taken '
-                'in this direction since the anchor of reversal (the '
-                'constructor, or the last change taken: an edit of the '
-                'atoms, the calculator, the constraints, the cell, or the '
-                'size of dt). Steps before it ran under other dynamics. '
-                f'Call backpropagate with at most {available} steps.')
-        atoms, n = self.atoms, len(self.atoms)
-        if carry not in (None, False) and not isinstance(carry, Gradients):
-            raise TypeError('carry must be the Gradients the previous '
-                            f'backpropagate returned (or False), got '
-                            f'{type(carry).__name__}')
-        if grad_positions is None and grad_momenta is None and loss is None:
-            raise ValueError('Nothing to differentiate: give grad_positions '
-                             'and/or grad_momenta (the loss\'s gradients at '
-                             'the present state) or loss=.')
-        ax_nc = checked_gradient(grad_positions, n, 'grad_positions')
-        ap_nc = checked_gradient(grad_momenta, n, 'grad_momenta')
-        names = checked_parameters(atoms.calc, parameters)
-        cotangents = Cotangents(
-            self._cotangents_of(ax_nc, ap_nc, carry),
-            product=product_for(atoms.calc, hvp, names),
-            grad_parameters=zero_gradients(atoms.calc, names))
-        schedule = LossSchedule(steps, loss, every, window,
-                                self.system.show_momenta,
-                                self._loss_cotangents, atoms)
-        schedule.start(cotangents, bool(ax_nc.any() or ap_nc.any()
-                                        or carry))
-        try:
-            self.engine.retrace(steps, cotangents, visit=schedule)
-        finally:
-            self._committed()
-        ax_nc, ap_nc, thermostat = self._gradients_of(cotangents)
-        if self.system.centre is not None:
-            self.system.centre.pull_back(ap_nc)
-        self.system.project(ap_nc)
-        grads = {name: float(g) if np.ndim(g) == 0 else g
-                 for name, g in cotangents.grad_parameters.items()}
-        return Gradients(ax_nc, ap_nc, grads, cotangents.products,
-                         thermostat)
+        return retrace_gradients(
+            self.engine, self.system, self.atoms, steps, grad_positions,
+            grad_momenta, hvp=hvp, parameters=parameters, carry=carry,
+            loss=loss, every=every, window=window,
+            cotangents_of=self._cotangents_of,
+            loss_cotangents=self._loss_cotangents,
+            gradients_of=self._gradients_of, committed=self._committed)
 
     def _cotangents_of(self, ax_nc, ap_nc, carry):
         """The cotangent of every exact variable, by name, for a loss
@@ -599,161 +409,7 @@ class ReversibleDynamics(MolecularDynamics):
         return (cotangents['position'].copy(),
                 cotangents['momentum'].copy(), {})
 
-    # -- changes made around the run --------------------------------------
-
-    def _sync(self):
-        """Take or refuse changes made around the run (see :mod:`.watch`)."""
-        atoms = self.atoms
-        changes = self._watch.changes(atoms)
-        if changes and self._take_changes(changes):
-            return
-        momenta = atoms.arrays.get('momenta')
-        if (same_values(atoms.arrays['positions'], self._shown_positions())
-                and momenta is not None
-                and same_values(momenta, self.system.shown_momenta())):
-            return
-        self._install(self._edited_counts(atoms, self.system.project))
-        name = type(self).__name__
-        self._anchor_moved(
-            f'positions or momenta changed outside {name}',
-            f'Positions or momenta were changed outside {name}. The change '
-            'was taken and snapped to the grid; reversal now leads back to '
-            'this point (time '
-            f'{self.get_time() / units.fs:.6g} fs), not beyond.',
-            stacklevel=3)
-
-    def _shown_positions(self):
-        """The positions the atoms show of the exact state, ``[n_atoms,
-        3]`` (not to be modified)."""
-        return self.system.x.floats
-
-    def _anchor_moved(self, kind, message, stacklevel):
-        """Warn that the anchor moved (:class:`AnchorMovedWarning`); within
-        a run, a ``kind`` already warned is counted for the run's summary
-        instead (:class:`~.watch.AnchorMoves`)."""
-        if self._moves is None:
-            warnings.warn(message, AnchorMovedWarning,
-                          stacklevel=stacklevel + 1)
-        else:
-            self._moves.warn(kind, message, stacklevel + 1,
-                             self.get_time() / units.fs)
-
-    def _take_changes(self, changes):
-        """Take a change of the dynamics, or refuse it leaving all as was.
-
-        Everything that can refuse runs before anything is replaced.
-        Returns True if the anchor moved (the state was re-installed),
-        False for a calculator replaced by an equal one.
-        """
-        atoms = self.atoms
-        if len(atoms) != len(self.system.x.ints):
-            raise ValueError('The number of atoms changed; construct a new '
-                             f'{type(self).__name__} for the new system (or put the '
-                             'atoms back to continue this run).')
-        if atoms.calc is None:
-            raise RuntimeError('The atoms lost their calculator; attach one '
-                               '(atoms.calc = ...) before running.')
-        check_calculator(atoms.calc, 'running')
-        check_finite_cell(atoms, 'Set it back (atoms.set_cell) to go on: '
-                          'nothing was changed.')
-        project = constraint_projection(atoms)
-        masses_n = checked_masses(atoms)
-        # Before the force provider is chosen: a probe would call the
-        # calculator at these positions.
-        counts = self._edited_counts(atoms, project)
-        # Any change may alter how pure the forces are (a new calculator or
-        # cut-off, atoms now near a periodic face): choose again.
-        purity = force_provider(atoms, *self._purity_choice)
-        if changes == [EQUAL_CALCULATOR]:
-            self.system.purity = purity
-            self._watch.take(atoms)
-            self.system.kick.forget()
-            return False
-        # ASE's Calculator.set keeps results (and ASE's LennardJones its
-        # neighbour list) from before the change: the first kick after it
-        # would use them.  reset() is ASE's way to drop all of that.
-        for calc in calculator_members(atoms.calc):
-            if callable(getattr(calc, 'reset', None)):
-                calc.reset()
-            else:
-                discard_results(calc)
-        self.system.set_dynamics(masses_n, project, purity)
-        self.masses = self.system.m_n1
-        self._watch.take(atoms)
-        self.engine.set_dt(self.engine.dt)  # coefficients use the masses
-        self._install(counts)
-        name, changed = type(self).__name__, ", ".join(changes)
-        self._anchor_moved(
-            f'{changed} changed outside {name}',
-            f'Changed outside {name} since the last step: {changed}. The '
-            'change was taken (positions and '
-            'momenta snapped to the grid, momenta projected onto the '
-            'constraints); reversal now leads back to this point (time '
-            f'{self.get_time() / units.fs:.6g} fs), not beyond. To retrace '
-            'further back exactly, undo the change when you get here.',
-            stacklevel=4)
-        return True
-
-    def _change_setting(self, what, assign):
-        """Take a new setting of the dynamics (``assign()`` makes it) from
-        the next step on; the anchor moves here, with an
-        :class:`AnchorMovedWarning` naming ``what`` if steps were taken."""
-        self._sync()
-        taken = self.engine.steps_since_anchor
-        assign()
-        self.engine.set_dt(self.engine.dt)  # prepare with the new setting
-        self._install(self.engine.snapshot())
-        if taken:
-            changed = f'{what} of {type(self).__name__} changed'
-            self._anchor_moved(
-                f'the {changed}', f'The {changed} after {taken} steps; '
-                'reversal now leads back to this point (time '
-                f'{self.get_time() / units.fs:.6g} fs), not beyond.',
-                stacklevel=3)
-
-    def _edited_counts(self, atoms, project):
-        """The counts of positions and momenta set on the atoms between
-        runs, or, if the grid cannot hold them (NaN, infinite, out of
-        range), the last exact state put back on the atoms and an error
-        that says so: the values the edit replaced are gone, and without
-        them neither the run nor its reversal could go on."""
-        problem, error = non_finite(atoms), NonFiniteStateError
-        advice = 'To change the state, set finite values.'
-        if problem is None:
-            error = QuantumRangeError
-            advice = ('To change the state, set values within the range of '
-                      'the grid (dyn.grid); a larger range needs a new '
-                      'integrator with a larger position_quantum or '
-                      'momentum_quantum.')
-            # A virtual momentum (ReversibleNose) is not range-checked
-            # when made: an out-of-range float casts to a count outside
-            # (-LIMIT, LIMIT), refused below.
-            with np.errstate(invalid='ignore'):
-                try:
-                    counts = self._encode(atoms, project)
-                except QuantumRangeError as refused:
-                    problem = 'the ' + str(refused).removesuffix(
-                        ' Choose a larger quantum.')
-                else:
-                    problem = next(
-                        (f'a {name} is outside the fixed-point range'
-                         for name, c in counts.items()
-                         if not ((c > -LIMIT) & (c < LIMIT)).all()), None)
-            if problem is None:
-                return counts
-        self.system.show()
-        raise error(
-            f'Refused an edit made outside {type(self).__name__} since the '
-            f'last step: {problem.rstrip(".")}. The fixed-point grid cannot '
-            'hold it, and the values it replaced are gone, so the atoms were '
-            'put back to the last exact state (positions and momenta at time '
-            f'{self.get_time() / units.fs:.6g} fs): reverse() and further '
-            'runs go on from there as if the edit had not been made. '
-            + advice)
-
-    def _encode(self, atoms, project):
-        return encoded(atoms, self.system.x.quantum, self.system.p.quantum,
-                       project)
+    # -- construction -----------------------------------------------------
 
     def _admit(self, atoms, force_purity, force_noise):
         """Check the atoms a dynamics is constructed on, and read what it

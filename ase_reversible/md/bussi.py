@@ -55,10 +55,9 @@ from ..core.noise import step_key
 from ..core import portable
 from ..errors import RetraceLimitError
 from .buffered import BufferedDynamics, BufferedMomentumStep, state_digest
-from .checks import check_energy_watch, check_timestep
+from .checks import (check_energy_watch, check_timestep, checked_positive,
+                     checked_seed, refuse_plane_and_line_constraints)
 from .hamiltonian import largest_kick
-from .langevin import (_checked_positive, _checked_seed,
-                       _refuse_projections)
 from .watch import SystemWatch
 
 DRIFT, KICK, RESCALE = 'drift', 'kick', 'rescale'
@@ -687,13 +686,14 @@ class ReversibleBussi(BufferedDynamics):
                 'stays zero but for rounding. To hold it at exactly zero, '
                 'add the constraint ase.constraints.FixCom.')
         timestep = check_timestep(timestep)
-        self._temperature_K = _checked_positive(temperature_K,
-                                                'temperature_K', 'K')
-        self._taut = _checked_positive(taut, 'taut',
-                                       'ASE time units, e.g. 100 * units.fs')
+        self._temperature_K = checked_positive(temperature_K,
+                                               'temperature_K', 'K')
+        self._taut = checked_positive(taut, 'taut',
+                                      'ASE time units, e.g. 100 * units.fs')
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
-        _refuse_projections(atoms, 'ReversibleBussi', 'the rescaling')
+        refuse_plane_and_line_constraints(atoms, 'ReversibleBussi',
+                                          'the rescaling')
         momenta = atoms.get_momenta()
         if not np.any(momenta):
             raise ValueError(_ZERO_MOMENTA.replace(' The step was not '
@@ -706,7 +706,7 @@ class ReversibleBussi(BufferedDynamics):
         resumed = _resumed_draws(record, timestep)
         if seed is None and resumed is not None:
             seed = resumed['seed']
-        self._seed = _checked_seed(seed)
+        self._seed = checked_seed(seed)
         step = resumed['step'] if resumed is not None else 0
         saved = None if buffer is None else _read_buffer(
             buffer, system, self._seed, timestep, step)
@@ -745,8 +745,8 @@ class ReversibleBussi(BufferedDynamics):
         return self._temperature_K, self._taut, self._seed
 
     def _take_changes(self, changes):
-        _refuse_projections(self.atoms, 'ReversibleBussi',
-                            'the rescaling')
+        refuse_plane_and_line_constraints(self.atoms, 'ReversibleBussi',
+                                          'the rescaling')
         return super()._take_changes(changes)
 
     def _record_sections(self):
@@ -800,14 +800,14 @@ class ReversibleBussi(BufferedDynamics):
         """Use ``temperature_K`` (K) from the next step on; the anchor
         moves here (:class:`~ase_reversible.AnchorMovedWarning` if steps
         were taken)."""
-        value = _checked_positive(temperature_K, 'temperature_K', 'K')
+        value = checked_positive(temperature_K, 'temperature_K', 'K')
         self._change_setting('temperature', lambda: setattr(
             self, '_temperature_K', value))
 
     def set_taut(self, taut):
         """Use ``taut`` (ASE time units) from the next step on; the anchor
         moves here, as for :meth:`set_temperature`."""
-        value = _checked_positive(taut, 'taut', 'ASE time units')
+        value = checked_positive(taut, 'taut', 'ASE time units')
         self._change_setting('taut', lambda: setattr(self, '_taut', value))
 
     def todict(self):

@@ -8,10 +8,12 @@ import warnings
 
 import numpy as np
 from ase import units
+from ase.constraints import FixCom, FixedLine, FixedPlane
 
+from ..core.infobuffer import DIGIT_BITS
 from ..core.quanta import momentum_resolution_problem
 from ..core.record import INFO_KEY
-from ..errors import CoarseQuantumError
+from ..errors import CoarseQuantumError, UnsupportedConstraintError
 from ..purity import DEFAULT_FORCE_NOISE
 
 
@@ -95,8 +97,9 @@ def check_energy_watch(interval, tolerance):
     return interval, tolerance
 
 
-def check_calculator(calc, doing):
-    """Refuse a missing calculator or one that only holds stored results."""
+def refuse_calculator_without_forces(calc, doing):
+    """Refuse a missing calculator or one that only holds stored results
+    (``doing``: what the message says it is needed for)."""
     if calc is None:
         raise RuntimeError(f'The atoms have no calculator: attach one '
                            f'(atoms.calc = ...) before {doing}.')
@@ -168,3 +171,74 @@ def refuse_coarse_momentum_quantum(masses_n, momenta_nc, grid, origin,
         f'The momentum quantum {qp:.3g} amu Å / ASE time unit '
         f'({source}) is too coarse: {problem}. {remedy} Nothing was '
         'changed.')
+
+
+def checked_positive(value, name, unit):
+    """``value`` as a positive, finite float; ``name`` and ``unit`` for the
+    message."""
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f'{name} must be a number ({unit}), got '
+                        f'{value!r}') from None
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f'{name} must be positive and finite ({unit}), got '
+                         f'{value!r}')
+    return value
+
+
+def checked_friction(friction, timestep):
+    """A thermostat's friction (1 / ASE time unit) as a float: 0 (none), or
+    positive with ``exp(-friction |timestep|)`` between ``2**-16`` and
+    below 1 in float64."""
+    unit = '1 / ASE time unit, e.g. 0.01 / ase.units.fs'
+    try:
+        friction = float(friction)
+    except (TypeError, ValueError):
+        raise TypeError(f'friction must be a number ({unit}), got '
+                        f'{friction!r}') from None
+    if friction == 0:
+        return 0.0  # NVE, as ASE's Langevin allows
+    friction = checked_positive(friction, 'friction', f'{unit}; 0 for '
+                                'no thermostat')
+    if math.exp(-friction * abs(timestep)) == 1.0:
+        raise ValueError(
+            f'friction * |timestep| is {friction * abs(timestep):.3g}, too '
+            'small to change a momentum (exp(-friction |timestep|) is 1 in '
+            'float64): pass friction=0 for no thermostat.')
+    if friction * abs(timestep) > DIGIT_BITS * math.log(2):
+        raise ValueError(
+            f'friction * |timestep| is {friction * abs(timestep):.3g}; at '
+            f'most {DIGIT_BITS * math.log(2):.3g} is supported (the momenta '
+            'keep a 2**-16 of themselves per step). Momenta that are '
+            'reset every step are not dynamics: use a smaller friction or '
+            'time step.')
+    return friction
+
+
+def checked_seed(seed):
+    """The noise's seed as an int in ``[0, 2**64)``; None draws one."""
+    if seed is None:
+        return int(np.random.SeedSequence().entropy % 2**64)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise TypeError(f'seed must be an int, got {seed!r}')
+    return int(seed) % 2**64
+
+
+def refuse_plane_and_line_constraints(atoms, name='ReversibleLangevin',
+                                      what='the friction and noise'):
+    """Refuse FixedPlane and FixedLine, which ``what`` of dynamics
+    ``name`` (a class name) is not projected onto."""
+    centred = any(isinstance(c, FixCom) for c in atoms.constraints)
+    for c in atoms.constraints:
+        if isinstance(c, (FixedPlane, FixedLine)):
+            raise UnsupportedConstraintError(
+                f'{name} supports FixAtoms, FixCartesian and '
+                f'FixCom; {type(c).__name__} would need {what} '
+                'projected onto it, which is not done yet. Use '
+                'FixCartesian where the constraint is along an axis, or '
+                'ReversibleNose (constant temperature) or ReversibleVerlet '
+                '(constant energy), which support it'
+                + (' without FixCom (zero the net momentum once with '
+                   'ase.md.velocitydistribution.Stationary instead).'
+                   if centred else '.'))

@@ -32,7 +32,6 @@ import math
 
 import numpy as np
 from ase import units
-from ase.constraints import FixCom, FixedLine, FixedPlane
 
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
@@ -40,11 +39,12 @@ from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
                                InformationBuffer, friction_ratio)
 from ..core.noise import StepNoise, step_key
 from ..core import portable
-from ..errors import RetraceLimitError, UnsupportedConstraintError
+from ..errors import RetraceLimitError
 from .buffered import (BufferedDynamics, BufferedMomentumStep, buffer_arrays,
                        state_digest)
 from .checks import (check_energy_watch, check_temperature_K,
-                     check_timestep)
+                     check_timestep, checked_friction, checked_positive,
+                     checked_seed, refuse_plane_and_line_constraints)
 from .hamiltonian import largest_kick
 from .watch import SystemWatch
 
@@ -143,7 +143,7 @@ class Friction(BufferedMomentumStep):
         noise_k = np.rint(sigma_k * self.noise.normals(key, self.step_of()))
         noise_k = noise_k.astype(np.int64)
         if zero_sum is not None:
-            noise_k = _without_net_momentum(noise_k, *zero_sum)
+            noise_k = without_net_momentum(noise_k, *zero_sum)
         if forward:
             new_k = buffer.scale_down(x_k, mask_k) + noise_k
         else:
@@ -201,7 +201,7 @@ def _zero_sum_weights(m_n1, free_nc):
     return mass_nc / total_c, np.argmax(mass_nc, axis=0)
 
 
-def _without_net_momentum(noise_k, weights_nc, heaviest_c):
+def without_net_momentum(noise_k, weights_nc, heaviest_c):
     """The integer noise with its sum over atoms made exactly zero in each
     Cartesian component, removed in proportion to mass (rounded; the
     heaviest free atom takes what rounding leaves)."""
@@ -306,11 +306,11 @@ class ReversibleLangevin(BufferedDynamics):
             raise TypeError(
                 'ReversibleLangevin needs friction, 1 / ASE time unit (e.g. '
                 'friction=0.01 / ase.units.fs, as for ASE\'s Langevin).')
-        self._friction = _checked_friction(friction, timestep)
+        self._friction = checked_friction(friction, timestep)
         self._fixcm = bool(fixcm)
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
-        _refuse_projections(atoms)
+        refuse_plane_and_line_constraints(atoms)
         system, record = self._hamiltonian(
             atoms, largest_kick(SCHEME, composition_for(2, None), timestep,
                                 KICK),
@@ -319,7 +319,7 @@ class ReversibleLangevin(BufferedDynamics):
         resumed = _resumed_noise(record, timestep)
         if seed is None and resumed is not None:
             seed = resumed['seed']
-        self._seed = _checked_seed(seed)
+        self._seed = checked_seed(seed)
         step = resumed['step'] if resumed is not None else 0
         saved = None if buffer is None else _read_buffer(
             buffer, system, self._seed, timestep, step,
@@ -362,7 +362,7 @@ class ReversibleLangevin(BufferedDynamics):
 
     def _take_changes(self, changes):
         # A plane or line set between runs is refused as at construction.
-        _refuse_projections(self.atoms)
+        refuse_plane_and_line_constraints(self.atoms)
         return super()._take_changes(changes)
 
     def _record_sections(self):
@@ -432,14 +432,14 @@ class ReversibleLangevin(BufferedDynamics):
         """Use ``temperature_K`` (K) from the next step on.  Steps before
         cannot be retraced with it: the anchor moves here
         (:class:`~ase_reversible.AnchorMovedWarning` if steps were taken)."""
-        value = _checked_positive(temperature_K, 'temperature_K', 'K')
+        value = checked_positive(temperature_K, 'temperature_K', 'K')
         self._change_setting('temperature', lambda: setattr(
             self, '_temperature_K', value))
 
     def set_friction(self, friction):
         """Use ``friction`` (1 / ASE time unit) from the next step on; the
         anchor moves here, as for :meth:`set_temperature`."""
-        value = _checked_friction(friction, self.dt)
+        value = checked_friction(friction, self.dt)
         self._change_setting('friction',
                              lambda: setattr(self, '_friction', value))
 
@@ -450,69 +450,6 @@ class ReversibleLangevin(BufferedDynamics):
                 'friction': self._friction, 'fixcm': self._fixcm,
                 'seed': self._seed, **self.system.grid.todict(),
                 'force_purity': self.force_purity.mode}
-
-
-def _checked_positive(value, name, unit):
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f'{name} must be a number ({unit}), got '
-                        f'{value!r}') from None
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f'{name} must be positive and finite ({unit}), got '
-                         f'{value!r}')
-    return value
-
-
-def _checked_friction(friction, timestep):
-    unit = '1 / ASE time unit, e.g. 0.01 / ase.units.fs'
-    try:
-        friction = float(friction)
-    except (TypeError, ValueError):
-        raise TypeError(f'friction must be a number ({unit}), got '
-                        f'{friction!r}') from None
-    if friction == 0:
-        return 0.0  # NVE, as ASE's Langevin allows
-    friction = _checked_positive(friction, 'friction', f'{unit}; 0 for '
-                                 'no thermostat')
-    if math.exp(-friction * abs(timestep)) == 1.0:
-        raise ValueError(
-            f'friction * |timestep| is {friction * abs(timestep):.3g}, too '
-            'small to change a momentum (exp(-friction |timestep|) is 1 in '
-            'float64): pass friction=0 for no thermostat.')
-    if friction * abs(timestep) > DIGIT_BITS * math.log(2):
-        raise ValueError(
-            f'friction * |timestep| is {friction * abs(timestep):.3g}; at '
-            f'most {DIGIT_BITS * math.log(2):.3g} is supported (the momenta '
-            'keep a 2**-16 of themselves per step). Momenta that are '
-            'reset every step are not dynamics: use a smaller friction or '
-            'time step.')
-    return friction
-
-
-def _checked_seed(seed):
-    if seed is None:
-        return int(np.random.SeedSequence().entropy % 2**64)
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-        raise TypeError(f'seed must be an int, got {seed!r}')
-    return int(seed) % 2**64
-
-
-def _refuse_projections(atoms, name='ReversibleLangevin',
-                        what='the friction and noise'):
-    centred = any(isinstance(c, FixCom) for c in atoms.constraints)
-    for c in atoms.constraints:
-        if isinstance(c, (FixedPlane, FixedLine)):
-            raise UnsupportedConstraintError(
-                f'{name} supports FixAtoms, FixCartesian and '
-                f'FixCom; {type(c).__name__} would need {what} '
-                'projected onto it, which is not done yet. Use '
-                'FixCartesian where the constraint is along an axis, or '
-                'ReversibleNose (constant temperature) or ReversibleVerlet '
-                '(constant energy), which support it'
-                + (' without FixCom (zero the net momentum once with '
-                   'ase.md.velocitydistribution.Stationary instead).'
-                   if centred else '.'))
 
 
 def _resumed_noise(record, timestep):

@@ -89,11 +89,12 @@ from ..core.record import read_record
 from ..core.variables import ExactVariable
 from ..errors import (AnchorMovedWarning, QuantumRangeError,
                       UnstableIntegrationError)
-from .base import ReversibleDynamics, projected_momenta
-from .checks import check_energy_watch, check_timestep, fixed
+from .admission import projected_momenta
+from .base import ReversibleDynamics
+from .checks import (check_energy_watch, check_timestep, checked_positive,
+                     fixed)
 from .constraints import no_projection
 from .hamiltonian import Drift, Hamiltonian, largest_kick
-from .langevin import _checked_positive
 from .watch import SystemWatch
 
 S, PI, CLOCK = 'thermostat_position', 'thermostat_momentum', 'time'
@@ -691,10 +692,10 @@ class ReversibleNose(ReversibleDynamics):
             raise ValueError(f'scheme must be one of {SCHEMES}, got '
                              f'{scheme!r}')
         timestep = check_timestep(timestep)
-        temperature_K = _checked_positive(temperature_K, 'temperature_K',
-                                          'K')
-        tdamp = _checked_positive(tdamp, 'tdamp', 'ASE time units, e.g. '
-                                  '100 * ase.units.fs')
+        temperature_K = checked_positive(temperature_K, 'temperature_K',
+                                         'K')
+        tdamp = checked_positive(tdamp, 'tdamp', 'ASE time units, e.g. '
+                                 '100 * ase.units.fs')
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
         composition = composition_for(order, composition)
@@ -988,7 +989,7 @@ class ReversibleNose(ReversibleDynamics):
         """Use ``temperature_K`` (K) from the next step on; the anchor
         moves here (:class:`~ase_reversible.AnchorMovedWarning` if steps
         were taken)."""
-        value = _checked_positive(temperature_K, 'temperature_K', 'K')
+        value = checked_positive(temperature_K, 'temperature_K', 'K')
         self._change_setting('temperature',
                              lambda: self.system.set_temperature(value))
 

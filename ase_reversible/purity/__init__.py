@@ -35,7 +35,9 @@ this, chosen per calculator by :func:`force_provider`:
 
 Where each part lives: :mod:`.providers` (the four handlings and the spot
 check), :mod:`.probe`, :mod:`.choice` (``force_purity='auto'``),
-:mod:`.check` (:func:`check_calculator`), :mod:`.advice` (the messages),
+:mod:`.check` (the probe and cost in the verdict of
+:func:`ase_reversible.check_calculator`, which runs the integrators'
+checks in :mod:`ase_reversible.md.verdict`), :mod:`.advice` (the messages),
 :mod:`.introspection` (what a calculator is and mixes) and
 :mod:`.settings` (the bounds and their measurements).
 """
@@ -43,7 +45,7 @@ check), :mod:`.probe`, :mod:`.choice` (``force_purity='auto'``),
 # The public names of every module, importable from the package.
 # No __all__: the API pages document each object once, in its own module,
 # and an __all__ here would document them a second time on this page.
-from .check import CalculatorCheck, check_calculator
+from .check import CalculatorCheck
 from .choice import force_provider
 from .introspection import (calculator_members, cold_start, discard_results,
                             mixture)

@@ -1,4 +1,6 @@
-"""``check_calculator``: the verdict on a calculator before a run."""
+"""The verdict on a calculator before a run, :class:`CalculatorCheck`:
+its probe and cost here, the integrators' own checks before it in
+:func:`ase_reversible.md.verdict.check_calculator`."""
 
 from __future__ import annotations
 
@@ -15,7 +17,8 @@ from .settings import (TARGET_CLEAN_RATE, _bound_for, _extent_factor,
 
 @dataclass(frozen=True)
 class CalculatorCheck:
-    """What :func:`check_calculator` found; ``str()`` gives a summary.
+    """What :func:`~ase_reversible.check_calculator` found; ``str()`` gives
+    a summary.
 
     Attributes
     ----------
@@ -73,61 +76,25 @@ _COSTS = {
 }
 
 
-def check_calculator(atoms, timestep=None, force_noise=None):
-    """Tell whether the atoms' calculator gives exactly reversible forces.
+def refused_check(calc, error):
+    """The verdict on ``calc`` that the integrators refuse with ``error``
+    (the exception they raise)."""
+    return CalculatorCheck(type(calc).__name__, False, None, math.nan,
+                           'not runnable as it is.', str(error),
+                           type(error).__name__)
 
-    Runs what ``ReversibleVerlet(atoms, timestep)`` runs before its first
-    step -- the checks of the atoms (calculator, masses, constraints), the
-    choice of the force-purity mode under ``force_purity='auto'`` and,
-    with ``timestep``, the choice of the quanta -- so that what it refuses
-    is reported here, with its message.  Then it probes the forces under
-    the chosen handling with :func:`probe_purity`: 7 force calls, and 7
-    more for each probe the choice itself made (an unknown calculator is
-    probed, probed again from a cold start if its history noise is large,
-    and again with its threads held to one if noise is left at the level
-    of rounding).  Nothing about the atoms is changed; an ASE LennardJones
-    or EMT gets its sorted neighbour list, as it would from the
-    integrator.
 
-    Parameters
-    ----------
-    atoms : ase.Atoms
-        With the calculator attached and the positions a run starts from.
-    timestep : float, optional
-        ASE time units.  With it, the quanta are chosen as the integrator
-        (scheme ``'velocity'``, order 2) would, a momentum quantum that
-        would visibly change the momenta is refused as there, and the
-        cost of ``'guarded'`` includes the bits of momentum precision its
-        coarser quantum gives up.
-    force_noise : float, optional
-        eV/Å, as for the integrator (implies ``'guarded'``).
+def probed_check(atoms, provider, momentum_quanta=None):
+    """The verdict on the atoms' calculator under ``provider`` (the force
+    provider ``force_purity='auto'`` chose for it): probed with
+    :func:`probe_purity` unless it declares itself pure.
 
-    Returns
-    -------
-    CalculatorCheck
-        A refusal has ``mode`` None, the integrator's error class in
-        ``refused_by`` and its message in ``advice``.
+    ``momentum_quanta``: ``(chosen, fine)``, the momentum quantum the
+    integrator chose for a time step and the one a pure calculator would
+    get (amu Å / ASE time unit), for the cost of ``'guarded'``; None if no
+    time step was given.
     """
-    from ..errors import ReversibilityError
-    from ..md.base import admit, checked_grid, encoded
-
     calc = atoms.calc
-    if calc is None:
-        raise RuntimeError('The atoms have no calculator: attach one '
-                           '(atoms.calc = ...) to check it.')
-    name = type(calc).__name__
-    try:
-        masses_n, project, provider = admit(atoms, 'auto', force_noise)
-        if timestep is not None:
-            grid, fine = _grids(atoms, masses_n, project, provider, timestep,
-                                checked_grid)
-            encoded(atoms, grid.position_quantum, grid.momentum_quantum,
-                    project)
-    except (ReversibilityError, ValueError, RuntimeError) as error:
-        # What the integrator would raise: the verdict is its refusal.
-        return CalculatorCheck(name, False, None, math.nan,
-                               'not runnable as it is.', str(error),
-                               type(error).__name__)
     provider.forces(atoms)  # sorted lists in place before the probe
     noise = (0.0 if _declares_pure(calc)
              else probe_purity(atoms, forces=provider.forces))
@@ -149,43 +116,16 @@ def check_calculator(atoms, timestep=None, force_noise=None):
                       f'force_noise='
                       f'{_bound_for(noise * provider.force_noise / bound):.2g}'
                       ' or larger.')
-        if timestep is not None:
-            quantum = grid.momentum_quantum
+        if momentum_quanta is not None:
+            quantum, fine = momentum_quanta
             cost += (f' With this time step: a momentum quantum of '
                      f'{quantum:.3g} instead of {fine:.3g} '
                      f'({math.log2(quantum / fine):.0f} bits of precision '
                      'fewer).')
-    return CalculatorCheck(name, exact, provider.mode, noise, cost, advice)
+    return CalculatorCheck(type(calc).__name__, exact, provider.mode, noise,
+                           cost, advice)
 
 
 _ONE_THREAD_COST = (' Every force call runs with OpenMP and BLAS held to '
                     'one thread (threadpoolctl), since parallel sums in '
                     'threads vary from call to call.')
-
-
-def _grids(atoms, masses_n, project, provider, timestep, checked_grid):
-    """The grid ``ReversibleVerlet(atoms, timestep)`` would choose (refused
-    as there), and the one a pure calculator would get."""
-    from ..core.compositions import composition_for
-    from ..md.hamiltonian import largest_kick
-    from ..md.verlet import KICK, SCHEMES
-    max_kick = largest_kick(SCHEMES['velocity'], composition_for(2),
-                            float(timestep), KICK)
-    grid = checked_grid(atoms, masses_n, project, provider, max_kick,
-                        record=_fitting_record(atoms))
-    from ..core.quanta import choose_momentum_quantum
-    fine = choose_momentum_quantum(
-        masses_n, atoms.arrays.get('momenta', np.zeros((len(atoms), 3))))
-    return grid, fine
-
-
-def _fitting_record(atoms):
-    """The restart record in ``atoms.info`` if the integrator would resume
-    from it (it fits the atoms), else None; read quietly."""
-    from ..core.record import read_record, record_mismatch
-    record = read_record(atoms.info)
-    if record is None or record_mismatch(
-            record, {'position': atoms.positions,
-                     'momentum': atoms.arrays.get('momenta')}) is not None:
-        return None
-    return record

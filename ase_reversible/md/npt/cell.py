@@ -63,7 +63,7 @@ from ...core.portable import dot, rows_times_matrix
 from ...errors import RetraceLimitError, UnstableIntegrationError
 from ...core.infobuffer import BufferUnderflowError
 from ..hamiltonian import Drift
-from ..langevin import _without_net_momentum, exact_ratio
+from ..langevin import exact_ratio, without_net_momentum
 from .friction import ScaledFriction, past_the_anchor
 from .isotropic import ReversibleIsotropicNPT
 from .system import (DRIFT, KINETIC, LAMBDA, LAMBDA_MIN, P_LAMBDA, PISTON,
@@ -498,7 +498,7 @@ class CellFriction(ScaledFriction):
                                  s.matrices()[0].T)
         noise_k = np.rint(y_nc).astype(np.int64).reshape(-1)
         if zero_sum is not None:
-            noise_k = _without_net_momentum(noise_k, *zero_sum)
+            noise_k = without_net_momentum(noise_k, *zero_sum)
         before = s.kinetic_energy()
         if forward:
             new_k = buffer.scale_down(x_k, mask_k) + noise_k

@@ -16,9 +16,9 @@ from ...core.portable import dot
 from ...core.record import read_record
 from ...errors import MachineChangedWarning
 from ..buffered import BufferedDynamics, buffer_arrays, state_digest
-from ..checks import check_energy_watch, check_timestep, fixed
+from ..checks import (check_energy_watch, check_timestep, checked_friction,
+                      checked_positive, checked_seed, fixed)
 from ..hamiltonian import largest_kick
-from ..langevin import _checked_friction, _checked_positive, _checked_seed
 from ..machine import describe, digest, platform
 from ..watch import SystemWatch
 from .friction import PistonFriction, ScaledFriction
@@ -181,14 +181,14 @@ class ReversibleIsotropicNPT(BufferedDynamics):
                     f'{name} takes no {arg} (an argument of ASE\'s '
                     f'{self._ase_counterpart}): {advice}.')
         timestep = check_timestep(timestep)
-        temperature_K = _checked_positive(temperature_K, 'temperature_K',
-                                          'K')
+        temperature_K = checked_positive(temperature_K, 'temperature_K',
+                                         'K')
         pressure_au = _checked_pressure(pressure_au)
-        tdamp = _checked_positive(tdamp, 'tdamp', 'ASE time units, e.g. '
-                                  '100 * ase.units.fs')
-        pdamp = _checked_positive(pdamp, 'pdamp', 'ASE time units, e.g. '
-                                  '1000 * ase.units.fs')
-        friction = _checked_friction(1.0 / tdamp, timestep)
+        tdamp = checked_positive(tdamp, 'tdamp', 'ASE time units, e.g. '
+                                 '100 * ase.units.fs')
+        pdamp = checked_positive(pdamp, 'pdamp', 'ASE time units, e.g. '
+                                 '1000 * ase.units.fs')
+        friction = checked_friction(1.0 / tdamp, timestep)
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
         _refuse_cell(atoms, name)
@@ -223,9 +223,9 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         resumed = _resumed_noise(section, timestep)
         if seed is None and resumed is not None:
             seed = resumed['seed']
-        self._seed = _checked_seed(seed)
+        self._seed = checked_seed(seed)
         step = resumed['step'] if resumed is not None else 0
-        piston = PistonFriction(system, _checked_friction(
+        piston = PistonFriction(system, checked_friction(
             1.0 / pdamp, timestep), system.p_lam.ints.size) \
             if PISTON_FRICTION else None
         friction_step = self._friction_class(

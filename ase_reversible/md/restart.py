@@ -1,0 +1,132 @@
+"""The restart record of every frame and the checks of a resumed one.
+
+Every frame a reversible dynamics shows carries its restart record in
+``atoms.info`` (:mod:`ase_reversible.core.record`): the quanta, the time,
+the subclass's sections and the ``'machine'`` section (:mod:`.machine`).
+A constructor resumes from a record that fits the atoms, and once it
+stands compares the forces there with the digest the record holds.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+from ase import units
+
+from ..core.record import INFO_KEY, read_record, record_mismatch
+from ..errors import AnchorMovedWarning, MachineChangedWarning
+from .machine import SECTION as MACHINE, compare, differences, explain, \
+    frame_section, platform
+
+
+def grid_values(atoms):
+    """``{name: float array or None}``: the positions and momenta the
+    atoms show, which an unedited frame holds on the grid of its record."""
+    return {'position': atoms.positions,
+            'momentum': atoms.arrays.get('momenta')}
+
+
+def fitting_record(info, values, sections=()):
+    """``(record, mismatch)``: the restart record in ``info`` (read with
+    ``sections``) and why it does not fit ``values`` (as
+    :func:`grid_values` gives them), None if it fits; ``(None, None)`` if
+    there is no record."""
+    record = read_record(info, sections=sections)
+    if record is None:
+        return None, None
+    return record, record_mismatch(record, values)
+
+
+class RestartRecord:
+    """The restart record's part of
+    :class:`~ase_reversible.md.base.ReversibleDynamics`: writing it into
+    every frame, finding the one to resume from, and comparing the forces
+    at a resumed frame with the record's digest."""
+
+    _forces_match_record = None
+    #: Sections of the restart record a subclass writes and reads besides
+    #: the quanta and the time (written by ``_record_sections``).
+    record_sections = ()
+
+    def _write_frame_record(self):
+        """The restart record of the present state into ``atoms.info``: the
+        subclass's sections and the platform with the digest of the forces
+        the run holds here (:mod:`.machine`)."""
+        sections = self._record_sections() or {}
+        sections[MACHINE] = frame_section(self.system, self.atoms.calc,
+                                          self.system.purity.mode)
+        self._write_record(self.atoms.info, self.get_time(), sections)
+
+    def _record_sections(self):
+        """``{name: dict}`` for the sections in :attr:`record_sections`, or
+        None: what a resumed run needs besides the quanta and the time."""
+        return None
+
+    def _grid_values(self, atoms):
+        """``{name: float array or None}``: what the atoms show that an
+        unedited frame holds on the grid of its record."""
+        return grid_values(atoms)
+
+    def _resumable_record(self, atoms):
+        """The restart record in ``atoms.info`` if it fits the atoms."""
+        record, mismatch = fitting_record(
+            atoms.info, self._grid_values(atoms),
+            sections=(*self.record_sections, MACHINE))
+        if mismatch is None:
+            return record
+        warnings.warn(
+            f'The restart record in atoms.info does not fit these '
+            f'atoms ({mismatch}); this is a new run: new quanta, '
+            'time from 0. To resume a run exactly, start from an '
+            'unedited trajectory frame; to silence this, remove the '
+            f'record (atoms.info.pop({INFO_KEY!r})).',
+            AnchorMovedWarning, stacklevel=4)
+        return None
+
+    @property
+    def forces_match_record(self):
+        """Whether the forces at the restart frame this integrator resumed
+        are bitwise those of the run that wrote it (the digest in its
+        record): True; False, after a
+        :class:`~ase_reversible.MachineChangedWarning` (running back past
+        the frame cannot be trusted to reach that run's earlier states);
+        None if the integrator did not resume a frame, or its record has no
+        digest or was written at other positions."""
+        return self._forces_match_record
+
+    def _check_machine(self, section):
+        """Compare the forces at a resumed frame with the digest its record
+        (``section``, the record's ``'machine'`` dict, or None) holds;
+        warn if they differ, or if there is no digest and the platform
+        differs.  Returns what :attr:`forces_match_record` reports."""
+        if not isinstance(section, dict):
+            return None
+        same = compare(section, self.system)
+        if same is None and 'positions' in section:
+            return None  # written at other positions: not this frame's
+        there, here = section.get('platform'), platform(self.atoms.calc)
+        if same is None and not differences(there, here):
+            return None
+        if same:
+            self._write_frame_record()  # with this machine's digest
+            return True
+        dropped = self._drop_steps_behind_frame()
+        warnings.warn(explain(same is False, there, here,
+                              self.get_time() / units.fs, dropped),
+                      MachineChangedWarning, stacklevel=4)
+        return False if same is False else None
+
+    def _drop_steps_behind_frame(self):
+        """After a resumed frame's forces (or stress) differ from its
+        record's: forget the steps behind the frame, if the record kept
+        any to retrace (the frame becomes the anchor), else rewrite the
+        frame's record with this machine's digest.  Returns whether steps
+        were dropped."""
+        dropped = self.engine.anchor_index != self.engine.step_index
+        if dropped:
+            # The steps behind the frame ran under other forces: what was
+            # kept to retrace them leads elsewhere here.
+            self._install(self.engine.snapshot())
+        else:
+            self._write_frame_record()
+        return dropped
