@@ -22,9 +22,9 @@ but must put the positions back bit for bit.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from ..core.arguments import checked_positive
 
 #: Largest displacement of any atom in a finite-difference product, Å.
 #: The central difference errs by ~ ``step**2 |F'''| / 6`` (truncation) plus
@@ -65,11 +65,7 @@ class FiniteDifferenceHVP:
     force_calls = 2
 
     def __init__(self, step: float = DEFAULT_FD_STEP):
-        step = float(step)
-        if not (math.isfinite(step) and step > 0):
-            raise ValueError(f'The finite-difference step must be a positive '
-                             f'length in Å, got {step!r}')
-        self.step = step
+        self.step = checked_positive(step, 'The finite-difference step', 'Å')
 
     def __call__(self, atoms, v_nc):
         """``H v`` ``[n_atoms, 3]`` at the atoms' positions, eV/Å² x (unit

@@ -1,7 +1,10 @@
 """The ASE adapters: integrators that are ``ase.md`` dynamics.
 
 :class:`~.base.ReversibleDynamics` is the thin base (ASE's run loop, the
-change contract, the clock, ``backpropagate``);
+clock, the views of the state, ``backpropagate``), with the change contract
+(:mod:`.changes`) and the restart record (:mod:`.restart`) as its parts;
+:mod:`.admission` is what every constructor checks and chooses, and
+:mod:`.verdict` runs it for :func:`~.verdict.check_calculator`;
 :class:`~.verlet.ReversibleVerlet` declares NVE on it,
 :class:`~.langevin.ReversibleLangevin`, :class:`~.bussi.ReversibleBussi`
 and :class:`~.nose.ReversibleNose` NVT, :class:`~.npt.ReversibleIsotropicNPT`

@@ -449,5 +449,3 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
     def _show_anchor(self):
         self.system.show()
         self._write_frame_record()
-
-

@@ -49,14 +49,15 @@ import math
 import numpy as np
 from ase import units
 
+from ..core.arguments import checked_positive
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
 from ..core.noise import step_key
 from ..core import portable
 from ..errors import RetraceLimitError
 from .buffered import BufferedDynamics, BufferedMomentumStep, state_digest
-from .checks import (check_energy_watch, check_timestep, checked_positive,
-                     checked_seed, refuse_plane_and_line_constraints)
+from .checks import (check_energy_watch, check_timestep, checked_seed,
+                     refuse_plane_and_line_constraints)
 from .hamiltonian import largest_kick
 from .watch import SystemWatch
 

@@ -10,6 +10,7 @@ import numpy as np
 from ase import units
 from ase.constraints import FixCom, FixedLine, FixedPlane
 
+from ..core.arguments import checked_positive
 from ..core.infobuffer import DIGIT_BITS
 from ..core.quanta import momentum_resolution_problem
 from ..core.record import INFO_KEY
@@ -58,14 +59,7 @@ def check_temperature_K(temperature_K, kwargs, dynamics):
     if temperature_K is None:
         raise TypeError(f'{dynamics} needs temperature_K, the target '
                         'temperature in kelvin (e.g. temperature_K=300).')
-    try:
-        value = float(temperature_K)
-    except (TypeError, ValueError):
-        raise TypeError(f'temperature_K must be a number (K), got '
-                        f'{temperature_K!r}') from None
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f'temperature_K must be positive and finite (K), '
-                         f'got {temperature_K!r}')
+    value = checked_positive(temperature_K, 'temperature_K', 'K')
     if value < EV_LIKE_BELOW:
         warnings.warn(
             f'temperature_K={value:g} K is below {EV_LIKE_BELOW:g} K. If it '
@@ -171,20 +165,6 @@ def refuse_coarse_momentum_quantum(masses_n, momenta_nc, grid, origin,
         f'The momentum quantum {qp:.3g} amu Å / ASE time unit '
         f'({source}) is too coarse: {problem}. {remedy} Nothing was '
         'changed.')
-
-
-def checked_positive(value, name, unit):
-    """``value`` as a positive, finite float; ``name`` and ``unit`` for the
-    message."""
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f'{name} must be a number ({unit}), got '
-                        f'{value!r}') from None
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f'{name} must be positive and finite ({unit}), got '
-                         f'{value!r}')
-    return value
 
 
 def checked_friction(friction, timestep):

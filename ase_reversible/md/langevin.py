@@ -33,6 +33,7 @@ import math
 import numpy as np
 from ase import units
 
+from ..core.arguments import checked_positive
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
 from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
@@ -43,8 +44,8 @@ from ..errors import RetraceLimitError
 from .buffered import (BufferedDynamics, BufferedMomentumStep, buffer_arrays,
                        state_digest)
 from .checks import (check_energy_watch, check_temperature_K,
-                     check_timestep, checked_friction, checked_positive,
-                     checked_seed, refuse_plane_and_line_constraints)
+                     check_timestep, checked_friction, checked_seed,
+                     refuse_plane_and_line_constraints)
 from .hamiltonian import largest_kick
 from .watch import SystemWatch
 

@@ -80,6 +80,7 @@ import warnings
 import numpy as np
 from ase import units
 
+from ..core.arguments import checked_positive
 from ..core.codec import power_of_two_below, round_odd
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
@@ -91,8 +92,7 @@ from ..errors import (AnchorMovedWarning, QuantumRangeError,
                       UnstableIntegrationError)
 from .admission import projected_momenta
 from .base import ReversibleDynamics
-from .checks import (check_energy_watch, check_timestep, checked_positive,
-                     fixed)
+from .checks import check_energy_watch, check_timestep, fixed
 from .constraints import no_projection
 from .hamiltonian import Drift, Hamiltonian, largest_kick
 from .watch import SystemWatch

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from ..core.arguments import checked_positive
 from ..core.codec import guard_band_crossed, round_odd
 from ..errors import ImpureForcesError
 from .advice import _spot_check_advice, warn_at_user_line
@@ -204,11 +203,7 @@ class GuardedForces(TrustedForces):
     _calculator_calls = ('forces', 'clean_forces')
 
     def __init__(self, force_noise: float = DEFAULT_FORCE_NOISE):
-        force_noise = float(force_noise)
-        if not (math.isfinite(force_noise) and force_noise > 0):
-            raise ValueError(f'force_noise must be positive and finite (eV/Å),'
-                             f' got {force_noise!r}')
-        self.force_noise = force_noise
+        self.force_noise = checked_positive(force_noise, 'force_noise', 'eV/Å')
         #: Number of kicks whose forces were recomputed from a clean list.
         self.clean_recomputations = 0
         #: Largest ``|F_history - F_clean|`` seen in those recomputations,

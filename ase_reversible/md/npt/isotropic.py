@@ -10,6 +10,7 @@ import warnings
 import numpy as np
 from ase import units
 
+from ...core.arguments import checked_positive
 from ...core.compositions import composition_for
 from ...core.engine import Engine, InvariantCheck
 from ...core.portable import dot
@@ -17,7 +18,7 @@ from ...core.record import read_record
 from ...errors import MachineChangedWarning
 from ..buffered import BufferedDynamics, buffer_arrays, state_digest
 from ..checks import (check_energy_watch, check_timestep, checked_friction,
-                      checked_positive, checked_seed, fixed)
+                      checked_seed, fixed)
 from ..hamiltonian import largest_kick
 from ..machine import describe, digest, platform
 from ..watch import SystemWatch
