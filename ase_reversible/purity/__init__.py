@@ -45,7 +45,7 @@ checks in :mod:`ase_reversible.md.verdict`), :mod:`.advice` (the messages),
 # The public names of every module, importable from the package.
 # No __all__: the API pages document each object once, in its own module,
 # and an __all__ here would document them a second time on this page.
-from .check import CalculatorCheck
+from .check import CalculatorCheck, probed_check, refused_check
 from .choice import force_provider
 from .introspection import (calculator_members, cold_start, discard_results,
                             mixture)
