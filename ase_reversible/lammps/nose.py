@@ -35,7 +35,8 @@ from ..md.nose.thermostat import (CENTRE_OF_MASS_TOLERANCE, RECOVERABLE,
                                   S_QUANTUM, clock_quantum,
                                   free_degrees_of_freedom, pi_quantum,
                                   thermostat_mass)
-from .integrator import FORCE_NOISE, ReversibleLammps, StepPath, fix_vector
+from .fixes import StepPath
+from .integrator import FORCE_NOISE, ReversibleLammps, fix_vector
 
 _S_NOT_POSITIVE = 8  # the fix's verdict: s would have reached zero
 

@@ -152,7 +152,8 @@ class ReversibleNose(ReversibleDynamics):
         Accepted only as 1 (ASE's chain sub-cycles; this one has no
         sub-cycles: use a smaller time step).
     scheme : {'velocity', 'position'}, optional
-        The arrangement of a step (:func:`step_scheme`); default: the
+        The arrangement of a step
+        (:func:`~ase_reversible.md.nose.system.step_scheme`); default: the
         record's, else ``'velocity'``, whose configurational averages
         hardly move with the time step (docs/thermostats.md, "Large time
         steps").
@@ -471,7 +472,8 @@ class ReversibleNose(ReversibleDynamics):
 
     @property
     def scheme(self) -> str:
-        """``'velocity'`` or ``'position'`` (:func:`step_scheme`; fixed at
+        """``'velocity'`` or ``'position'``
+        (:func:`~ase_reversible.md.nose.system.step_scheme`; fixed at
         construction)."""
         return self._scheme
 
