@@ -102,7 +102,8 @@ class StepFixes:
 
     @property
     def path(self):
-        """Who runs the step: ``'compiled'`` or ``'python'``.  Set it
+        """Who runs the step: ``StepPath.COMPILED`` or ``StepPath.PYTHON``,
+        equal to the strings ``'compiled'`` and ``'python'``.  Set it
         between runs, on every rank (collective), to continue on the other
         path; ``'auto'`` and ``'compiled'`` load the plugin first, as the
         constructor does."""

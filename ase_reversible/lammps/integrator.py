@@ -104,10 +104,12 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
     name : str
         Prefix of the fixes and variables it defines.
     path : {'auto', 'compiled', 'python'}
-        Who runs the step.  ``'compiled'``: ``fix reversible/nve``, a
-        LAMMPS plugin built on first use (:mod:`.plugin`), at the cost of
-        ``fix nve``.  ``'python'``: LAMMPS's ``fix move``, ``fix external``
-        (a Python callback) and ``fix halt``, which need no compiler.
+        Who runs the step (a string, or a
+        :class:`~ase_reversible.lammps.fixes.StepPath`, equal to it).
+        ``'compiled'``: ``fix reversible/nve``, a LAMMPS plugin built on
+        first use (:mod:`.plugin`), at the cost of ``fix nve``.
+        ``'python'``: LAMMPS's ``fix move``, ``fix external`` (a Python
+        callback) and ``fix halt``, which need no compiler.
         ``'auto'`` (default): compiled where the plugin builds and loads on
         every rank, else Python, with one line in LAMMPS's output saying
         why.  Both paths take the same step to the bit, so a run may

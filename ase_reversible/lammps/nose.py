@@ -77,7 +77,7 @@ class ReversibleLammpsNose(ReversibleLammps):
                  path='auto', hint=None):
         self.temperature = _positive(temperature, 'temperature')
         self.tdamp = _positive(tdamp, 'tdamp')
-        if path not in ('auto', 'compiled'):
+        if path not in (StepPath.AUTO, StepPath.COMPILED):
             raise ValueError(f'the Nosé thermostat runs only on the compiled '
                              f'path (path "auto" or "compiled"), not {path!r}')
         #: Whether the thermostat's state came from a restart file.
