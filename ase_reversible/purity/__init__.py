@@ -37,7 +37,9 @@ Where each part lives: :mod:`.providers` (the four handlings and the spot
 check), :mod:`.probe`, :mod:`.choice` (``force_purity='auto'``),
 :mod:`.check` (:func:`check_calculator`), :mod:`.advice` (the messages),
 :mod:`.introspection` (what a calculator is and mixes) and
-:mod:`.settings` (the bounds and their measurements).
+:mod:`.settings` (the bounds and their measurements, and the guard's
+rules: :func:`guard_bound` and the momentum quantum it needs,
+:func:`guarded_momentum_quantum`, which the LAMMPS drivers share).
 """
 
 # The public names of every module, importable from the package.
@@ -53,4 +55,5 @@ from .providers import (ColdStartForces, GuardedForces,
 from .settings import (DEFAULT_FORCE_NOISE, MEASURED_NOISE_FLOOR,
                        MEASURED_NOISE_MARGIN, NOISE_REFERENCE_EXTENT,
                        REBUILD_SHIFT, SPOT_CHECK_INTERVAL,
-                       SUMMATION_NOISE_LIMIT, TARGET_CLEAN_RATE)
+                       SUMMATION_NOISE_LIMIT, TARGET_CLEAN_RATE,
+                       extent_factor, guard_bound, guarded_momentum_quantum)
