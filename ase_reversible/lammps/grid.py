@@ -190,6 +190,7 @@ def on_grid(values, quantum):
     two: exact)."""
     return np.rint(values / quantum) * quantum
 
+
 def power_above(value):
     """The least power of two at or above ``value`` (> 0)."""
     return 2.0 ** math.ceil(math.log2(value))
