@@ -41,6 +41,7 @@ from systems import CALCULATORS
 from ase_reversible import ReversibleVerlet
 from ase_reversible.app.systems import argon_cluster, copper_bulk
 from ase_reversible.purity import GuardedForces, TARGET_CLEAN_RATE
+from ase_reversible.purity.settings import guarded_momentum_quantum
 
 DT_FS = 5
 
@@ -125,7 +126,7 @@ def run(quick):
         # each holds a fraction bound / 1 of the components.
         band = kick * worst / q_pure
         p_step = 1.0 - (1.0 - min(band, 1.0))**(3 * n)
-        needed = 2 * 3 * n * worst * kick / TARGET_CLEAN_RATE
+        needed = guarded_momentum_quantum(n, worst, kick, 0.0)
         plain, clean = clean_cost(make, calc, rounds)
         rows.append({
             'system': label, 'calculator': calc, 'atoms': n,

@@ -116,7 +116,8 @@ from thermostat import (BLOCKS, FORCE_EVERY, SPEED_FULL, SPEED_QUICK,
 
 from ase_reversible import ReversibleNose
 from ase_reversible.app.systems import argon_bulk, copper_bulk, thermalize
-from ase_reversible.md.nose import CHAIN_STIFFNESS, ENERGY_CHECK_INTERVAL
+from ase_reversible.md.nose.dynamics import ENERGY_CHECK_INTERVAL
+from ase_reversible.md.nose.thermostat import CHAIN_STIFFNESS
 from ase_reversible.purity import SPOT_CHECK_INTERVAL
 
 #: The momenta are drawn at this multiple of the target temperature (top).

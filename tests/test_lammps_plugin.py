@@ -278,6 +278,7 @@ def test_a_failed_compile_falls_back_with_a_line_naming_its_log(failures,
 def test_a_path_that_does_not_exist_is_refused_before_anything_changes():
     lammps = needs_lammps()
     from ase_reversible.lammps import ReversibleLammps
+    from ase_reversible.lammps.fixes import StepPath
     lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
     small_system(lmp, 'velocity all create 1.0 4928459\n'
                  'change_box all x final 0 6.1 units box')  # off the grid
@@ -291,6 +292,8 @@ def test_a_path_that_does_not_exist_is_refused_before_anything_changes():
     with pytest.raises(ValueError, match='got .fast.'):
         exact.path = 'fast'
     assert exact.path == 'python'
+    # The mode is an enum member that reads as the string users pass.
+    assert exact.path is StepPath.PYTHON and f'{exact.path}' == 'python'
     lmp.close()
 
 

@@ -539,7 +539,8 @@ def test_gradients_match_complex_step_through_a_float_chain_run():
     from finite_differences import complex_forces
     from test_adjoint import FINE, argon
 
-    from ase_reversible.md.nose import (confinement_force, chain_masses)
+    from ase_reversible.md.nose.thermostat import (confinement_force,
+                                                   chain_masses)
 
     steps, dt, tchain = 80, 5 * units.fs, 3
     atoms = argon(2, 40, rc=30.0, ro=29.0)

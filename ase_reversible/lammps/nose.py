@@ -30,10 +30,12 @@ import warnings
 
 import numpy as np
 
-from ..core.codec import power_of_two_below
 from ..errors import UnstableIntegrationError
-from ..md.nose import (CENTRE_OF_MASS_TOLERANCE, CLOCK_BITS, PI_BITS,
-                       RECOVERABLE, S_QUANTUM)
+from ..md.nose.thermostat import (CENTRE_OF_MASS_TOLERANCE, RECOVERABLE,
+                                  S_QUANTUM, clock_quantum,
+                                  free_degrees_of_freedom, pi_quantum,
+                                  thermostat_mass)
+from .fixes import StepPath
 from .integrator import FORCE_NOISE, ReversibleLammps, fix_vector
 
 _S_NOT_POSITIVE = 8  # the fix's verdict: s would have reached zero
@@ -75,7 +77,7 @@ class ReversibleLammpsNose(ReversibleLammps):
                  path='auto', hint=None):
         self.temperature = _positive(temperature, 'temperature')
         self.tdamp = _positive(tdamp, 'tdamp')
-        if path not in ('auto', 'compiled'):
+        if path not in (StepPath.AUTO, StepPath.COMPILED):
             raise ValueError(f'the Nosé thermostat runs only on the compiled '
                              f'path (path "auto" or "compiled"), not {path!r}')
         #: Whether the thermostat's state came from a restart file.
@@ -102,18 +104,16 @@ class ReversibleLammpsNose(ReversibleLammps):
         # change_box): the fix takes a restart file's state only if it is
         # defined before LAMMPS's next init drops it.
         self._load_plugin()
-        natoms = int(self.lmp.get_natoms())
-        d = self.lmp.extract_setting('dimension')
         #: ``N_f``: the momenta's degrees of freedom, less the total.
-        self.degrees_of_freedom = d * natoms - d
+        self.degrees_of_freedom = free_degrees_of_freedom(
+            int(self.lmp.get_natoms()), self.dimension)
         if self.degrees_of_freedom < 1:
             raise ValueError('the Nosé thermostat needs at least two atoms')
         self.g = self.degrees_of_freedom + 1
         self.kT = float(self.lmp.extract_global('boltz')) * self.temperature
         #: Nosé's mass, LAMMPS energy x time^2.
-        self.Q = self.g * self.kT * (self.tdamp * self.tdamp)
-        self._quanta = [S_QUANTUM, math.ldexp(power_of_two_below(
-            math.sqrt(self.Q * self.kT)), -PI_BITS), None]
+        self.Q = thermostat_mass(self.g, self.kT, self.tdamp)
+        self._quanta = [S_QUANTUM, pi_quantum(self.Q, self.kT), None]
         self._state = [1.0, 0.0, 0.0]
         # Defined already by take_restart_state, or now.
         self._fix_defined = bool(self.lmp.has_id('fix', f'{self.name}_nvt'))
@@ -139,7 +139,7 @@ class ReversibleLammpsNose(ReversibleLammps):
                 'was changed')
 
     def _choose_path(self, wanted):
-        return 'compiled'  # loaded by _check_system, or refused there
+        return StepPath.COMPILED  # loaded by _check_system, or refused there
 
     def _define_fixes(self):
         self._set_sort()
@@ -169,8 +169,7 @@ class ReversibleLammpsNose(ReversibleLammps):
     def _prepare(self):
         super()._prepare()
         if self._quanta[2] is None:
-            self._quanta[2] = math.ldexp(power_of_two_below(
-                abs(self._timestep())), -CLOCK_BITS)
+            self._quanta[2] = clock_quantum(self._timestep())
         self._check_thermostat_grid()
         if not self._warned_moving:
             self._warned_moving = True

@@ -39,7 +39,9 @@ check), :mod:`.probe`, :mod:`.choice` (``force_purity='auto'``),
 :func:`ase_reversible.check_calculator`, which runs the integrators'
 checks in :mod:`ase_reversible.md.verdict`), :mod:`.advice` (the messages),
 :mod:`.introspection` (what a calculator is and mixes) and
-:mod:`.settings` (the bounds and their measurements).
+:mod:`.settings` (the bounds and their measurements, and the guard's
+rules: :func:`guard_bound` and the momentum quantum it needs,
+:func:`guarded_momentum_quantum`, which the LAMMPS drivers share).
 """
 
 # The public names of every module, importable from the package.
@@ -55,4 +57,5 @@ from .providers import (ColdStartForces, GuardedForces,
 from .settings import (DEFAULT_FORCE_NOISE, MEASURED_NOISE_FLOOR,
                        MEASURED_NOISE_MARGIN, NOISE_REFERENCE_EXTENT,
                        REBUILD_SHIFT, SPOT_CHECK_INTERVAL,
-                       SUMMATION_NOISE_LIMIT, TARGET_CLEAN_RATE)
+                       SUMMATION_NOISE_LIMIT, TARGET_CLEAN_RATE,
+                       extent_factor, guard_bound, guarded_momentum_quantum)

@@ -11,8 +11,8 @@ import numpy as np
 
 from .introspection import _declares_pure
 from .probe import probe_purity
-from .settings import (TARGET_CLEAN_RATE, _bound_for, _extent_factor,
-                       _near_bound)
+from .settings import (TARGET_CLEAN_RATE, _bound_for, _near_bound,
+                       guard_bound)
 
 
 @dataclass(frozen=True)
@@ -105,7 +105,7 @@ def probed_check(atoms, provider, momentum_quanta=None):
     if provider.mode == 'guarded':
         f_max = float(np.abs(provider.forces(atoms)).max(initial=0.0))
         extent = float(np.abs(atoms.positions).max(initial=0.0))
-        bound = provider.force_noise * max(1.0, f_max) * _extent_factor(extent)
+        bound = guard_bound(provider.force_noise, extent, f_max)
         # Noise below the guard's bound cannot change a rounded kick; a
         # run meets more positions than the probe, so noise near the
         # bound (where the run warns) is not called exact.

@@ -8,7 +8,7 @@ import numpy as np
 
 from .introspection import discard_results
 from .settings import (DEFAULT_FORCE_NOISE, MEASURED_NOISE_FLOOR,
-                       MEASURED_NOISE_MARGIN, REBUILD_SHIFT, _extent_factor)
+                       MEASURED_NOISE_MARGIN, REBUILD_SHIFT, guard_bound)
 
 
 def measured_force_noise(atoms) -> float:
@@ -29,7 +29,7 @@ def measured_force_noise(atoms) -> float:
     extent = max(x_nc.max(initial=0.0), -x_nc.min(initial=0.0))
     f_nc = atoms.get_forces(md=True)
     f_max = max(f_nc.max(initial=0.0), -f_nc.min(initial=0.0))
-    scaled = noise / (_extent_factor(extent) * max(1.0, f_max))
+    scaled = noise / guard_bound(1.0, extent, f_max)
     wanted = max(MEASURED_NOISE_MARGIN * scaled, MEASURED_NOISE_FLOOR)
     return min(2.0**math.ceil(math.log2(wanted)), DEFAULT_FORCE_NOISE)
 

@@ -11,8 +11,8 @@ from .advice import _spot_check_advice, warn_at_user_line
 from .introspection import (_has_sorted_list, _install_sorted_list,
                             calculator_members, cold_start, discard_results)
 from .settings import (DEFAULT_FORCE_NOISE, NEAR_BOUND_FACTOR, REBUILD_SHIFT,
-                       SPOT_CHECK_INTERVAL, TARGET_CLEAN_RATE, _bound_for,
-                       _extent_factor, _near_bound)
+                       SPOT_CHECK_INTERVAL, _bound_for, _near_bound,
+                       guard_bound, guarded_momentum_quantum)
 
 
 class SpotCheck:
@@ -238,7 +238,7 @@ class GuardedForces(TrustedForces):
         x_nc = atoms.positions
         extent = max(x_nc.max(initial=0.0), -x_nc.min(initial=0.0))
         f_max = max(f_nc.max(initial=0.0), -f_nc.min(initial=0.0))
-        return self.force_noise * _extent_factor(extent) * max(1.0, f_max)
+        return guard_bound(self.force_noise, extent, f_max)
 
     def compare_visit(self, atoms, f_kept, f_again, calls):
         """Raise :class:`ImpureForcesError` if the forces at positions
@@ -299,9 +299,8 @@ class GuardedForces(TrustedForces):
                 'seen).', RuntimeWarning)
 
     def min_momentum_quantum(self, n_atoms, max_kick_time, extent=0.0):
-        # P(clean) per force call ~ 2 * 3N * noise * |c h| / q_p.
-        return (2 * 3 * max(n_atoms, 1) * self.force_noise * max_kick_time
-                * _extent_factor(extent) / TARGET_CLEAN_RATE)
+        return guarded_momentum_quantum(n_atoms, self.force_noise,
+                                        max_kick_time, extent)
 
     def todict(self):
         """``{'mode': 'guarded', 'force_noise': ...}`` (eV/Å)."""

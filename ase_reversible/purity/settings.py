@@ -51,8 +51,37 @@ SUMMATION_NOISE_LIMIT = 1e-9
 NEAR_BOUND_FACTOR = 2.0
 
 
-def _extent_factor(extent):
+def extent_factor(extent):
+    """How the guard's bound grows with the coordinates' extent ``extent``
+    (the largest ``|coordinate|``, Å or LAMMPS distance units): 1 up to
+    ``NOISE_REFERENCE_EXTENT``, in proportion beyond (history noise comes
+    from rounding coordinate differences)."""
     return max(1.0, extent / NOISE_REFERENCE_EXTENT)
+
+
+def guard_bound(force_noise, extent, largest_force):
+    """The history noise a force component may carry, in the unit of
+    ``force_noise`` (eV/Å, or LAMMPS force units): ``force_noise`` scaled
+    by :func:`extent_factor` of ``extent`` and by ``largest_force`` (the
+    largest ``|F|`` component) above 1.  The one rule of the ASE
+    integrators' guard, the LAMMPS drivers' and the calculator check."""
+    return force_noise * extent_factor(extent) * max(1.0, largest_force)
+
+
+def guarded_momentum_quantum(n_atoms, force_noise, kick_time, extent,
+                             clean_rate=TARGET_CLEAN_RATE):
+    """The finest momentum quantum for which about ``clean_rate`` of the
+    force calls need a clean recomputation under the guard.
+
+    ``n_atoms`` atoms, ``force_noise`` (force unit) as for
+    :func:`guard_bound` at forces up to 1, ``kick_time`` the largest
+    ``|c h|`` of a kick (time unit), ``extent`` as for
+    :func:`extent_factor`.  Returns force x time (amu Å / ASE time unit
+    in ASE's units); a caller in other units converts the result.
+    """
+    # P(clean) per force call ~ 2 * 3N * noise * |c h| / q_p.
+    return (2 * 3 * max(n_atoms, 1) * force_noise * kick_time
+            * extent_factor(extent) / clean_rate)
 
 
 def _near_bound(noise, bound):

@@ -1,7 +1,7 @@
 """The compiled exact step: a LAMMPS plugin built on first use.
 
 ``fix reversible/nve`` (``fix_reversible_nve.cpp``) runs the step of
-:mod:`ase_reversible.lammps.integrator` -- the same formula, rounding,
+:mod:`ase_reversible.lammps.python_step` -- the same formula, rounding,
 guard and verdicts -- in one loop with one collective per step, where the
 Python path needs ``fix move`` with per-atom variables, ``fix external``
 calling Python and ``fix halt``: no per-step variable evaluation (which
