@@ -3,7 +3,7 @@
 Langevin's friction, Bussi's rescaling and the NPT piston's friction each
 multiply momentum counts by a factor that is not a power of two, keeping
 the digits that drops in buffers (:mod:`ase_reversible.core.infobuffer`,
-:class:`~.bussi.ScalingBuffer`) so that the way back can restore them.
+:mod:`ase_reversible.core.scaling`) so that the way back can restore them.
 What they share lives here: the buffers, keyed by what sets the factor;
 the heat the step adds, which the energy check subtracts; both rolled
 back with a failed step; and, for the atoms' momenta, which coordinates
