@@ -45,8 +45,8 @@ it).  Kicks and drifts are the exact shears of
 from __future__ import annotations
 
 import functools
-import json
 import math
+from typing import NamedTuple
 
 import numpy as np
 from ase import units
@@ -57,7 +57,7 @@ from ..core.noise import BussiDraws, step_key
 from ..core import portable
 from ..core.scaling import N_MAX, N_MIN, RATIO_BITS, ScalingBuffer
 from ..errors import RetraceLimitError
-from .buffered import BufferedDynamics, BufferedMomentumStep, state_digest
+from .buffered import BufferedDynamics, BufferedMomentumStep, resume_point
 from .checks import check_energy_watch, check_timestep
 from .hamiltonian import largest_kick
 from .langevin import (_checked_positive, _checked_seed,
@@ -75,6 +75,39 @@ ENERGY_CHECK_INTERVAL = 100
 
 #: ``alpha`` is applied as ``n / 2**RATIO_BITS``.
 _D = 1 << RATIO_BITS
+
+
+class BussiSettings(NamedTuple):
+    """What the rescaling reads of its dynamics when a step is prepared."""
+
+    #: K.
+    temperature_K: float
+    #: The coupling's time constant, ASE time units.
+    taut: float
+    #: The key of the draws.
+    seed: int
+
+
+class RescalePlan(NamedTuple):
+    """One rescaling at a coefficient ``ch``, as :meth:`Rescale.prepare`
+    makes it (a coordinate index ``k`` runs over ``3 n_atoms``)."""
+
+    #: ``ch > 0``.
+    forward: bool
+    #: The buffer of steps of size ``|ch|``.
+    buffer: ScalingBuffer
+    #: bool ``[3 n_atoms]`` of the coordinates moved, None for all.
+    mask_k: object
+    #: eV.
+    kT: float
+    #: ``exp(-|ch| / taut)``.
+    c: float
+    #: The Philox key of the step's draws.
+    key: np.ndarray
+    #: float ``[3 n_atoms]``: ``1 / m`` for the heat (1 / amu).
+    inverse_mass_k: np.ndarray
+    #: The coordinates FixCom holds, ``[(atom, component)]``, or None.
+    held: object
 
 
 # The software exp costs 4 us idle (19 us loaded); the way back asks at
@@ -104,8 +137,7 @@ class Rescale(BufferedMomentumStep):
     system : Hamiltonian
         Its ``'momentum'`` variable is updated.
     settings : callable
-        ``settings() -> (temperature_K, taut, seed)`` (K, ASE time units,
-        int), read when the step is prepared.
+        ``settings() -> BussiSettings``, read when the step is prepared.
     step_of : callable
         ``step_of() -> int``: the index of the step being taken (the one
         before it going forward), for the draws.
@@ -130,10 +162,25 @@ class Rescale(BufferedMomentumStep):
         h = abs(h)
         buffer = self.buffers.get(h)
         if buffer is None:
-            temperature_K, taut, seed = self.settings()
-            buffer = self.buffers[h] = ScalingBuffer(self.size,
-                                                     step_key(seed, h))
+            buffer = self.buffers[h] = ScalingBuffer(
+                self.size, step_key(self.settings().seed, h))
         return buffer
+
+    def arrays(self, h):
+        """The buffer of steps of size ``|h|`` as a buffer file holds it,
+        by array name."""
+        b = self.buffer_for(h)
+        base, words = b.used_rows()
+        return {'buffer_state': b.state_k, 'buffer_top': b.top_k,
+                'buffer_base': base, 'buffer_words': words,
+                'buffer_ratios': b.ratios[:b.count]}
+
+    def load(self, saved, h):
+        """Take what :meth:`arrays` gave for ``h`` from ``saved`` (a
+        buffer file's arrays by name)."""
+        self.buffer_for(h).load(
+            saved['buffer_state'], saved['buffer_top'], saved['buffer_base'],
+            saved['buffer_words'], saved['buffer_ratios'])
 
     def prepare(self, ch):
         temperature_K, taut, seed = self.settings()
@@ -144,9 +191,10 @@ class Rescale(BufferedMomentumStep):
         free_k = self._free().reshape(-1) != 0
         held = self._hold_one_per_component(free_k)
         mass_k = np.repeat(s.m_n1[:, 0], 3)
-        return (ch > 0, self.buffer_for(ch), None if free_k.all() else free_k,
-                units.kB * temperature_K, decay(ch, taut), step_key(seed, ch),
-                1.0 / mass_k, held)
+        return RescalePlan(ch > 0, self.buffer_for(ch),
+                           None if free_k.all() else free_k,
+                           units.kB * temperature_K, decay(ch, taut),
+                           step_key(seed, ch), 1.0 / mass_k, held)
 
     def apply(self, prepared):
         forward, buffer, mask_k, kT, c, key, inverse_mass_k, held = prepared
@@ -286,6 +334,7 @@ class ReversibleBussi(BufferedDynamics):
     """
 
     record_sections = ('bussi',)
+    buffer_mark = 'buffer_ratios'
 
     def __init__(self, atoms, timestep, temperature_K, taut, *, seed=None,
                  buffer=None, trajectory=None, logfile=None, loginterval=1,
@@ -321,16 +370,9 @@ class ReversibleBussi(BufferedDynamics):
                                 KICK),
             position_quantum, momentum_quantum,
             force_purity, force_noise)
-        resumed = _resumed_draws(record, timestep)
-        if seed is None and resumed is not None:
-            seed = resumed['seed']
-        self._seed = _checked_seed(seed)
-        step = resumed['step'] if resumed is not None else 0
-        saved = None if buffer is None else _read_buffer(
-            buffer, system, self._seed, timestep, step)
-        if saved is not None and self._resumed_machine is None \
-                and 'machine' in saved:
-            self._resumed_machine = json.loads(str(saved['machine']))
+        resumed_seed, step = resume_point(
+            record.get('bussi') if record else None, timestep)
+        self._seed = _checked_seed(resumed_seed if seed is None else seed)
         rescale = Rescale(system, self._settings, self._step_of)
         substep = {KICK: system.kick, DRIFT: system.drift, RESCALE: rescale}
         invariant = InvariantCheck(
@@ -341,16 +383,8 @@ class ReversibleBussi(BufferedDynamics):
                         composition_for(2, None), timestep,
                         invariant=invariant)
         self.rescale_step = self.buffered_step = rescale
-        # The draws go on from the step the record was written at.
-        engine.step_index = engine.anchor_index = step
-        if saved is not None:
-            engine.anchor_index = saved['anchor_step']
-            engine.anchor = {name: saved[f'anchor_{name}']
-                             for name in engine.variables}
-            rescale.buffer_for(timestep).load(
-                saved['buffer_state'], saved['buffer_top'],
-                saved['buffer_base'], saved['buffer_words'],
-                saved['buffer_ratios'])
+        self._resume(engine, step, buffer, {},
+                     lambda saved: rescale.load(saved, timestep))
         time0 = record['time'] - engine.elapsed() if record else 0.0
         self._attach(system, engine, (force_purity, force_noise), time0)
         super().__init__(atoms, timestep, trajectory=trajectory,
@@ -360,7 +394,7 @@ class ReversibleBussi(BufferedDynamics):
     # -- what the rescaling reads ------------------------------------------
 
     def _settings(self):
-        return self._temperature_K, self._taut, self._seed
+        return BussiSettings(self._temperature_K, self._taut, self._seed)
 
     def _take_changes(self, changes):
         _refuse_projections(self.atoms, 'ReversibleBussi',
@@ -381,14 +415,7 @@ class ReversibleBussi(BufferedDynamics):
         bit for bit and runs back past the restart point to the anchor:
         ``ReversibleBussi(frame, dt, T, taut, buffer=path)``.
         """
-        arrays = self._buffer_arrays()
-        b = self.rescale_step.buffer_for(self.engine.dt)
-        base, words = b.used_rows()
-        arrays.update(buffer_state=b.state_k, buffer_top=b.top_k,
-                      buffer_base=base, buffer_words=words,
-                      buffer_ratios=b.ratios[:b.count])
-        with open(path, 'wb') as f:
-            np.savez(f, **arrays)
+        self._save_buffer(path, self.rescale_step.arrays(self.engine.dt))
 
     # -- the thermostat's settings -----------------------------------------
 
@@ -435,45 +462,3 @@ class ReversibleBussi(BufferedDynamics):
                 'taut': self._taut, 'seed': self._seed,
                 **self.system.grid.todict(),
                 'force_purity': self.force_purity.mode}
-
-
-def _resumed_draws(record, timestep):
-    """The record's ``{'seed', 'step'}`` if it was written at this size of
-    time step, else None."""
-    section = record.get('bussi') if record else None
-    try:
-        if section is not None and float(section['timestep']) == abs(
-                timestep):
-            return {'seed': int(section['seed']), 'step': int(section['step'])}
-    except (KeyError, TypeError, ValueError):
-        pass
-    return None
-
-
-def _read_buffer(path, system, seed, timestep, step):
-    """The arrays of a buffer file, refused unless written at this very
-    state, seed, time step and step."""
-    with np.load(path) as f:
-        saved = {key: f[key] for key in f.files}
-    if 'buffer_ratios' not in saved:
-        raise ValueError(f'{path} is not a ReversibleBussi buffer file '
-                         '(written by another dynamics).')
-    state = {'position': system.x.ints, 'momentum': system.p.ints}
-    problems = []
-    if int(saved['seed']) != seed:
-        problems.append(f'it was written with seed {int(saved["seed"])}, '
-                        f'not {seed}')
-    if float(saved['timestep']) != abs(timestep):
-        problems.append('its time step is '
-                        f'{float(saved["timestep"]) / units.fs:g} fs')
-    if int(saved['step']) != step or str(saved['digest']) != state_digest(state):
-        problems.append(f'it was written at step {int(saved["step"])} of '
-                        'another state (these atoms are at step '
-                        f'{step} by their restart record)')
-    if problems:
-        raise ValueError(
-            f'The buffer file {path} does not belong to these atoms: '
-            + '; '.join(problems) + '. Pass the frame that was written '
-            'together with it (the last one before write_buffer), or no '
-            'buffer to go on without the way back.')
-    return saved

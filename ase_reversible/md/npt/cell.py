@@ -520,15 +520,15 @@ class CellFriction(ScaledFriction):
         cotangents.flush()
         s = self.system
         atoms_part, piston_part = self.prepare(ch)
-        sigma_k, key, zero_sum = atoms_part[3], atoms_part[4], atoms_part[5]
-        s_nc = (s.p.quantum * sigma_k
-                * self.noise.normals(key, self.step_of())).reshape(self.shape)
+        s_nc = (s.p.quantum * atoms_part.sigma_k * self.noise.normals(
+            atoms_part.key, self.step_of())).reshape(self.shape)
         a_nc = cotangents['momentum']
-        if zero_sum is not None:
-            a_nc = a_nc - (zero_sum[0] * a_nc).sum(axis=0)
+        if atoms_part.zero_sum is not None:
+            a_nc = a_nc - (atoms_part.zero_sum[0] * a_nc).sum(axis=0)
         outer = a_nc.T @ s_nc
         cotangents[LAMBDA] += outer[ROWS, COLUMNS]
-        cotangents['momentum'] *= exact_ratio(self.settings()[0], ch)[1]
+        cotangents['momentum'] *= exact_ratio(self.settings().friction,
+                                              ch)[1]
         if piston_part is not None:
             cotangents[P_LAMBDA] *= exact_ratio(self.piston.friction, ch)[1]
 
