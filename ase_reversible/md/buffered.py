@@ -19,6 +19,8 @@ import numpy as np
 from ase import units
 
 from ..core import portable
+from ..core.compositions import composition_for
+from ..core.engine import Engine, InvariantCheck
 from ..core.plans import SubStep
 from .base import ReversibleDynamics
 from .machine import frame_section
@@ -188,6 +190,21 @@ class BufferedDynamics(ReversibleDynamics):
     #: (None: none of them).
     buffer_mark = None
 
+    def _buffered_engine(self, system, scheme, substeps, timestep,
+                         energy_check, energy_tolerance):
+        """The engine of ``scheme`` (a palindrome of ``(kind,
+        coefficient)`` pairs, at second order) over ``substeps`` (by kind)
+        on ``system``'s variables, its check watching the energy less the
+        heat the buffered step added (every ``energy_check`` steps,
+        ``energy_tolerance`` eV)."""
+        invariant = InvariantCheck(
+            energy_check, energy_tolerance, self._balance,
+            self._explain_drift, trigger=self._balance_trigger)
+        return Engine(system.variables,
+                      tuple((substeps[k], c) for k, c in scheme),
+                      composition_for(2, None), timestep,
+                      invariant=invariant)
+
     def _step_of(self):
         # Going back, a step is undone with the noise it was taken with:
         # that of the step before the present index.
@@ -224,6 +241,18 @@ class BufferedDynamics(ReversibleDynamics):
     def seed(self) -> int:
         """The key of the noise (fixed at construction)."""
         return self._seed
+
+    @property
+    def heat(self) -> float:
+        """Kinetic energy the thermostat added since the anchor, eV."""
+        return self.buffered_step.heat
+
+    @property
+    def buffer_bits(self) -> float:
+        """Information the buffers hold, bits (all coordinates; a
+        :class:`~ase_reversible.core.scaling.ScalingBuffer` counts its
+        stored ratios too and may hold less than an empty one)."""
+        return sum(b.bits for b in self.buffered_step.buffers.values())
 
     def _save_buffer(self, path, arrays, machine=True):
         """Write a buffer file to ``path`` (NumPy ``.npz``): what every

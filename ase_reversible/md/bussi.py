@@ -52,7 +52,6 @@ import numpy as np
 from ase import units
 
 from ..core.compositions import composition_for
-from ..core.engine import Engine, InvariantCheck
 from ..core.noise import BussiDraws, step_key
 from ..core import portable
 from ..core.scaling import N_MAX, N_MIN, RATIO_BITS, ScalingBuffer
@@ -313,7 +312,8 @@ class ReversibleBussi(BufferedDynamics):
     energy_check : int
         As for :class:`~ase_reversible.ReversibleVerlet`, for the total
         energy minus the heat the thermostat added since the anchor
-        (:attr:`heat`).
+        (``heat``,
+        :attr:`~ase_reversible.md.buffered.BufferedDynamics.heat`).
     energy_tolerance : float, optional
         eV; default as for :class:`~ase_reversible.ReversibleVerlet`.
 
@@ -375,13 +375,8 @@ class ReversibleBussi(BufferedDynamics):
         self._seed = _checked_seed(resumed_seed if seed is None else seed)
         rescale = Rescale(system, self._settings, self._step_of)
         substep = {KICK: system.kick, DRIFT: system.drift, RESCALE: rescale}
-        invariant = InvariantCheck(
-            energy_check, energy_tolerance, self._balance,
-            self._explain_drift, trigger=self._balance_trigger)
-        engine = Engine(system.variables,
-                        tuple((substep[k], c) for k, c in SCHEME),
-                        composition_for(2, None), timestep,
-                        invariant=invariant)
+        engine = self._buffered_engine(system, SCHEME, substep, timestep,
+                                       energy_check, energy_tolerance)
         self.rescale_step = self.buffered_step = rescale
         self._resume(engine, step, buffer, {},
                      lambda saved: rescale.load(saved, timestep))
@@ -428,18 +423,6 @@ class ReversibleBussi(BufferedDynamics):
     def taut(self) -> float:
         """Time constant of the coupling, ASE time units."""
         return self._taut
-
-    @property
-    def heat(self) -> float:
-        """Kinetic energy the thermostat added since the anchor, eV."""
-        return self.rescale_step.heat
-
-    @property
-    def buffer_bits(self) -> float:
-        """Information the buffers hold beyond empty ones, bits (all
-        coordinates and the stored ratios; the coordinates' part is
-        negative when the rescaling took more than it gave)."""
-        return sum(b.bits for b in self.rescale_step.buffers.values())
 
     def set_temperature(self, temperature_K):
         """Use ``temperature_K`` (K) from the next step on; the anchor

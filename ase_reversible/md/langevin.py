@@ -35,7 +35,6 @@ from ase import units
 from ase.constraints import FixCom, FixedLine, FixedPlane
 
 from ..core.compositions import composition_for
-from ..core.engine import Engine, InvariantCheck
 from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
                                InformationBuffer, friction_ratio)
 from ..core.noise import StepNoise, step_key
@@ -173,18 +172,11 @@ class Friction(BufferedMomentumStep):
         noise_k = noise_k.astype(np.int64)
         if zero_sum is not None:
             noise_k = _without_net_momentum(noise_k, *zero_sum)
-        if forward:
-            new_k = buffer.scale_down(x_k, mask_k) + noise_k
-        else:
-            try:
-                new_k = buffer.scale_up(x_k - noise_k, mask_k)
-            except BufferUnderflowError:
-                raise RetraceLimitError(
-                    'ReversibleLangevin can only retrace steps it has taken: '
-                    'this one goes back past the anchor of reversal, where '
-                    'friction would have to be undone that was never '
-                    'applied. The step was not taken; run forward (positive '
-                    'dt) from here.') from None
+        new_k = exact_o_step(buffer, x_k, noise_k, forward, mask_k, (
+            'ReversibleLangevin can only retrace steps it has taken: this '
+            'one goes back past the anchor of reversal, where friction '
+            'would have to be undone that was never applied. The step was '
+            'not taken; run forward (positive dt) from here.'))
         self._commit(x_k, new_k, held, inverse_mass_k)
 
     def adjoint(self, cotangents, ch):
@@ -194,6 +186,21 @@ class Friction(BufferedMomentumStep):
         cotangents.flush()
         ratio = exact_ratio(self.settings().friction, ch)[1]
         cotangents['momentum'] *= np.where(self._free() != 0, ratio, 1.0)
+
+
+def exact_o_step(buffer, x_k, noise_k, forward, mask_k, past_the_anchor):
+    """The O step's new counts (int64 ``[k]``): ``c x + noise`` going
+    forward (``c`` through ``buffer``, an InformationBuffer), its inverse
+    ``(x - noise) / c`` going back.  ``mask_k`` (bool, or None for all)
+    leaves the other coordinates as they are.  A step back past the
+    anchor raises RetraceLimitError with the message
+    ``past_the_anchor``."""
+    if forward:
+        return buffer.scale_down(x_k, mask_k) + noise_k
+    try:
+        return buffer.scale_up(x_k - noise_k, mask_k)
+    except BufferUnderflowError:
+        raise RetraceLimitError(past_the_anchor) from None
 
 
 # The software exp costs 4 us (idle; 19 us under load) and a retrace asks
@@ -297,7 +304,8 @@ class ReversibleLangevin(BufferedDynamics):
     energy_check : int
         As for :class:`~ase_reversible.ReversibleVerlet`, for the total
         energy minus the heat the thermostat added since the anchor
-        (:attr:`heat`), which BAOAB conserves but for its time-step error.
+        (``heat``, :attr:`~ase_reversible.md.buffered.BufferedDynamics.heat`),
+        which BAOAB conserves but for its time-step error.
     energy_tolerance : float, optional
         eV; default as for :class:`~ase_reversible.ReversibleVerlet`.
     **kwargs
@@ -351,13 +359,8 @@ class ReversibleLangevin(BufferedDynamics):
         friction_step = Friction(system, self._settings, self._step_of)
         substep = {KICK: system.kick, DRIFT: system.drift,
                    FRICTION: friction_step}
-        invariant = InvariantCheck(
-            energy_check, energy_tolerance, self._balance,
-            self._explain_drift, trigger=self._balance_trigger)
-        engine = Engine(system.variables,
-                        tuple((substep[k], c) for k, c in SCHEME),
-                        composition_for(2, None), timestep,
-                        invariant=invariant)
+        engine = self._buffered_engine(system, SCHEME, substep, timestep,
+                                       energy_check, energy_tolerance)
         self.friction_step = self.buffered_step = friction_step
         # A file from before the settings were written has none.
         self._resume(engine, step, buffer,
@@ -429,16 +432,6 @@ class ReversibleLangevin(BufferedDynamics):
     def fixcm(self) -> bool:
         """Whether the noise has zero net momentum (fixed at construction)."""
         return self._fixcm
-
-    @property
-    def heat(self) -> float:
-        """Kinetic energy the thermostat added since the anchor, eV."""
-        return self.friction_step.heat
-
-    @property
-    def buffer_bits(self) -> float:
-        """Information the buffers hold, bits (all coordinates)."""
-        return sum(b.bits for b in self.friction_step.buffers.values())
 
     def set_temperature(self, temperature_K):
         """Use ``temperature_K`` (K) from the next step on.  Steps before

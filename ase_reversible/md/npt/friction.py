@@ -9,12 +9,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ...core.infobuffer import BufferUnderflowError, InformationBuffer
+from ...core.infobuffer import InformationBuffer
 from ...core.noise import StepNoise
 from ...core.portable import dot
 from ...errors import RetraceLimitError
 from ..buffered import BufferedStep, buffer_arrays, load_buffer_arrays
-from ..langevin import Friction, exact_ratio
+from ..langevin import Friction, exact_o_step, exact_ratio
 from .system import LAMBDA, P_LAMBDA
 
 
@@ -179,14 +179,8 @@ class PistonFriction(BufferedStep):
         p = self.system.p_lam
         x_k = p.ints.reshape(-1)
         noise_k = np.rint(sigma * xi_k).astype(np.int64)
-        if forward:
-            new_k = buffer.scale_down(x_k) + noise_k
-        else:
-            try:
-                new_k = buffer.scale_up(x_k - noise_k)
-            except BufferUnderflowError:
-                raise RetraceLimitError(
-                    past_the_anchor(self.system)) from None
+        new_k = exact_o_step(buffer, x_k, noise_k, forward, None,
+                             past_the_anchor(self.system))
         q = p.quantum
         old_k, new_k_q = x_k * q, new_k * q
         self.heat += 0.5 * (dot(new_k_q, new_k_q) - dot(old_k, old_k)) \

@@ -11,7 +11,6 @@ import numpy as np
 from ase import units
 
 from ...core.compositions import composition_for
-from ...core.engine import Engine, InvariantCheck
 from ...core.portable import dot
 from ...core.record import read_record
 from ...errors import MachineChangedWarning
@@ -62,6 +61,17 @@ _ASE_ONLY = {
            'can draw again: pass seed=<int> instead of rng',
 }
 
+
+def _fixed_setting(name, attribute, doc):
+    """A property that shows the system's ``attribute`` as ``name`` and
+    refuses assignment (the setting is fixed at construction)."""
+    def show(self):
+        return getattr(self.system, attribute)
+
+    def refuse(self, value):
+        fixed(name)
+    show.__doc__ = doc
+    return property(show, refuse)
 
 
 def _settings(system):
@@ -232,13 +242,8 @@ class ReversibleIsotropicNPT(BufferedDynamics):
             self._step_of, piston)
         substep = {KICK: system.kick, FRICTION: friction_step,
                    **self._barostat_substeps(system)}
-        invariant = InvariantCheck(
-            energy_check, energy_tolerance, self._balance,
-            self._explain_drift, trigger=self._balance_trigger)
-        engine = Engine(system.variables,
-                        tuple((substep[k], c) for k, c in SCHEME),
-                        composition_for(2, None), timestep,
-                        invariant=invariant)
+        engine = self._buffered_engine(system, SCHEME, substep, timestep,
+                                       energy_check, energy_tolerance)
         self.friction_step = self.buffered_step = friction_step
         self._resume(engine, step, buffer, _settings(system),
                      friction_step.load)
@@ -553,41 +558,17 @@ class ReversibleIsotropicNPT(BufferedDynamics):
 
     # -- the ensemble --------------------------------------------------------
 
-    @property
-    def temperature_K(self) -> float:
-        """Target temperature, K (fixed at construction)."""
-        return self.system.temperature_K
-
-    @property
-    def pressure_au(self) -> float:
-        """Target pressure, eV/Å**3 (fixed at construction)."""
-        return self.system.pressure
-
-    @property
-    def tdamp(self) -> float:
-        """The thermostat's time, ASE time units (friction ``1 / tdamp``)."""
-        return self.system.tdamp
-
-    @property
-    def pdamp(self) -> float:
-        """The barostat's time, ASE time units."""
-        return self.system.pdamp
-
-    @temperature_K.setter
-    def temperature_K(self, value):
-        fixed('temperature_K')
-
-    @pressure_au.setter
-    def pressure_au(self, value):
-        fixed('pressure_au')
-
-    @tdamp.setter
-    def tdamp(self, value):
-        fixed('tdamp')
-
-    @pdamp.setter
-    def pdamp(self, value):
-        fixed('pdamp')
+    temperature_K = _fixed_setting(
+        'temperature_K', 'temperature_K',
+        'Target temperature, K (fixed at construction).')
+    pressure_au = _fixed_setting(
+        'pressure_au', 'pressure',
+        'Target pressure, eV/Å**3 (fixed at construction).')
+    tdamp = _fixed_setting(
+        'tdamp', 'tdamp',
+        'The thermostat\'s time, ASE time units (friction ``1 / tdamp``).')
+    pdamp = _fixed_setting('pdamp', 'pdamp',
+                           'The barostat\'s time, ASE time units.')
 
     @property
     def barostat_position(self) -> float:
