@@ -58,7 +58,6 @@ import numpy as np
 
 from ...adjoint.hessian import DEFAULT_FD_STEP
 from ...core.codec import encode, round_odd
-from ...core.plans import SubStep
 from ...core.portable import dot, rows_times_matrix
 from ...errors import UnstableIntegrationError
 from ..hamiltonian import Drift
@@ -66,8 +65,8 @@ from ..langevin import _without_net_momentum, exact_o_step, exact_ratio
 from .friction import ScaledFriction, past_the_anchor
 from .isotropic import ReversibleIsotropicNPT
 from .system import (DRIFT, KINETIC, LAMBDA, LAMBDA_MIN, P_LAMBDA, PISTON,
-                     VIRIAL, KineticKick, NPTHamiltonian, ScaledKick,
-                     VirialKick)
+                     VIRIAL, KineticKick, NPTHamiltonian, Piston,
+                     ScaledKick, VirialKick)
 
 #: The entries of the lower-triangular ``M`` the variables hold, in order.
 ROWS, COLUMNS = np.array([0, 1, 1, 2, 2, 2]), np.array([0, 0, 1, 0, 1, 2])
@@ -414,21 +413,18 @@ class CellKinetic(KineticKick):
             / m_n1
 
 
-class CellPiston(SubStep):
+class CellPiston(Piston):
     """``M += round_odd(c h P / W / q)``; the diagonal must stay above
     :data:`~.system.LAMBDA_MIN`."""
 
-    def __init__(self, system):
-        self.system = system
+    def momentum(self):
+        """``P``, the six entries, eV ASE time."""
+        return self.system.p_lam.floats
 
-    def prepare(self, ch):
-        s = self.system
-        return ch / (s.W * s.lam.quantum)
-
-    def apply(self, factor):
-        s = self.system
-        s.lam.add_rounded(factor * s.p_lam.floats)
-        m = s.matrices()[0]
+    def refuse_collapse(self):
+        """Raise UnstableIntegrationError if the cell's deformation is too
+        small along its diagonal."""
+        m = self.system.matrices()[0]
         diagonal = (m[0, 0], m[1, 1], m[2, 2])
         if not min(diagonal) > LAMBDA_MIN:
             raise UnstableIntegrationError(
@@ -438,17 +434,6 @@ class CellPiston(SubStep):
                 'too high for this system: use a larger pdamp, a smaller '
                 'time step, or a pressure nearer the system\'s own. The '
                 'step was not taken; the state is valid and reversible.')
-        s.show_cell()
-        s.show_positions()
-
-    def rollback(self):
-        s = self.system
-        s.show_cell()
-        s.show_positions()
-
-    def adjoint(self, cotangents, ch):
-        """``a_P += c h a_M / W``."""
-        cotangents[P_LAMBDA] += ch / self.system.W * cotangents[LAMBDA]
 
 
 class CellFriction(ScaledFriction):

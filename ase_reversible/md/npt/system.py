@@ -521,8 +521,18 @@ class Piston(SubStep):
 
     def apply(self, factor):
         s = self.system
-        s.lam.add_rounded(factor * float(s.p_lam.floats[0]))
-        lam = s.lam_value()
+        s.lam.add_rounded(factor * self.momentum())
+        self.refuse_collapse()
+        s.show_cell()
+        s.show_positions()
+
+    def momentum(self):
+        """``p_lambda``, eV ASE time."""
+        return float(self.system.p_lam.floats[0])
+
+    def refuse_collapse(self):
+        """Raise UnstableIntegrationError if the cell is too small."""
+        lam = self.system.lam_value()
         if not lam > LAMBDA_MIN:
             raise UnstableIntegrationError(
                 f'The cell collapsed: its linear scale reached {lam:.4g} of '
@@ -532,8 +542,6 @@ class Piston(SubStep):
                 'use a larger pdamp, a smaller time step, or a pressure '
                 'nearer the system\'s own. The step was not taken; the '
                 'state is valid and reversible.')
-        s.show_cell()
-        s.show_positions()
 
     def rollback(self):
         s = self.system
