@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 
 from ase_reversible.core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
                                             InformationBuffer, friction_ratio)
-from ase_reversible.core.noise import StepNoise, portable_log, step_key
+from ase_reversible.core.noise import (Lane, StepNoise, philox_stream,
+                                       portable_log, step_key)
 
 
 @settings(max_examples=60, deadline=None)
@@ -110,6 +111,22 @@ def test_step_noise_is_drawn_again_bit_for_bit_and_differs_between_steps():
     assert not np.array_equal(noise.normals(key, -5), a)
     assert not np.array_equal(noise.normals(step_key(12, 0.49), 5), a)
     assert not np.array_equal(noise.normals(step_key(11, 0.5), 5), a)
+
+
+def test_the_consumers_of_a_key_draw_on_lanes_of_their_own():
+    """Each lane starts its own words at every step index: no consumer of
+    a key reads another's."""
+    key, generator = step_key(11, 0.49), np.random.Philox(key=[0, 0])
+    words = {lane: philox_stream(generator, key, 5, lane).random_raw(8)
+             for lane in Lane}
+    assert len(words) == 3
+    for lane in Lane:
+        for other in Lane:
+            if other is not lane:
+                assert not np.isin(words[lane], words[other]).any()
+    assert np.array_equal(philox_stream(generator, key, 5,
+                                        Lane.NOISE).random_raw(8),
+                          words[Lane.NOISE])
 
 
 def test_step_noise_is_standard_normal():

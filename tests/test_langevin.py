@@ -380,21 +380,6 @@ def test_a_buffer_file_from_another_state_is_refused(tmp_path):
                                buffer=saved)
 
 
-def test_a_bussi_buffer_file_is_refused_by_name(tmp_path):
-    from ase_reversible import ReversibleBussi
-    traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
-    bussi = ReversibleBussi(ar13(), 5 * units.fs, 300, 100 * units.fs,
-                            seed=3, trajectory=str(traj))
-    bussi.run(10)
-    bussi.write_buffer(saved)
-    bussi.close()
-    frame = read(str(traj), -1)
-    frame.calc = CALCULATORS['ase-lj']()
-    with pytest.raises(ValueError, match='written by ReversibleBussi'):
-        ReversibleLangevin(frame, 5 * units.fs, 300, FRICTION, seed=3,
-                           buffer=saved)
-
-
 # -- gradients ---------------------------------------------------------------
 
 def test_gradients_match_complex_step_through_a_float_baoab_run():

@@ -113,3 +113,30 @@ def test_a_frame_with_new_velocities_starts_a_new_run(tmp_path):
     frame.set_momenta(frame.get_momenta() * 1.01)
     with pytest.warns(AnchorMovedWarning, match='new run'):
         assert ReversibleVerlet(frame, DT).get_time() == 0.0
+
+
+@pytest.mark.parametrize('writer, reader', [('ReversibleBussi',
+                                             'ReversibleLangevin'),
+                                            ('ReversibleLangevin',
+                                             'ReversibleBussi')])
+def test_a_buffer_file_of_another_dynamics_is_refused_by_name(
+        writer, reader, tmp_path):
+    import ase_reversible
+    from ase import units
+    settings = {'ReversibleBussi': (300, 100 * units.fs),
+                'ReversibleLangevin': (300, 0.02 / units.fs)}
+    traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
+    atoms = argon_cluster(2, 60)
+    atoms.calc = CALCULATORS['ase-lj']()
+    dyn = getattr(ase_reversible, writer)(atoms, 5 * units.fs,
+                                          *settings[writer], seed=3,
+                                          trajectory=str(traj))
+    dyn.run(10)
+    dyn.write_buffer(saved)
+    dyn.close()
+    frame = read(str(traj), -1)
+    frame.calc = CALCULATORS['ase-lj']()
+    with pytest.raises(ValueError, match=f'written by {writer}'):
+        getattr(ase_reversible, reader)(frame, 5 * units.fs,
+                                        *settings[reader], seed=3,
+                                        buffer=saved)

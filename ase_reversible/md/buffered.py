@@ -3,7 +3,7 @@
 Langevin's friction, Bussi's rescaling and the NPT piston's friction each
 multiply momentum counts by a factor that is not a power of two, keeping
 the digits that drops in buffers (:mod:`ase_reversible.core.infobuffer`,
-:class:`~.bussi.ScalingBuffer`) so that the way back can restore them.
+:mod:`ase_reversible.core.scaling`) so that the way back can restore them.
 What they share lives here: the buffers, keyed by what sets the factor;
 the heat the step adds, which the energy check subtracts; both rolled
 back with a failed step; and, for the atoms' momenta, which coordinates
@@ -19,6 +19,8 @@ import numpy as np
 from ase import units
 
 from ..core import portable
+from ..core.compositions import composition_for
+from ..core.engine import Engine, InvariantCheck
 from ..core.plans import SubStep
 from .base import ReversibleDynamics
 from .machine import frame_section
@@ -44,6 +46,40 @@ def buffer_arrays(prefix, buffers):
         arrays[f'{prefix}_{n}_top'] = b.top_k
         arrays[f'{prefix}_{n}_words'] = b.words_jk[:depth]
     return arrays
+
+
+def load_buffer_arrays(prefix, buffers, saved, unknown):
+    """Load what :func:`buffer_arrays` wrote under ``prefix`` into
+    ``buffers`` (information buffers by ratio ``n``) from ``saved`` (a
+    buffer file's arrays by name).  A ratio with no buffer here raises
+    ValueError with the message ``unknown(n)``."""
+    for key in saved:
+        if key.startswith(f'{prefix}_') and key.endswith('_state'):
+            n = int(key.split('_')[1])
+            buffer = buffers.get(n)
+            if buffer is None:
+                raise ValueError(unknown(n))
+            buffer.load(saved[key], saved[f'{prefix}_{n}_top'],
+                        saved[f'{prefix}_{n}_words'])
+
+
+def resume_point(section, timestep):
+    """``(seed, step)`` from a restart record's section of a dynamics with
+    noise if it was written at this size of time step (the draws of a step
+    are keyed by both), else ``(None, 0)``: a new run from step 0."""
+    try:
+        if section is not None and float(section['timestep']) == abs(
+                timestep):
+            return int(section['seed']), int(section['step'])
+    except (KeyError, TypeError, ValueError):
+        pass
+    return None, 0
+
+
+#: How a buffer file shows which dynamics wrote it: an array only that
+#: dynamics writes (ReversibleLangevin's files hold none of them).
+BUFFER_MARKS = (('buffer_ratios', 'ReversibleBussi'),
+                ('pressure_au', 'a barostat'))
 
 
 class BufferedStep:
@@ -150,6 +186,25 @@ class BufferedDynamics(ReversibleDynamics):
     #: The sub-step whose buffers and heat the run keeps.
     buffered_step = None
 
+    #: The array of :data:`BUFFER_MARKS` this dynamics' buffer files hold
+    #: (None: none of them).
+    buffer_mark = None
+
+    def _buffered_engine(self, system, scheme, substeps, timestep,
+                         energy_check, energy_tolerance):
+        """The engine of ``scheme`` (a palindrome of ``(kind,
+        coefficient)`` pairs, at second order) over ``substeps`` (by kind)
+        on ``system``'s variables, its check watching the energy less the
+        heat the buffered step added (every ``energy_check`` steps,
+        ``energy_tolerance`` eV)."""
+        invariant = InvariantCheck(
+            energy_check, energy_tolerance, self._balance,
+            self._explain_drift, trigger=self._balance_trigger)
+        return Engine(system.variables,
+                      tuple((substeps[k], c) for k, c in scheme),
+                      composition_for(2, None), timestep,
+                      invariant=invariant)
+
     def _step_of(self):
         # Going back, a step is undone with the noise it was taken with:
         # that of the step before the present index.
@@ -187,12 +242,27 @@ class BufferedDynamics(ReversibleDynamics):
         """The key of the noise (fixed at construction)."""
         return self._seed
 
-    def _buffer_arrays(self, machine=True):
-        """What every buffer file holds (by array name): the seed, the
-        time step, the step and the anchor's step, the anchor's counts,
-        the digest of the state now and, if ``machine``, the record's
-        machine section.  Refused while steps of another size are on the
-        way back to the anchor (one buffer file holds one time step)."""
+    @property
+    def heat(self) -> float:
+        """Kinetic energy the thermostat added since the anchor, eV."""
+        return self.buffered_step.heat
+
+    @property
+    def buffer_bits(self) -> float:
+        """Information the buffers hold, bits (all coordinates; a
+        :class:`~ase_reversible.core.scaling.ScalingBuffer` counts its
+        stored ratios too and may hold less than an empty one)."""
+        return sum(b.bits for b in self.buffered_step.buffers.values())
+
+    def _save_buffer(self, path, arrays, machine=True):
+        """Write a buffer file to ``path`` (NumPy ``.npz``): what every
+        buffer file holds and ``arrays`` (the dynamics' own, by name).
+
+        Every file holds the seed, the time step, the step and the
+        anchor's step, the anchor's counts, the digest of the state now
+        and, if ``machine``, the record's machine section.  Refused while
+        steps of another size are on the way back to the anchor (one
+        buffer file holds one time step)."""
         self._sync()
         engine = self.engine
         if engine.other_step_sizes:
@@ -200,15 +270,81 @@ class BufferedDynamics(ReversibleDynamics):
                 'Steps with another time step are on the way back to the '
                 'anchor; write the buffer after retracing them, or from a '
                 'run at one time step.')
-        arrays = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
+        common = {'seed': np.uint64(self._seed), 'timestep': abs(engine.dt),
                   'step': engine.step_index,
                   'anchor_step': engine.anchor_index,
                   'digest': state_digest(engine.snapshot())}
         if machine:
-            arrays['machine'] = json.dumps(self._buffer_machine_section())
+            common['machine'] = json.dumps(self._buffer_machine_section())
         for name, counts in engine.anchor.items():
-            arrays[f'anchor_{name}'] = counts
-        return arrays
+            common[f'anchor_{name}'] = counts
+        with open(path, 'wb') as f:
+            np.savez(f, **common, **arrays)
+
+    def _resume(self, engine, step, buffer, settings, load, *,
+                settings_optional=False):
+        """Start ``engine`` at ``step`` (the draws go on from the step the
+        record was written at, so a resumed run draws what the original
+        drew); with a ``buffer`` file, take its anchor of reversal and
+        hand its arrays to ``load`` (a callable of the arrays by name),
+        so the run also goes back past this point.  The file is refused
+        unless this dynamics wrote it at this very state, seed, time step,
+        step and ``settings`` (by name: the steps behind the frame retrace
+        only under the settings they were taken with;
+        ``settings_optional``: a file without one is taken).  A frame
+        whose record lost its machine section takes the file's."""
+        engine.step_index = engine.anchor_index = step
+        if buffer is None:
+            return
+        saved = self._read_buffer(buffer, engine, step, settings,
+                                  settings_optional)
+        if self._resumed_machine is None and 'machine' in saved:
+            self._resumed_machine = json.loads(str(saved['machine']))
+        engine.anchor_index = int(saved['anchor_step'])
+        engine.anchor = {name: saved[f'anchor_{name}']
+                         for name in engine.variables}
+        load(saved)
+
+    def _read_buffer(self, path, engine, step, settings, settings_optional):
+        """The arrays of the buffer file at ``path`` by name, checked as
+        :meth:`_resume` says."""
+        with np.load(path) as f:
+            saved = {key: f[key] for key in f.files}
+        name = type(self).__name__
+        mark, writer = next(((key, who) for key, who in BUFFER_MARKS
+                             if key in saved),
+                            (None, 'ReversibleLangevin'))
+        if mark != self.buffer_mark:
+            raise ValueError(f'{path} is not a {name} buffer file '
+                             f'(written by {writer}): pass the file the '
+                             f'{name} run wrote, or no buffer.')
+        problems = []
+        if int(saved['seed']) != self._seed:
+            problems.append(f'it was written with seed {int(saved["seed"])}, '
+                            f'not {self._seed}')
+        if float(saved['timestep']) != abs(engine.dt):
+            problems.append('its time step is '
+                            f'{float(saved["timestep"]) / units.fs:g} fs')
+        for setting, value in settings.items():
+            if setting not in saved:
+                if not settings_optional:
+                    problems.append(f'it holds no {setting}')
+            elif float(saved[setting]) != value:
+                problems.append(f'it was written with {setting}='
+                                f'{float(saved[setting])!r}, not {value!r} '
+                                '(the way back retraces its steps with it)')
+        if int(saved['step']) != step \
+                or str(saved['digest']) != state_digest(engine.snapshot()):
+            problems.append(f'it was written at step {int(saved["step"])} of '
+                            'another state (these atoms are at step '
+                            f'{step} by their restart record)')
+        if problems:
+            raise ValueError(
+                f'The buffer file {path} does not belong to these atoms: '
+                + '; '.join(problems) + '. Pass the frame that was written '
+                'together with it (the last one before write_buffer), or no '
+                'buffer to go on without the way back.')
+        return saved
 
     def _buffer_machine_section(self):
         """The record's machine section for the buffer file, with the

@@ -27,12 +27,14 @@ it).  Kicks and drifts are the exact shears of
   :mod:`ase_reversible.core.noise` keyed by the seed, the time step and
   the step's index, ``S`` as ``2 Gamma((N_f - 1) / 2)`` by
   Marsaglia and Tsang's method (``+ - * /``, ``sqrt`` and the portable
-  logarithm on Python floats, :class:`BussiDraws`: its cost does not grow
+  logarithm on Python floats,
+  :class:`~ase_reversible.core.noise.BussiDraws`: its cost does not grow
   with the number of atoms, as a sum of ``N_f - 1`` squared normals
   would);
 * the momentum counts are multiplied by ``n / 2**20`` through an
-  information buffer (:class:`ScalingBuffer`) that keeps the digits a
-  ratio below one drops and supplies those a ratio above one needs; the
+  information buffer (:class:`~ase_reversible.core.scaling.ScalingBuffer`)
+  that keeps the digits a ratio below one drops and supplies those a
+  ratio above one needs; the
   product is within one count of ``n x / 2**20`` (``n / 2**20`` counts
   above one);
 * the ratio ``n`` of each step is kept too (32 bits a step), since the
@@ -43,19 +45,19 @@ it).  Kicks and drifts are the exact shears of
 from __future__ import annotations
 
 import functools
-import json
 import math
+from typing import NamedTuple
 
 import numpy as np
 from ase import units
 
 from ..core.arguments import checked_positive
 from ..core.compositions import composition_for
-from ..core.engine import Engine, InvariantCheck
-from ..core.noise import step_key
+from ..core.noise import BussiDraws, step_key
 from ..core import portable
+from ..core.scaling import N_MAX, N_MIN, RATIO_BITS, ScalingBuffer
 from ..errors import RetraceLimitError
-from .buffered import BufferedDynamics, BufferedMomentumStep, state_digest
+from .buffered import BufferedDynamics, BufferedMomentumStep, resume_point
 from .checks import (check_energy_watch, check_timestep, checked_seed,
                      refuse_plane_and_line_constraints)
 from .hamiltonian import largest_kick
@@ -71,392 +73,40 @@ SCHEME = ((KICK, 0.5), (DRIFT, 0.5), (RESCALE, 1.0), (DRIFT, 0.5),
 ENERGY_CHECK_INTERVAL = 100
 
 #: ``alpha`` is applied as ``n / 2**RATIO_BITS``.
-RATIO_BITS = 20
 _D = 1 << RATIO_BITS
-_WORD_BITS = 16
-_WORD = 1 << _WORD_BITS
-#: The buffer's states lie in ``[_LOW, _HIGH)``; ``_LOW`` a multiple of
-#: ``2**RATIO_BITS`` makes the bounds between moved and kept words exact
-#: for every ratio (see :class:`ScalingBuffer`).
-_LOW = _D
-_HIGH = _LOW << _WORD_BITS
-#: The ratios applied: ``alpha`` in ``[2**-16, 2**7)``.  One word moves
-#: per step at most, which bounds the ratio to ``2**+-16``; ``n < 2**27``
-#: keeps every product below ``2**63`` and a stored ratio in 32 bits.
-N_MIN, N_MAX = 1 << (RATIO_BITS - _WORD_BITS), 1 << 27
 
 
-class ScalingBuffer:
-    """Exact multiplication of integer counts by ``n / 2**20`` for any
-    ``n`` in ``[2**4, 2**27)``, the digits kept, one buffer a coordinate.
+class BussiSettings(NamedTuple):
+    """What the rescaling reads of its dynamics when a step is prepared."""
 
-    As :class:`~ase_reversible.core.infobuffer.InformationBuffer` (its
-    docstring has the idea and its sources), a coordinate's buffer is a
-    range-coder state ``s`` and a stack of 16-bit words; here the same
-    buffer serves every ratio, above one as well as below.  With
-    ``d = 2**20``, one step maps ``(x, s)`` to ``(x', s')``:
-
-    * pop an ``n``-ary digit ``a = s mod n`` from the state, form
-      ``y = x n + a``, keep ``x' = y div d`` and push ``y mod d``:
-      ``s' = (s div n) d + (y mod d)``, a bijection of ``(x, s)``;
-    * before it, the state is brought where the result lands in
-      ``[L, 2**16 L)`` (``L = d``): for ``n < d`` a state
-      ``s >= 2**16 n`` first spills its low word onto the stack; for
-      ``n > d`` a state ``s < n`` first takes a word from it.
-
-    The way back splits ``s'`` into ``s div n`` and ``y mod d`` (``d`` is
-    a power of two), rebuilds ``y = x' d + (y mod d)``, so ``x`` and
-    ``s``; a state below ``L`` (``n < d``) or at or above ``2**16 L``
-    (``n > d``) is one whose word moved, which is moved back.  Popping
-    before pushing puts the digit below the product, so ``x'`` differs
-    from ``n x / d`` by less than ``max(1, n / d)`` counts.  Pushing
-    first, as ``InformationBuffer`` does, errs by up to ``n`` counts: with
-    ``n`` near ``2**20`` and the momentum quantum of ``2**-24`` the force
-    provider picks for asap3, a 1.4% rms change of every thermal momentum
-    every step (measured on Cu256).
-
-    A ratio above one takes information, which an empty buffer does not
-    hold.  So below the bottom of each stack lie reserve words, drawn on
-    demand from the counter-based generator keyed by ``key`` and the
-    depth: the same words every time, so the buffer stays a bijection
-    that never runs dry; the stack pointer may go negative (the buffer
-    then holds less than it started with).
-
-    Parameters
-    ----------
-    size : int
-        Coordinates (``3 n_atoms``).
-    key : numpy.ndarray
-        Philox key of the reserve words (two uint64).
-
-    Attributes
-    ----------
-    state_k : int64 ``[size]``
-        Range-coder states in ``[2**20, 2**36)``.
-    top_k : int64 ``[size]``
-        Stack pointers (depth of the next free word; 0 when empty).
-    ratios : int32 ``[capacity]``
-        The ratio ``n`` of each step applied, ``count`` of them in use.
-    """
-
-    def __init__(self, size: int, key):
-        self.size = int(size)
-        self.key = np.asarray(key, dtype=np.uint64)
-        self._columns = np.arange(self.size)
-        self._generator = np.random.Philox(key=[0, 0])
-        self.clear()
-
-    def clear(self):
-        """Empty every buffer and forget the ratios."""
-        self.state_k = np.full(self.size, _LOW, dtype=np.int64)
-        self.top_k = np.zeros(self.size, dtype=np.int64)
-        # Row j of words_jk is depth j - base.
-        self.base = 0
-        self.words_jk = np.zeros((16, self.size), dtype=np.uint16)
-        self.ratios = np.zeros(64, dtype=np.int32)
-        self.count = 0
-        self._saved = (self.state_k.copy(), self.top_k.copy(), 0)
-
-    # -- what it holds ----------------------------------------------------
-
-    @property
-    def bits(self) -> float:
-        """Information held beyond the empty buffer, summed over the
-        coordinates, bits (negative when reserve words were taken), plus
-        32 bits a stored ratio."""
-        return float(np.log2(self.state_k / _LOW).sum()
-                     + _WORD_BITS * self.top_k.sum()) + 32.0 * self.count
-
-    @property
-    def nbytes(self) -> int:
-        """Memory of the states, pointers, word rows and ratios, bytes."""
-        return (self.state_k.nbytes + self.top_k.nbytes
-                + self.words_jk.nbytes + 4 * self.count)
-
-    def is_empty(self) -> bool:
-        """Whether every coordinate is at the empty state with no ratio."""
-        return (self.count == 0 and not self.top_k.any()
-                and bool(np.all(self.state_k == _LOW)))
-
-    def used_rows(self):
-        """``(base, words)``: the word rows from the lowest depth drawn to
-        the highest in use, and the depth of the first row is ``-base``."""
-        depth = int(self.top_k.max(initial=0))
-        return self.base, self.words_jk[:depth + self.base]
-
-    def load(self, state_k, top_k, base, words_jk, ratios):
-        """Take what :meth:`used_rows`, ``state_k``, ``top_k`` and the used
-        ``ratios`` of a buffer of the same size were."""
-        state_k = np.asarray(state_k, dtype=np.int64)
-        top_k = np.asarray(top_k, dtype=np.int64)
-        base = int(base)
-        if state_k.shape != (self.size,) or top_k.shape != (self.size,) \
-                or not np.all((state_k >= _LOW) & (state_k < _HIGH)) \
-                or words_jk.shape[1:] != (self.size,) \
-                or int(top_k.min(initial=0)) < -base \
-                or int(top_k.max(initial=0)) > len(words_jk) - base:
-            raise ValueError('The saved buffer does not fit these atoms '
-                             '(another number of atoms, or damaged).')
-        self.state_k, self.top_k, self.base = state_k, top_k, base
-        self.words_jk = np.zeros((max(16, 2 * len(words_jk)), self.size),
-                                 dtype=np.uint16)
-        self.words_jk[:len(words_jk)] = words_jk
-        ratios = np.asarray(ratios, dtype=np.int32)
-        self.ratios = np.zeros(max(64, 2 * len(ratios)), dtype=np.int32)
-        self.ratios[:len(ratios)] = ratios
-        self.count = len(ratios)
-        self.checkpoint()
-
-    # -- the two moves ----------------------------------------------------
-
-    def scale(self, x_k, n, mask_k=None):
-        """``x n / 2**20`` exactly (int64 ``[size]``), ``n`` stored.
-        ``mask_k`` (bool) leaves other coordinates and their buffers as
-        they are."""
-        x_k = np.asarray(x_k, dtype=np.int64)
-        s, top = self.state_k.copy(), self.top_k.copy()
-        if n < _D:
-            move = s >= (n << _WORD_BITS)
-            if mask_k is not None:
-                move &= mask_k
-            if move.any():
-                cols = self._columns[move]
-                self._room(int(top[cols].max()))
-                # Above every pointer: a word no checkpoint relies on.
-                self.words_jk[top[cols] + self.base, cols] = \
-                    s[cols] & (_WORD - 1)
-                top[cols] += 1
-                s[cols] >>= _WORD_BITS
-        elif n > _D:
-            move = s < n
-            if mask_k is not None:
-                move &= mask_k
-            if move.any():
-                cols = self._columns[move]
-                below = top[cols] - 1
-                self._reserve(int(below.min()))
-                top[cols] = below
-                s[cols] = (s[cols] << _WORD_BITS) \
-                    | self.words_jk[below + self.base, cols]
-        s_high, digit = np.divmod(s, n)
-        # x n + digit = (x div d) d n + t: t below 2**48, no overflow.
-        t = (x_k & (_D - 1)) * n
-        t += digit
-        out = (x_k >> RATIO_BITS) * n + (t >> RATIO_BITS)
-        s_new = (s_high << RATIO_BITS) | (t & (_D - 1))
-        if mask_k is not None:
-            s_new = np.where(mask_k, s_new, self.state_k)
-            out = np.where(mask_k, out, x_k)
-        self._push_ratio(n)
-        self.state_k, self.top_k = s_new, top
-        return out
-
-    def unscale(self, x_k, mask_k=None):
-        """The inverse of the last :meth:`scale` still held: ``x 2**20 / n``
-        exactly for its ``n``, the ratio taken off.  Raises IndexError,
-        with nothing changed, if no ratio is held."""
-        if self.count == 0:
-            raise IndexError('no ratio held')
-        n = int(self.ratios[self.count - 1])
-        x_k = np.asarray(x_k, dtype=np.int64)
-        s_low = self.state_k & (_D - 1)
-        high, low = np.divmod(x_k, n)
-        # x' d + r = (x' div n) n d + t: t below 2**48 again.
-        t = (low << RATIO_BITS) | s_low
-        quotient, digit = np.divmod(t, n)
-        out = (high << RATIO_BITS) + quotient
-        s = (self.state_k >> RATIO_BITS) * n + digit
-        top = self.top_k.copy()
-        if n < _D:
-            move = s < _LOW
-        elif n > _D:
-            move = s >= _HIGH
-        else:
-            move = None
-        if move is not None and mask_k is not None:
-            move &= mask_k
-        if move is not None and move.any():
-            cols = self._columns[move]
-            if n < _D:
-                below = top[cols] - 1
-                self._reserve(int(below.min()))
-                top[cols] = below
-                s[cols] = (s[cols] << _WORD_BITS) \
-                    | self.words_jk[below + self.base, cols]
-            else:
-                self._room(int(top[cols].max()))
-                self.words_jk[top[cols] + self.base, cols] = \
-                    s[cols] & (_WORD - 1)
-                top[cols] += 1
-                s[cols] >>= _WORD_BITS
-        if mask_k is not None:
-            s = np.where(mask_k, s, self.state_k)
-            out = np.where(mask_k, out, x_k)
-        self.count -= 1
-        self.state_k, self.top_k = s, top
-        return out
-
-    def last_ratio(self):
-        """The ratio ``n`` of the last step held (None if none)."""
-        return int(self.ratios[self.count - 1]) if self.count else None
-
-    # -- storage ----------------------------------------------------------
-
-    def _push_ratio(self, n):
-        if self.count == len(self.ratios):
-            self.ratios = np.concatenate([self.ratios,
-                                          np.zeros_like(self.ratios)])
-        self.ratios[self.count] = n
-        self.count += 1
-
-    def _room(self, depth):
-        """Make row ``depth`` exist above the stacks."""
-        rows = len(self.words_jk)
-        if depth + self.base >= rows:
-            grown = np.zeros((2 * rows, self.size), dtype=np.uint16)
-            grown[:rows] = self.words_jk
-            self.words_jk = grown
-
-    def _reserve(self, depth):
-        """Make the reserve rows down to ``depth`` (negative) exist.  A row
-        below every depth ever reached was never written, so drawing it
-        now gives the same words as at any other time."""
-        if depth + self.base >= 0:
-            return
-        new_base = max(2 * self.base, 16, -depth)
-        rows = [self._reserve_row(d) for d in range(-new_base, -self.base)]
-        self.words_jk = np.concatenate([np.array(rows, dtype=np.uint16),
-                                        self.words_jk])
-        self.base = new_base
-
-    def _reserve_row(self, depth):
-        generator = self._generator
-        generator.state = {
-            'bit_generator': 'Philox',
-            'state': {'counter': np.array([0, 0, depth % 2**64, 1],
-                                          dtype=np.uint64),
-                      'key': self.key},
-            'buffer': np.zeros(4, dtype=np.uint64), 'buffer_pos': 4,
-            'has_uint32': 0, 'uinteger': 0}
-        raw = generator.random_raw((self.size + 3) // 4)
-        # Four words a draw, by shifts: no dependence on byte order.
-        words = [(raw >> np.uint64(16 * i)) & np.uint64(_WORD - 1)
-                 for i in range(4)]
-        return np.stack(words, axis=1).reshape(-1)[:self.size]
-
-    # -- step checkpoint (side state of the engine) -----------------------
-
-    def checkpoint(self):
-        """Remember states, pointers and the ratio count: one step pushes
-        words above the pointers only and pops without writing, so rows
-        need no copy."""
-        saved_s, saved_top, _ = self._saved
-        np.copyto(saved_s, self.state_k)
-        np.copyto(saved_top, self.top_k)
-        self._saved = (saved_s, saved_top, self.count)
-
-    def rollback(self):
-        """Return to the last :meth:`checkpoint`."""
-        saved_s, saved_top, count = self._saved
-        self.state_k = saved_s.copy()
-        self.top_k = saved_top.copy()
-        self.count = count
+    #: K.
+    temperature_K: float
+    #: The coupling's time constant, ASE time units.
+    taut: float
+    #: The key of the draws.
+    seed: int
 
 
-class BussiDraws:
-    """The normal ``R`` and the chi-squared ``S`` of a step, the same bits
-    on every CPU and both ways (module docstring).
+class RescalePlan(NamedTuple):
+    """One rescaling at a coefficient ``ch``, as :meth:`Rescale.prepare`
+    makes it (a coordinate index ``k`` runs over ``3 n_atoms``)."""
 
-    Python floats throughout: a handful of deviates a step, where numpy's
-    per-call overhead would cost ten times the arithmetic (340 µs against
-    about 25 µs a step, measured under load).  Each operation is an IEEE
-    754 ``+ - * /`` or ``sqrt``, correctly rounded on every CPU, and the
-    logarithm is :func:`~ase_reversible.core.noise.portable_log`'s series
-    on a scalar.  Raw words come from NumPy's Philox keyed as the step's
-    noise (:func:`~ase_reversible.core.noise.step_key`), counter
-    ``[0, 0, step, 2]``: the normals by Marsaglia's polar method, ``S``
-    as ``2 Gamma((N_f - 1) / 2)`` by Marsaglia and Tsang's method (one
-    normal and one uniform a candidate; accepted with probability above
-    0.95 for shapes of at least 1).
-
-    Parameters
-    ----------
-    dof : int
-        ``N_f``; ``S`` has ``N_f - 1`` degrees of freedom.
-    """
-
-    def __init__(self, dof):
-        self.dof = int(dof)
-        self._generator = np.random.Philox(key=[0, 0])
-        shape = 0.5 * (self.dof - 1)
-        self._d = shape - 1.0 / 3.0
-        self._c = 1.0 / math.sqrt(9.0 * self._d) if shape >= 1 else None
-
-    def __call__(self, key, step):
-        """``(R, S)`` for step ``step`` under ``key``."""
-        words = self._words(key, step)
-        r = _normal(words)
-        if self.dof <= 2:  # shapes 0 and 1/2: no squares, or one
-            if self.dof < 2:
-                return r, 0.0
-            x = _normal(words)
-            return r, x * x
-        d, c = self._d, self._c
-        while True:
-            x = _normal(words)
-            v = 1.0 + c * x
-            if v <= 0.0:
-                continue
-            v = v * v * v
-            u = ((next(words) >> 11) + 0.5) * _UNIT
-            if _log(u) < 0.5 * x * x + d * (1.0 - v + _log(v)):
-                return r, 2.0 * d * v
-
-    def _words(self, key, step):
-        """The step's raw 64-bit words as Python ints, drawn 16 at a
-        time."""
-        generator = self._generator
-        generator.state = {
-            'bit_generator': 'Philox',
-            'state': {'counter': np.array([0, 0, step % 2**64, 2],
-                                          dtype=np.uint64),
-                      'key': key},
-            'buffer': np.zeros(4, dtype=np.uint64), 'buffer_pos': 4,
-            'has_uint32': 0, 'uinteger': 0}
-        while True:
-            yield from generator.random_raw(16).tolist()
-
-
-_UNIT = 2.0**-53
-_LN2 = 0.6931471805599453
-_SQRT_HALF = 0.7071067811865476
-_ODD_RECIPROCALS = tuple(1.0 / (2 * j + 1) for j in range(8, 0, -1))
-
-
-def _log(s):
-    """``ln s`` of a positive float, the operations of
-    :func:`~ase_reversible.core.noise.portable_log` on one number."""
-    m, e = math.frexp(s)
-    if m < _SQRT_HALF:
-        m, e = 2.0 * m, e - 1
-    f = (m - 1.0) / (m + 1.0)
-    w = f * f
-    series = _ODD_RECIPROCALS[0]
-    for c in _ODD_RECIPROCALS[1:]:
-        series = series * w + c
-    series = series * w + 1.0
-    return e * _LN2 + 2.0 * f * series
-
-
-def _normal(words):
-    """A standard normal from ``words`` by Marsaglia's polar method (the
-    second of the pair is dropped: one state, no cache to roll back)."""
-    while True:
-        u = (next(words) >> 11) * (2.0 * _UNIT) - 1.0
-        v = (next(words) >> 11) * (2.0 * _UNIT) - 1.0
-        s = u * u + v * v
-        if 0.0 < s < 1.0:
-            return u * math.sqrt(-2.0 * _log(s) / s)
+    #: ``ch > 0``.
+    forward: bool
+    #: The buffer of steps of size ``|ch|``.
+    buffer: ScalingBuffer
+    #: bool ``[3 n_atoms]`` of the coordinates moved, None for all.
+    mask_k: object
+    #: eV.
+    kT: float
+    #: ``exp(-|ch| / taut)``.
+    c: float
+    #: The Philox key of the step's draws.
+    key: np.ndarray
+    #: float ``[3 n_atoms]``: ``1 / m`` for the heat (1 / amu).
+    inverse_mass_k: np.ndarray
+    #: The coordinates FixCom holds, ``[(atom, component)]``, or None.
+    held: object
 
 
 # The software exp costs 4 us idle (19 us loaded); the way back asks at
@@ -486,8 +136,7 @@ class Rescale(BufferedMomentumStep):
     system : Hamiltonian
         Its ``'momentum'`` variable is updated.
     settings : callable
-        ``settings() -> (temperature_K, taut, seed)`` (K, ASE time units,
-        int), read when the step is prepared.
+        ``settings() -> BussiSettings``, read when the step is prepared.
     step_of : callable
         ``step_of() -> int``: the index of the step being taken (the one
         before it going forward), for the draws.
@@ -512,10 +161,25 @@ class Rescale(BufferedMomentumStep):
         h = abs(h)
         buffer = self.buffers.get(h)
         if buffer is None:
-            temperature_K, taut, seed = self.settings()
-            buffer = self.buffers[h] = ScalingBuffer(self.size,
-                                                     step_key(seed, h))
+            buffer = self.buffers[h] = ScalingBuffer(
+                self.size, step_key(self.settings().seed, h))
         return buffer
+
+    def arrays(self, h):
+        """The buffer of steps of size ``|h|`` as a buffer file holds it,
+        by array name."""
+        b = self.buffer_for(h)
+        base, words = b.used_rows()
+        return {'buffer_state': b.state_k, 'buffer_top': b.top_k,
+                'buffer_base': base, 'buffer_words': words,
+                'buffer_ratios': b.ratios[:b.count]}
+
+    def load(self, saved, h):
+        """Take what :meth:`arrays` gave for ``h`` from ``saved`` (a
+        buffer file's arrays by name)."""
+        self.buffer_for(h).load(
+            saved['buffer_state'], saved['buffer_top'], saved['buffer_base'],
+            saved['buffer_words'], saved['buffer_ratios'])
 
     def prepare(self, ch):
         temperature_K, taut, seed = self.settings()
@@ -526,9 +190,10 @@ class Rescale(BufferedMomentumStep):
         free_k = self._free().reshape(-1) != 0
         held = self._hold_one_per_component(free_k)
         mass_k = np.repeat(s.m_n1[:, 0], 3)
-        return (ch > 0, self.buffer_for(ch), None if free_k.all() else free_k,
-                units.kB * temperature_K, decay(ch, taut), step_key(seed, ch),
-                1.0 / mass_k, held)
+        return RescalePlan(ch > 0, self.buffer_for(ch),
+                           None if free_k.all() else free_k,
+                           units.kB * temperature_K, decay(ch, taut),
+                           step_key(seed, ch), 1.0 / mass_k, held)
 
     def apply(self, prepared):
         forward, buffer, mask_k, kT, c, key, inverse_mass_k, held = prepared
@@ -647,7 +312,8 @@ class ReversibleBussi(BufferedDynamics):
     energy_check : int
         As for :class:`~ase_reversible.ReversibleVerlet`, for the total
         energy minus the heat the thermostat added since the anchor
-        (:attr:`heat`).
+        (``heat``,
+        :attr:`~ase_reversible.md.buffered.BufferedDynamics.heat`).
     energy_tolerance : float, optional
         eV; default as for :class:`~ase_reversible.ReversibleVerlet`.
 
@@ -668,6 +334,7 @@ class ReversibleBussi(BufferedDynamics):
     """
 
     record_sections = ('bussi',)
+    buffer_mark = 'buffer_ratios'
 
     def __init__(self, atoms, timestep, temperature_K, taut, *, seed=None,
                  buffer=None, trajectory=None, logfile=None, loginterval=1,
@@ -704,36 +371,16 @@ class ReversibleBussi(BufferedDynamics):
                                 KICK),
             position_quantum, momentum_quantum,
             force_purity, force_noise)
-        resumed = _resumed_draws(record, timestep)
-        if seed is None and resumed is not None:
-            seed = resumed['seed']
-        self._seed = checked_seed(seed)
-        step = resumed['step'] if resumed is not None else 0
-        saved = None if buffer is None else _read_buffer(
-            buffer, system, self._seed, timestep, step)
-        if saved is not None and self._resumed_machine is None \
-                and 'machine' in saved:
-            self._resumed_machine = json.loads(str(saved['machine']))
+        resumed_seed, step = resume_point(
+            record.get('bussi') if record else None, timestep)
+        self._seed = checked_seed(resumed_seed if seed is None else seed)
         rescale = Rescale(system, self._settings, self._step_of)
         substep = {KICK: system.kick, DRIFT: system.drift, RESCALE: rescale}
-        invariant = InvariantCheck(
-            energy_check, energy_tolerance, self._balance,
-            self._explain_drift, trigger=self._balance_trigger)
-        engine = Engine(system.variables,
-                        tuple((substep[k], c) for k, c in SCHEME),
-                        composition_for(2, None), timestep,
-                        invariant=invariant)
+        engine = self._buffered_engine(system, SCHEME, substep, timestep,
+                                       energy_check, energy_tolerance)
         self.rescale_step = self.buffered_step = rescale
-        # The draws go on from the step the record was written at.
-        engine.step_index = engine.anchor_index = step
-        if saved is not None:
-            engine.anchor_index = saved['anchor_step']
-            engine.anchor = {name: saved[f'anchor_{name}']
-                             for name in engine.variables}
-            rescale.buffer_for(timestep).load(
-                saved['buffer_state'], saved['buffer_top'],
-                saved['buffer_base'], saved['buffer_words'],
-                saved['buffer_ratios'])
+        self._resume(engine, step, buffer, {},
+                     lambda saved: rescale.load(saved, timestep))
         time0 = record['time'] - engine.elapsed() if record else 0.0
         self._attach(system, engine, (force_purity, force_noise), time0)
         super().__init__(atoms, timestep, trajectory=trajectory,
@@ -743,7 +390,7 @@ class ReversibleBussi(BufferedDynamics):
     # -- what the rescaling reads ------------------------------------------
 
     def _settings(self):
-        return self._temperature_K, self._taut, self._seed
+        return BussiSettings(self._temperature_K, self._taut, self._seed)
 
     def _take_changes(self, changes):
         refuse_plane_and_line_constraints(self.atoms, 'ReversibleBussi',
@@ -764,14 +411,7 @@ class ReversibleBussi(BufferedDynamics):
         bit for bit and runs back past the restart point to the anchor:
         ``ReversibleBussi(frame, dt, T, taut, buffer=path)``.
         """
-        arrays = self._buffer_arrays()
-        b = self.rescale_step.buffer_for(self.engine.dt)
-        base, words = b.used_rows()
-        arrays.update(buffer_state=b.state_k, buffer_top=b.top_k,
-                      buffer_base=base, buffer_words=words,
-                      buffer_ratios=b.ratios[:b.count])
-        with open(path, 'wb') as f:
-            np.savez(f, **arrays)
+        self._save_buffer(path, self.rescale_step.arrays(self.engine.dt))
 
     # -- the thermostat's settings -----------------------------------------
 
@@ -784,18 +424,6 @@ class ReversibleBussi(BufferedDynamics):
     def taut(self) -> float:
         """Time constant of the coupling, ASE time units."""
         return self._taut
-
-    @property
-    def heat(self) -> float:
-        """Kinetic energy the thermostat added since the anchor, eV."""
-        return self.rescale_step.heat
-
-    @property
-    def buffer_bits(self) -> float:
-        """Information the buffers hold beyond empty ones, bits (all
-        coordinates and the stored ratios; the coordinates' part is
-        negative when the rescaling took more than it gave)."""
-        return sum(b.bits for b in self.rescale_step.buffers.values())
 
     def set_temperature(self, temperature_K):
         """Use ``temperature_K`` (K) from the next step on; the anchor
@@ -818,45 +446,3 @@ class ReversibleBussi(BufferedDynamics):
                 'taut': self._taut, 'seed': self._seed,
                 **self.system.grid.todict(),
                 'force_purity': self.force_purity.mode}
-
-
-def _resumed_draws(record, timestep):
-    """The record's ``{'seed', 'step'}`` if it was written at this size of
-    time step, else None."""
-    section = record.get('bussi') if record else None
-    try:
-        if section is not None and float(section['timestep']) == abs(
-                timestep):
-            return {'seed': int(section['seed']), 'step': int(section['step'])}
-    except (KeyError, TypeError, ValueError):
-        pass
-    return None
-
-
-def _read_buffer(path, system, seed, timestep, step):
-    """The arrays of a buffer file, refused unless written at this very
-    state, seed, time step and step."""
-    with np.load(path) as f:
-        saved = {key: f[key] for key in f.files}
-    if 'buffer_ratios' not in saved:
-        raise ValueError(f'{path} is not a ReversibleBussi buffer file '
-                         '(written by another dynamics).')
-    state = {'position': system.x.ints, 'momentum': system.p.ints}
-    problems = []
-    if int(saved['seed']) != seed:
-        problems.append(f'it was written with seed {int(saved["seed"])}, '
-                        f'not {seed}')
-    if float(saved['timestep']) != abs(timestep):
-        problems.append('its time step is '
-                        f'{float(saved["timestep"]) / units.fs:g} fs')
-    if int(saved['step']) != step or str(saved['digest']) != state_digest(state):
-        problems.append(f'it was written at step {int(saved["step"])} of '
-                        'another state (these atoms are at step '
-                        f'{step} by their restart record)')
-    if problems:
-        raise ValueError(
-            f'The buffer file {path} does not belong to these atoms: '
-            + '; '.join(problems) + '. Pass the frame that was written '
-            'together with it (the last one before write_buffer), or no '
-            'buffer to go on without the way back.')
-    return saved

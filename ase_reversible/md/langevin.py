@@ -27,22 +27,21 @@ within 2**-17 / h of the one asked for).
 from __future__ import annotations
 
 import functools
-import json
 import math
+from typing import NamedTuple
 
 import numpy as np
 from ase import units
 
 from ..core.arguments import checked_positive
 from ..core.compositions import composition_for
-from ..core.engine import Engine, InvariantCheck
 from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
                                InformationBuffer, friction_ratio)
 from ..core.noise import StepNoise, step_key
 from ..core import portable
 from ..errors import RetraceLimitError
 from .buffered import (BufferedDynamics, BufferedMomentumStep, buffer_arrays,
-                       state_digest)
+                       load_buffer_arrays, resume_point)
 from .checks import (check_energy_watch, check_temperature_K,
                      check_timestep, checked_friction, checked_seed,
                      refuse_plane_and_line_constraints)
@@ -59,6 +58,42 @@ SCHEME = ((KICK, 0.5), (DRIFT, 0.5), (FRICTION, 1.0), (DRIFT, 0.5),
 ENERGY_CHECK_INTERVAL = 100
 
 
+class FrictionSettings(NamedTuple):
+    """What the O step reads of its dynamics when a step is prepared."""
+
+    #: 1 / ASE time unit (0: no thermostat).
+    friction: float
+    #: K.
+    temperature_K: float
+    #: Whether the noise has zero net momentum.
+    fixcm: bool
+    #: The key of the noise.
+    seed: int
+
+
+class FrictionPlan(NamedTuple):
+    """One O step at a coefficient ``ch``, as :meth:`Friction.prepare`
+    makes it (a coordinate index ``k`` runs over ``3 n_atoms``)."""
+
+    #: ``ch > 0``.
+    forward: bool
+    #: The information buffer of the step's friction ratio.
+    buffer: InformationBuffer
+    #: bool ``[3 n_atoms]`` of the coordinates moved, None for all.
+    mask_k: object
+    #: float ``[3 n_atoms]``: the noise's spread, in momentum counts.
+    sigma_k: np.ndarray
+    #: The Philox key of the step's noise.
+    key: np.ndarray
+    #: ``(weights_nc, heaviest_c)`` that zero the noise's net momentum,
+    #: or None.
+    zero_sum: object
+    #: float ``[3 n_atoms]``: ``1 / m`` for the heat (1 / amu).
+    inverse_mass_k: np.ndarray
+    #: The coordinates FixCom holds, ``[(atom, component)]``, or None.
+    held: object
+
+
 class Friction(BufferedMomentumStep):
     """The O step on the momentum counts, exact (see the module docstring).
 
@@ -67,8 +102,8 @@ class Friction(BufferedMomentumStep):
     system : Hamiltonian
         Its ``'momentum'`` variable is updated.
     settings : callable
-        ``settings() -> (friction, temperature_K, fixcm, seed)``, read when
-        the step is prepared (1 / ASE time unit, K, bool, int).
+        ``settings() -> FrictionSettings``, read when the step is
+        prepared.
     step_of : callable
         ``step_of() -> int``: the index of the step being taken (the one
         before it when going forward, after it when going back), so that
@@ -99,19 +134,11 @@ class Friction(BufferedMomentumStep):
     def load(self, saved):
         """Take the buffers of a file :meth:`ReversibleLangevin.write_buffer`
         wrote (``saved``: its arrays by name)."""
-        for key in saved:
-            if key.startswith('buffer_') and key.endswith('_state'):
-                n = int(key.split('_')[1])
-                buffer = self.buffers.get(n)
-                if buffer is None:
-                    raise ValueError(
-                        'The buffer file was written with another friction '
-                        f'(exact ratio {n}/2**16, here '
-                        f'{", ".join(map(str, self.buffers))}/2**16): '
-                        'construct with the friction and time step of the '
-                        'run that wrote it.')
-                buffer.load(saved[key], saved[f'buffer_{n}_top'],
-                            saved[f'buffer_{n}_words'])
+        load_buffer_arrays('buffer', self.buffers, saved, lambda n: (
+            'The buffer file was written with another friction (exact '
+            f'ratio {n}/2**16, here {", ".join(map(str, self.buffers))}'
+            '/2**16): construct with the friction and time step of the '
+            'run that wrote it.'))
 
     def prepare(self, ch):
         friction, temperature_K, fixcm, seed = self.settings()
@@ -131,8 +158,9 @@ class Friction(BufferedMomentumStep):
         zero_sum = _zero_sum_weights(s.m_n1, free_nc) \
             if fixcm or s.centre is not None else None
         held = self._hold_one_per_component(free_k)
-        return (ch > 0, buffer, None if free_k.all() else free_k, sigma_k,
-                step_key(seed, ch), zero_sum, 1.0 / mass_k, held)
+        return FrictionPlan(ch > 0, buffer, None if free_k.all() else free_k,
+                            sigma_k, step_key(seed, ch), zero_sum,
+                            1.0 / mass_k, held)
 
     def apply(self, prepared):
         if prepared is None:
@@ -145,18 +173,11 @@ class Friction(BufferedMomentumStep):
         noise_k = noise_k.astype(np.int64)
         if zero_sum is not None:
             noise_k = without_net_momentum(noise_k, *zero_sum)
-        if forward:
-            new_k = buffer.scale_down(x_k, mask_k) + noise_k
-        else:
-            try:
-                new_k = buffer.scale_up(x_k - noise_k, mask_k)
-            except BufferUnderflowError:
-                raise RetraceLimitError(
-                    'ReversibleLangevin can only retrace steps it has taken: '
-                    'this one goes back past the anchor of reversal, where '
-                    'friction would have to be undone that was never '
-                    'applied. The step was not taken; run forward (positive '
-                    'dt) from here.') from None
+        new_k = exact_o_step(buffer, x_k, noise_k, forward, mask_k, (
+            'ReversibleLangevin can only retrace steps it has taken: this '
+            'one goes back past the anchor of reversal, where friction '
+            'would have to be undone that was never applied. The step was '
+            'not taken; run forward (positive dt) from here.'))
         self._commit(x_k, new_k, held, inverse_mass_k)
 
     def adjoint(self, cotangents, ch):
@@ -164,8 +185,23 @@ class Friction(BufferedMomentumStep):
         c`` on the coordinates it moves (the noise does not depend on the
         state), after the pending kicks."""
         cotangents.flush()
-        ratio = exact_ratio(self.settings()[0], ch)[1]
+        ratio = exact_ratio(self.settings().friction, ch)[1]
         cotangents['momentum'] *= np.where(self._free() != 0, ratio, 1.0)
+
+
+def exact_o_step(buffer, x_k, noise_k, forward, mask_k, past_the_anchor):
+    """The O step's new counts (int64 ``[k]``): ``c x + noise`` going
+    forward (``c`` through ``buffer``, an InformationBuffer), its inverse
+    ``(x - noise) / c`` going back.  ``mask_k`` (bool, or None for all)
+    leaves the other coordinates as they are.  A step back past the
+    anchor raises RetraceLimitError with the message
+    ``past_the_anchor``."""
+    if forward:
+        return buffer.scale_down(x_k, mask_k) + noise_k
+    try:
+        return buffer.scale_up(x_k - noise_k, mask_k)
+    except BufferUnderflowError:
+        raise RetraceLimitError(past_the_anchor) from None
 
 
 # The software exp costs 4 us (idle; 19 us under load) and a retrace asks
@@ -269,7 +305,8 @@ class ReversibleLangevin(BufferedDynamics):
     energy_check : int
         As for :class:`~ase_reversible.ReversibleVerlet`, for the total
         energy minus the heat the thermostat added since the anchor
-        (:attr:`heat`), which BAOAB conserves but for its time-step error.
+        (``heat``, :attr:`~ase_reversible.md.buffered.BufferedDynamics.heat`),
+        which BAOAB conserves but for its time-step error.
     energy_tolerance : float, optional
         eV; default as for :class:`~ase_reversible.ReversibleVerlet`.
     **kwargs
@@ -317,39 +354,20 @@ class ReversibleLangevin(BufferedDynamics):
                                 KICK),
             position_quantum, momentum_quantum,
             force_purity, force_noise)
-        resumed = _resumed_noise(record, timestep)
-        if seed is None and resumed is not None:
-            seed = resumed['seed']
-        self._seed = checked_seed(seed)
-        step = resumed['step'] if resumed is not None else 0
-        saved = None if buffer is None else _read_buffer(
-            buffer, system, self._seed, timestep, step,
-            {'temperature_K': self._temperature_K,
-             'friction': self._friction})
-        if saved is not None and self._resumed_machine is None \
-                and 'machine' in saved:
-            # A frame whose record lost its machine section: the file
-            # has the one written with it.
-            self._resumed_machine = json.loads(str(saved['machine']))
+        resumed_seed, step = resume_point(
+            record.get('langevin') if record else None, timestep)
+        self._seed = checked_seed(resumed_seed if seed is None else seed)
         friction_step = Friction(system, self._settings, self._step_of)
         substep = {KICK: system.kick, DRIFT: system.drift,
                    FRICTION: friction_step}
-        invariant = InvariantCheck(
-            energy_check, energy_tolerance, self._balance,
-            self._explain_drift, trigger=self._balance_trigger)
-        engine = Engine(system.variables,
-                        tuple((substep[k], c) for k, c in SCHEME),
-                        composition_for(2, None), timestep,
-                        invariant=invariant)
+        engine = self._buffered_engine(system, SCHEME, substep, timestep,
+                                       energy_check, energy_tolerance)
         self.friction_step = self.buffered_step = friction_step
-        # The noise goes on from the step the record was written at, so a
-        # run resumed from a frame draws what the original run drew.
-        engine.step_index = engine.anchor_index = step
-        if saved is not None:
-            engine.anchor_index = saved['anchor_step']
-            engine.anchor = {name: saved[f'anchor_{name}']
-                             for name in engine.variables}
-            friction_step.load(saved)
+        # A file from before the settings were written has none.
+        self._resume(engine, step, buffer,
+                     {'temperature_K': self._temperature_K,
+                      'friction': self._friction}, friction_step.load,
+                     settings_optional=True)
         time0 = record['time'] - engine.elapsed() if record else 0.0
         self._attach(system, engine, (force_purity, force_noise), time0)
         super().__init__(atoms, timestep, trajectory=trajectory,
@@ -359,7 +377,8 @@ class ReversibleLangevin(BufferedDynamics):
     # -- what the friction step reads ------------------------------------
 
     def _settings(self):
-        return self._friction, self._temperature_K, self._fixcm, self._seed
+        return FrictionSettings(self._friction, self._temperature_K,
+                                self._fixcm, self._seed)
 
     def _take_changes(self, changes):
         # A plane or line set between runs is refused as at construction.
@@ -383,15 +402,11 @@ class ReversibleLangevin(BufferedDynamics):
         a fresh buffer, whose digits enter the friction's rounding: the
         same statistics, not the same bits, and no way back past it.
         """
-        arrays = self._buffer_arrays()
         # The way back past the frame draws the noise again: at the
         # temperature and friction it was drawn with, or it misses.
-        arrays.update(temperature_K=self._temperature_K,
-                      friction=self._friction)
-        arrays.update(buffer_arrays('buffer',
-                                    self.friction_step.active_buffers()))
-        with open(path, 'wb') as f:
-            np.savez(f, **arrays)
+        self._save_buffer(path, {
+            'temperature_K': self._temperature_K, 'friction': self._friction,
+            **buffer_arrays('buffer', self.friction_step.active_buffers())})
 
     # -- the thermostat's settings -----------------------------------------
 
@@ -419,16 +434,6 @@ class ReversibleLangevin(BufferedDynamics):
         """Whether the noise has zero net momentum (fixed at construction)."""
         return self._fixcm
 
-    @property
-    def heat(self) -> float:
-        """Kinetic energy the thermostat added since the anchor, eV."""
-        return self.friction_step.heat
-
-    @property
-    def buffer_bits(self) -> float:
-        """Information the buffers hold, bits (all coordinates)."""
-        return sum(b.bits for b in self.friction_step.buffers.values())
-
     def set_temperature(self, temperature_K):
         """Use ``temperature_K`` (K) from the next step on.  Steps before
         cannot be retraced with it: the anchor moves here
@@ -453,51 +458,3 @@ class ReversibleLangevin(BufferedDynamics):
                 'force_purity': self.force_purity.mode}
 
 
-def _resumed_noise(record, timestep):
-    """The record's ``{'seed', 'step'}`` if it was written at this size of
-    time step (the noise of a step is keyed by both), else None."""
-    section = record.get('langevin') if record else None
-    try:
-        if section is not None and float(section['timestep']) == abs(
-                timestep):
-            return {'seed': int(section['seed']), 'step': int(section['step'])}
-    except (KeyError, TypeError, ValueError):
-        pass
-    return None
-
-
-def _read_buffer(path, system, seed, timestep, step, settings):
-    """The arrays of a buffer file, refused unless written at this very
-    state, seed, time step, step and ``settings`` (``temperature_K`` and
-    ``friction``; a file from before they were written has none)."""
-    with np.load(path) as f:
-        saved = {key: f[key] for key in f.files}
-    for key, writer in (('buffer_ratios', 'ReversibleBussi'),
-                        ('pressure_au', 'a barostat')):
-        if key in saved:
-            raise ValueError(f'{path} is not a ReversibleLangevin buffer file '
-                             f'(written by {writer}): pass the file the '
-                             'ReversibleLangevin run wrote, or no buffer.')
-    state = {'position': system.x.ints, 'momentum': system.p.ints}
-    problems = []
-    if int(saved['seed']) != seed:
-        problems.append(f'it was written with seed {int(saved["seed"])}, '
-                        f'not {seed}')
-    if float(saved['timestep']) != abs(timestep):
-        problems.append(f'its time step is {float(saved["timestep"]) / units.fs:g} fs')
-    for name, value in settings.items():
-        if name in saved and float(saved[name]) != value:
-            problems.append(f'it was written with {name}='
-                            f'{float(saved[name])!r}, not {value!r} (the '
-                            'way back draws the noise again with them)')
-    if int(saved['step']) != step or str(saved['digest']) != state_digest(state):
-        problems.append(f'it was written at step {int(saved["step"])} of '
-                        'another state (these atoms are at step '
-                        f'{step} by their restart record)')
-    if problems:
-        raise ValueError(
-            f'The buffer file {path} does not belong to these atoms: '
-            + '; '.join(problems) + '. Pass the frame that was written '
-            'together with it (the last one before write_buffer), or no '
-            'buffer to go on without the way back.')
-    return saved

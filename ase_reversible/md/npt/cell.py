@@ -58,16 +58,15 @@ import numpy as np
 
 from ...adjoint.hessian import DEFAULT_FD_STEP
 from ...core.codec import encode, round_odd
-from ...core.plans import SubStep
 from ...core.portable import dot, rows_times_matrix
-from ...errors import RetraceLimitError, UnstableIntegrationError
-from ...core.infobuffer import BufferUnderflowError
+from ...errors import UnstableIntegrationError
 from ..hamiltonian import Drift
-from ..langevin import exact_ratio, without_net_momentum
+from ..langevin import exact_o_step, exact_ratio, without_net_momentum
 from .friction import ScaledFriction, past_the_anchor
 from .isotropic import ReversibleIsotropicNPT
 from .system import (DRIFT, KINETIC, LAMBDA, LAMBDA_MIN, P_LAMBDA, PISTON,
-                     VIRIAL, NPTHamiltonian, ScaledKick, virial_noise)
+                     VIRIAL, KineticKick, NPTHamiltonian, Piston,
+                     ScaledKick, VirialKick)
 
 #: The entries of the lower-triangular ``M`` the variables hold, in order.
 ROWS, COLUMNS = np.array([0, 1, 1, 2, 2, 2]), np.array([0, 0, 1, 0, 1, 2])
@@ -341,16 +340,15 @@ class CellKick(ScaledKick):
         cotangents[LAMBDA] += ch * np.array([dot(a_nc, d) for d in d_knc])
 
 
-class CellVirial(SubStep):
+class CellVirial(VirialKick):
     """``P += round_odd(c h (-V M^-T (sigma + P_ext) - J) / q)`` on the
-    six entries; guarded like :class:`~.system.VirialKick`."""
+    six entries; guarded as :class:`~.system.VirialKick` is."""
 
-    def __init__(self, system):
-        self.system = system
-        self._key = self._r = None
-
-    def prepare(self, ch):
-        return ch / self.system.p_lam.quantum
+    def push(self, clean):
+        """float ``[6]``: the piston's force (eV) from the stress, the one
+        from a clean neighbour list if ``clean``."""
+        kick = self.system.kick
+        return self.force(kick.clean_stress() if clean else kick.stress())
 
     def force(self, sigma, m=None):
         """The six entries of the piston's force (eV) for the stress
@@ -367,25 +365,6 @@ class CellVirial(SubStep):
         g[2, 2] -= 2.0 * s.kT / m[2, 2]
         return g[ROWS, COLUMNS]
 
-    def apply(self, scale):
-        s = self.system
-        key = (s.x.label, s.lam.label, scale)
-        if self._key != key:
-            self._key = None
-            kick = s.kick
-            y_k = scale * self.force(kick.stress())
-            if s.purity.mode == 'guarded' and not kick.stress_is_clean():
-                bound = abs(scale) * virial_noise(
-                    s.atoms, s.purity, kick.forces(), s.lam_value())
-                if np.abs(y_k - round_odd(y_k)).max() > 0.5 - bound:
-                    y_k = scale * self.force(kick.clean_stress())
-            self._r = round_odd(y_k)
-            self._key = key
-        s.p_lam.add_integers(self._r, float(np.abs(self._r).max()))
-
-    def rollback(self):
-        self._key = None
-
     def adjoint(self, cotangents, ch):
         """``a_rho += c h sum_k a_k D_k``, ``a_M += c h a . dg/dM``
         (:meth:`CellKick.entry_derivatives`)."""
@@ -399,26 +378,15 @@ class CellVirial(SubStep):
         cotangents[LAMBDA] += ch * (dg_kl @ a_k)
 
 
-class CellKinetic(SubStep):
+class CellKinetic(KineticKick):
     """``P += round_odd(c h sum q^T p / m / q)`` (lower-triangular
     entries)."""
 
-    def __init__(self, system):
-        self.system = system
-        self._key = self._force = None
-
-    def prepare(self, ch):
-        return ch / self.system.p_lam.quantum
-
-    def apply(self, scale):
-        s = self.system
-        key = (s.p.label, s.lam.label)
-        if self._key != key:
-            p_nc, v_nc = s.velocities()
-            self._force = np.array([dot(v_nc[:, a], p_nc[:, b])
-                                    for a, b in zip(ROWS, COLUMNS)])
-            self._key = key
-        s.p_lam.add_rounded(scale * self._force)
+    def force(self):
+        """float ``[6]``: the push ``sum q^T p / m`` (eV)."""
+        p_nc, v_nc = self.system.velocities()
+        return np.array([dot(v_nc[:, a], p_nc[:, b])
+                         for a, b in zip(ROWS, COLUMNS)])
 
     def adjoint(self, cotangents, ch):
         """With ``A`` the lower-triangular matrix of ``a = a_P``: ``a_pi
@@ -445,21 +413,18 @@ class CellKinetic(SubStep):
             / m_n1
 
 
-class CellPiston(SubStep):
+class CellPiston(Piston):
     """``M += round_odd(c h P / W / q)``; the diagonal must stay above
     :data:`~.system.LAMBDA_MIN`."""
 
-    def __init__(self, system):
-        self.system = system
+    def momentum(self):
+        """``P``, the six entries, eV ASE time."""
+        return self.system.p_lam.floats
 
-    def prepare(self, ch):
-        s = self.system
-        return ch / (s.W * s.lam.quantum)
-
-    def apply(self, factor):
-        s = self.system
-        s.lam.add_rounded(factor * s.p_lam.floats)
-        m = s.matrices()[0]
+    def refuse_collapse(self):
+        """Raise UnstableIntegrationError if the cell's deformation is too
+        small along its diagonal."""
+        m = self.system.matrices()[0]
         diagonal = (m[0, 0], m[1, 1], m[2, 2])
         if not min(diagonal) > LAMBDA_MIN:
             raise UnstableIntegrationError(
@@ -469,17 +434,6 @@ class CellPiston(SubStep):
                 'too high for this system: use a larger pdamp, a smaller '
                 'time step, or a pressure nearer the system\'s own. The '
                 'step was not taken; the state is valid and reversible.')
-        s.show_cell()
-        s.show_positions()
-
-    def rollback(self):
-        s = self.system
-        s.show_cell()
-        s.show_positions()
-
-    def adjoint(self, cotangents, ch):
-        """``a_P += c h a_M / W``."""
-        cotangents[P_LAMBDA] += ch / self.system.W * cotangents[LAMBDA]
 
 
 class CellFriction(ScaledFriction):
@@ -500,13 +454,8 @@ class CellFriction(ScaledFriction):
         if zero_sum is not None:
             noise_k = without_net_momentum(noise_k, *zero_sum)
         before = s.kinetic_energy()
-        if forward:
-            new_k = buffer.scale_down(x_k, mask_k) + noise_k
-        else:
-            try:
-                new_k = buffer.scale_up(x_k - noise_k, mask_k)
-            except BufferUnderflowError:
-                raise RetraceLimitError(past_the_anchor(s)) from None
+        new_k = exact_o_step(buffer, x_k, noise_k, forward, mask_k,
+                             past_the_anchor(s))
         p.add_integers((new_k - x_k).astype(np.float64).reshape(self.shape))
         self.heat += s.kinetic_energy() - before
         if piston_part is not None:
@@ -520,15 +469,15 @@ class CellFriction(ScaledFriction):
         cotangents.flush()
         s = self.system
         atoms_part, piston_part = self.prepare(ch)
-        sigma_k, key, zero_sum = atoms_part[3], atoms_part[4], atoms_part[5]
-        s_nc = (s.p.quantum * sigma_k
-                * self.noise.normals(key, self.step_of())).reshape(self.shape)
+        s_nc = (s.p.quantum * atoms_part.sigma_k * self.noise.normals(
+            atoms_part.key, self.step_of())).reshape(self.shape)
         a_nc = cotangents['momentum']
-        if zero_sum is not None:
-            a_nc = a_nc - (zero_sum[0] * a_nc).sum(axis=0)
+        if atoms_part.zero_sum is not None:
+            a_nc = a_nc - (atoms_part.zero_sum[0] * a_nc).sum(axis=0)
         outer = a_nc.T @ s_nc
         cotangents[LAMBDA] += outer[ROWS, COLUMNS]
-        cotangents['momentum'] *= exact_ratio(self.settings()[0], ch)[1]
+        cotangents['momentum'] *= exact_ratio(self.settings().friction,
+                                              ch)[1]
         if piston_part is not None:
             cotangents[P_LAMBDA] *= exact_ratio(self.piston.friction, ch)[1]
 

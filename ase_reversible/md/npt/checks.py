@@ -1,5 +1,5 @@
 """What :class:`~.isotropic.ReversibleIsotropicNPT` checks of its
-arguments and atoms, and reads of restart records and buffer files."""
+arguments and atoms, and its warning of a record it cannot resume."""
 
 from __future__ import annotations
 
@@ -12,21 +12,6 @@ from ase.calculators.calculator import PropertyNotImplementedError
 
 from ...errors import AnchorMovedWarning, UnsupportedConstraintError
 from .system import cell_volume
-
-
-def _load_piston(piston, saved):
-    """Take the piston's buffers from a buffer file's arrays."""
-    for key in saved:
-        if key.startswith('piston_') and key.endswith('_state'):
-            n = int(key.split('_')[1])
-            buffer = None if piston is None else piston.buffers.get(n)
-            if buffer is None:
-                raise ValueError(
-                    'The buffer file was written with another pdamp or '
-                    'time step: construct with those of the run that '
-                    'wrote it.')
-            buffer.load(saved[key], saved[f'piston_{n}_top'],
-                        saved[f'piston_{n}_words'])
 
 
 def _warn_new_run(why):
@@ -98,14 +83,3 @@ def _refuse_stressless(atoms, name='ReversibleIsotropicNPT'):
     if np.shape(stress) != (6,) or not np.isfinite(stress).all():
         raise ValueError(f'The stress of {type(atoms.calc).__name__} is not '
                          f'six finite numbers: {stress!r}.')
-
-
-def _resumed_noise(section, timestep):
-    try:
-        if section is not None and float(section['timestep']) == abs(
-                timestep):
-            return {'seed': int(section['seed']),
-                    'step': int(section['step'])}
-    except (KeyError, TypeError, ValueError):
-        pass
-    return None

@@ -5,15 +5,16 @@ piston's momentum."""
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
-from ...core.infobuffer import BufferUnderflowError, InformationBuffer
+from ...core.infobuffer import InformationBuffer
 from ...core.noise import StepNoise
 from ...core.portable import dot
 from ...errors import RetraceLimitError
-from ..buffered import BufferedStep
-from ..langevin import Friction, exact_ratio
+from ..buffered import BufferedStep, buffer_arrays, load_buffer_arrays
+from ..langevin import Friction, exact_o_step, exact_ratio
 from .system import LAMBDA, P_LAMBDA
 
 
@@ -49,11 +50,10 @@ class ScaledFriction(Friction):
     def apply(self, prepared):
         atoms_part, piston_part = prepared
         lam = self.system.lam_value()
-        parts = list(atoms_part)
-        parts[3] = atoms_part[3] * lam
-        parts[6] = atoms_part[6] / (lam * lam)
         try:
-            super().apply(tuple(parts))
+            super().apply(atoms_part._replace(
+                sigma_k=atoms_part.sigma_k * lam,
+                inverse_mass_k=atoms_part.inverse_mass_k / (lam * lam)))
         except RetraceLimitError:
             raise RetraceLimitError(past_the_anchor(self.system)) from None
         if piston_part is not None:
@@ -64,10 +64,25 @@ class ScaledFriction(Friction):
         if self.piston is not None:
             self.piston.forget()
 
-    def active_buffers(self):
-        """The atoms' buffers that hold digits, by friction ratio ``n``
-        (the piston's: ``piston.active_buffers()``)."""
-        return super().active_buffers()
+    def arrays(self):
+        """The buffers that hold digits as a buffer file holds them, by
+        array name: the atoms' under ``buffer``, the piston's under
+        ``piston``."""
+        arrays = buffer_arrays('buffer', self.active_buffers())
+        if self.piston is not None:
+            arrays.update(buffer_arrays('piston',
+                                        self.piston.active_buffers()))
+        return arrays
+
+    def load(self, saved):
+        """Take the atoms' and the piston's buffers from a buffer file's
+        arrays (``saved``, by name)."""
+        super().load(saved)
+        load_buffer_arrays(
+            'piston', {} if self.piston is None else self.piston.buffers,
+            saved, lambda n: 'The buffer file was written with another '
+            'pdamp or time step: construct with those of the run that '
+            'wrote it.')
 
     def checkpoint(self):
         super().checkpoint()
@@ -86,13 +101,14 @@ class ScaledFriction(Friction):
         cotangents.flush()
         s = self.system
         atoms_part, piston_part = self.prepare(ch)
-        sigma_k, key, zero_sum = atoms_part[3], atoms_part[4], atoms_part[5]
-        n_k = s.p.quantum * sigma_k * self.noise.normals(key, self.step_of())
+        n_k = s.p.quantum * atoms_part.sigma_k * self.noise.normals(
+            atoms_part.key, self.step_of())
         n_nc = n_k.reshape(self.shape)
-        if zero_sum is not None:
-            n_nc = n_nc - zero_sum[0] * n_nc.sum(axis=0)
+        if atoms_part.zero_sum is not None:
+            n_nc = n_nc - atoms_part.zero_sum[0] * n_nc.sum(axis=0)
         cotangents[LAMBDA] += dot(cotangents['momentum'], n_nc)
-        cotangents['momentum'] *= exact_ratio(self.settings()[0], ch)[1]
+        cotangents['momentum'] *= exact_ratio(self.settings().friction,
+                                              ch)[1]
         if piston_part is not None:
             cotangents[P_LAMBDA] *= exact_ratio(self.piston.friction, ch)[1]
 
@@ -110,6 +126,18 @@ class _MoreNormals(StepNoise):
         z = super().normals(key, step)
         self.extra = z[self.atoms_size:]
         return z[:self.atoms_size]
+
+
+class PistonPlan(NamedTuple):
+    """One O step of the piston at a coefficient ``ch``, as
+    :meth:`PistonFriction.prepare` makes it."""
+
+    #: ``ch > 0``.
+    forward: bool
+    #: The information buffer of the step's friction ratio.
+    buffer: InformationBuffer
+    #: The noise's spread, in counts of ``p_lambda``.
+    sigma: float
 
 
 class PistonFriction(BufferedStep):
@@ -142,7 +170,7 @@ class PistonFriction(BufferedStep):
             buffer = self.buffers[n] = InformationBuffer(self.size, n)
         sigma = math.sqrt((1.0 - ratio * ratio) * s.W * s.kT) \
             / s.p_lam.quantum
-        return ch > 0, buffer, sigma
+        return PistonPlan(ch > 0, buffer, sigma)
 
     def apply(self, prepared, xi_k):
         """One O step of ``p_lambda`` with the standard normal deviates
@@ -151,14 +179,8 @@ class PistonFriction(BufferedStep):
         p = self.system.p_lam
         x_k = p.ints.reshape(-1)
         noise_k = np.rint(sigma * xi_k).astype(np.int64)
-        if forward:
-            new_k = buffer.scale_down(x_k) + noise_k
-        else:
-            try:
-                new_k = buffer.scale_up(x_k - noise_k)
-            except BufferUnderflowError:
-                raise RetraceLimitError(
-                    past_the_anchor(self.system)) from None
+        new_k = exact_o_step(buffer, x_k, noise_k, forward, None,
+                             past_the_anchor(self.system))
         q = p.quantum
         old_k, new_k_q = x_k * q, new_k * q
         self.heat += 0.5 * (dot(new_k_q, new_k_q) - dot(old_k, old_k)) \

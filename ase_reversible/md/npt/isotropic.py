@@ -12,23 +12,22 @@ from ase import units
 
 from ...core.arguments import checked_positive
 from ...core.compositions import composition_for
-from ...core.engine import Engine, InvariantCheck
 from ...core.portable import dot
 from ...core.record import read_record
 from ...errors import MachineChangedWarning
-from ..buffered import BufferedDynamics, buffer_arrays, state_digest
+from ..buffered import BufferedDynamics, resume_point
 from ..checks import (check_energy_watch, check_timestep, checked_friction,
                       checked_seed, fixed)
 from ..hamiltonian import largest_kick
+from ..langevin import FrictionSettings
 from ..machine import describe, digest, platform
 from ..watch import SystemWatch
 from .friction import PistonFriction, ScaledFriction
 from .system import (DRIFT, FRICTION, KICK, KINETIC, LAMBDA, LAMBDA_QUANTUM,
                      P_LAMBDA, PISTON, RECOVERABLE, VIRIAL, KineticKick,
                      NPTHamiltonian, Piston, VirialKick, p_lambda_quantum)
-from .checks import (_checked_pressure, _load_piston, _refuse_cell,
-                     _refuse_constraints, _refuse_stressless, _resumed_noise,
-                     _warn_new_run)
+from .checks import (_checked_pressure, _refuse_cell, _refuse_constraints,
+                     _refuse_stressless, _warn_new_run)
 
 #: ``B/2 P/2 T/2 O T/2 P/2 B/2`` (:mod:`ase_reversible.md.npt`): a
 #: palindrome, so the same sequence run with -h undoes a step.  The two
@@ -63,6 +62,17 @@ _ASE_ONLY = {
            'can draw again: pass seed=<int> instead of rng',
 }
 
+
+def _fixed_setting(name, attribute, doc):
+    """A property that shows the system's ``attribute`` as ``name`` and
+    refuses assignment (the setting is fixed at construction)."""
+    def show(self):
+        return getattr(self.system, attribute)
+
+    def refuse(self, value):
+        fixed(name)
+    show.__doc__ = doc
+    return property(show, refuse)
 
 
 def _settings(system):
@@ -155,6 +165,7 @@ class ReversibleIsotropicNPT(BufferedDynamics):
     """
 
     record_sections = ('npt',)
+    buffer_mark = 'pressure_au'
     _ase_counterpart = 'IsotropicMTKNPT'
     _system_class = NPTHamiltonian
     _friction_class = ScaledFriction
@@ -221,36 +232,22 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         # Compared with this machine's stress once the integrator stands.
         self._resumed_stress = None if section is None else \
             section.get('stress')
-        resumed = _resumed_noise(section, timestep)
-        if seed is None and resumed is not None:
-            seed = resumed['seed']
-        self._seed = checked_seed(seed)
-        step = resumed['step'] if resumed is not None else 0
+        resumed_seed, step = resume_point(section, timestep)
+        self._seed = checked_seed(resumed_seed if seed is None else seed)
         piston = PistonFriction(system, checked_friction(
             1.0 / pdamp, timestep), system.p_lam.ints.size) \
             if PISTON_FRICTION else None
         friction_step = self._friction_class(
-            system, lambda: (friction, system.temperature_K, True, self._seed),
+            system, lambda: FrictionSettings(friction, system.temperature_K,
+                                             True, self._seed),
             self._step_of, piston)
         substep = {KICK: system.kick, FRICTION: friction_step,
                    **self._barostat_substeps(system)}
-        invariant = InvariantCheck(
-            energy_check, energy_tolerance, self._balance,
-            self._explain_drift, trigger=self._balance_trigger)
-        engine = Engine(system.variables,
-                        tuple((substep[k], c) for k, c in SCHEME),
-                        composition_for(2, None), timestep,
-                        invariant=invariant)
+        engine = self._buffered_engine(system, SCHEME, substep, timestep,
+                                       energy_check, energy_tolerance)
         self.friction_step = self.buffered_step = friction_step
-        engine.step_index = engine.anchor_index = step
-        saved = None if buffer is None else self._read_buffer(
-            buffer, system, timestep, step)
-        if saved is not None:
-            engine.anchor_index = int(saved['anchor_step'])
-            engine.anchor = {name: saved[f'anchor_{name}']
-                             for name in engine.variables}
-            friction_step.load(saved)
-            _load_piston(friction_step.piston, saved)
+        self._resume(engine, step, buffer, _settings(system),
+                     friction_step.load)
         time0 = record['time'] - engine.elapsed() if record else 0.0
         self._attach(system, engine, (force_purity, force_noise), time0)
         system.show_cell()
@@ -340,36 +337,6 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         system.p.reset(pi)
         return None
 
-    def _read_buffer(self, path, system, timestep, step):
-        with np.load(path) as f:
-            saved = {key: f[key] for key in f.files}
-        problems = []
-        if int(saved['seed']) != self._seed:
-            problems.append(f'it was written with seed {int(saved["seed"])}, '
-                            f'not {self._seed}')
-        if float(saved['timestep']) != abs(timestep):
-            problems.append('it was written at a time step of '
-                            f'{float(saved["timestep"]) / units.fs:g} fs')
-        # The steps behind the frame retrace only under the dynamics they
-        # were taken with.
-        for name, value in _settings(system).items():
-            if name not in saved:
-                problems.append(f'it holds no {name}')
-            elif float(saved[name]) != value:
-                problems.append(f'it was written with {name} = '
-                                f'{float(saved[name]):g}, not {value:g}')
-        state = {name: v.ints for name, v in system.variables.items()}
-        if int(saved['step']) != step or str(saved['digest']) != \
-                state_digest(state):
-            problems.append(f'it was written at step {int(saved["step"])} '
-                            'of another state')
-        if problems:
-            raise ValueError(
-                f'The buffer file {path} does not belong to these atoms: '
-                + '; '.join(problems) + '. Pass the frame written together '
-                'with it, or no buffer to go on without the way back.')
-        return saved
-
     def write_buffer(self, path):
         """Write what reversal through this point needs to ``path`` (NumPy
         ``.npz``), as :meth:`ase_reversible.ReversibleLangevin.write_buffer`
@@ -378,15 +345,9 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         the restarted run goes back past the restart point."""
         # The machine is checked through the frame's record (the stress's
         # digest), not the file.
-        arrays = self._buffer_arrays(machine=False)
-        arrays.update(_settings(self.system))
-        arrays.update(buffer_arrays('buffer',
-                                    self.friction_step.active_buffers()))
-        piston = self.friction_step.piston
-        if piston is not None:
-            arrays.update(buffer_arrays('piston', piston.active_buffers()))
-        with open(path, 'wb') as f:
-            np.savez(f, **arrays)
+        self._save_buffer(path, {**_settings(self.system),
+                                 **self.friction_step.arrays()},
+                          machine=False)
 
     def _check_machine(self, section):
         same = super()._check_machine(section)
@@ -598,41 +559,17 @@ class ReversibleIsotropicNPT(BufferedDynamics):
 
     # -- the ensemble --------------------------------------------------------
 
-    @property
-    def temperature_K(self) -> float:
-        """Target temperature, K (fixed at construction)."""
-        return self.system.temperature_K
-
-    @property
-    def pressure_au(self) -> float:
-        """Target pressure, eV/Å**3 (fixed at construction)."""
-        return self.system.pressure
-
-    @property
-    def tdamp(self) -> float:
-        """The thermostat's time, ASE time units (friction ``1 / tdamp``)."""
-        return self.system.tdamp
-
-    @property
-    def pdamp(self) -> float:
-        """The barostat's time, ASE time units."""
-        return self.system.pdamp
-
-    @temperature_K.setter
-    def temperature_K(self, value):
-        fixed('temperature_K')
-
-    @pressure_au.setter
-    def pressure_au(self, value):
-        fixed('pressure_au')
-
-    @tdamp.setter
-    def tdamp(self, value):
-        fixed('tdamp')
-
-    @pdamp.setter
-    def pdamp(self, value):
-        fixed('pdamp')
+    temperature_K = _fixed_setting(
+        'temperature_K', 'temperature_K',
+        'Target temperature, K (fixed at construction).')
+    pressure_au = _fixed_setting(
+        'pressure_au', 'pressure',
+        'Target pressure, eV/Å**3 (fixed at construction).')
+    tdamp = _fixed_setting(
+        'tdamp', 'tdamp',
+        'The thermostat\'s time, ASE time units (friction ``1 / tdamp``).')
+    pdamp = _fixed_setting('pdamp', 'pdamp',
+                           'The barostat\'s time, ASE time units.')
 
     @property
     def barostat_position(self) -> float:

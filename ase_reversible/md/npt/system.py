@@ -372,7 +372,20 @@ class ScaledKick(Kick):
 
 
 
-class VirialKick(SubStep):
+class PistonPush(SubStep):
+    """A push on the piston's momentum, ``p_lambda += round_odd(c h f /
+    q)`` (``q`` its quantum), prepared as ``c h / q``; what it computes is
+    kept under ``_key``, the labels of the state it read."""
+
+    def __init__(self, system):
+        self.system = system
+        self._key = None
+
+    def prepare(self, ch):
+        return ch / self.system.p_lam.quantum
+
+
+class VirialKick(PistonPush):
     """``p_lambda += round_odd(c h G / q)``, ``G = -lambda**2 V0 (tr(sigma)
     + 3P) + 2 kT / lambda`` (see :mod:`ase_reversible.md.npt`).
 
@@ -382,12 +395,12 @@ class VirialKick(SubStep):
     for the next half step at the same positions and cell.
     """
 
-    def __init__(self, system):
-        self.system = system
-        self._key = self._r = None
-
-    def prepare(self, ch):
-        return ch / self.system.p_lam.quantum
+    def push(self, clean):
+        """float ``[entries of p_lambda]``: ``G`` (eV) from the stress, the
+        one from a clean neighbour list if ``clean``."""
+        kick = self.system.kick
+        return np.array([self.force(kick.clean_stress_trace() if clean
+                                    else kick.stress_trace())])
 
     def force(self, trace):
         """``G`` (eV) for the stress trace ``trace`` (eV/Å**3)."""
@@ -402,16 +415,15 @@ class VirialKick(SubStep):
         if self._key != key:
             self._key = None
             kick = s.kick
-            y = scale * self.force(kick.stress_trace())
+            y_k = scale * self.push(clean=False)
             if s.purity.mode == 'guarded' and not kick.stress_is_clean():
-                bound = abs(scale) * virial_noise(s.atoms, s.purity,
-                                                  kick.forces(),
-                                                  s.lam_value())
-                if abs(y - round_odd(y)) > 0.5 - bound:
-                    y = scale * self.force(kick.clean_stress_trace())
-            self._r = np.array([round_odd(y)])
+                bound = abs(scale) * virial_noise(
+                    s.atoms, s.purity, kick.forces(), s.lam_value())
+                if np.abs(y_k - round_odd(y_k)).max() > 0.5 - bound:
+                    y_k = scale * self.push(clean=True)
+            self._r = round_odd(y_k)
             self._key = key
-        s.p_lam.add_integers(self._r, abs(float(self._r[0])))
+        s.p_lam.add_integers(self._r, float(np.abs(self._r).max()))
 
     def rollback(self):
         self._key = None
@@ -459,23 +471,23 @@ def p_lambda_quantum(atoms, purity, spread, max_kick):
     return max(q, math.ldexp(1.0, math.frexp(floor)[1]))
 
 
-class KineticKick(SubStep):
+class KineticKick(PistonPush):
     """``p_lambda += round_odd(c h 2K / lambda / q)``, ``2K = sum pi**2 /
     (m lambda**2)``; computed once per value of ``pi`` and ``lambda``."""
 
-    def __init__(self, system):
-        self.system = system
-        self._key = self._force = None
+    _force = None
 
-    def prepare(self, ch):
-        return ch / self.system.p_lam.quantum
+    def force(self):
+        """The push ``2K / lambda`` (eV)."""
+        s = self.system
+        lam = s.lam_value()
+        return s.momentum_square() / (lam * lam * lam)
 
     def apply(self, scale):
         s = self.system
         key = (s.p.label, s.lam.label)
         if self._key != key:
-            lam = s.lam_value()
-            self._force = s.momentum_square() / (lam * lam * lam)
+            self._force = self.force()
             self._key = key
         s.p_lam.add_rounded(scale * self._force)
 
@@ -509,8 +521,18 @@ class Piston(SubStep):
 
     def apply(self, factor):
         s = self.system
-        s.lam.add_rounded(factor * float(s.p_lam.floats[0]))
-        lam = s.lam_value()
+        s.lam.add_rounded(factor * self.momentum())
+        self.refuse_collapse()
+        s.show_cell()
+        s.show_positions()
+
+    def momentum(self):
+        """``p_lambda``, eV ASE time."""
+        return float(self.system.p_lam.floats[0])
+
+    def refuse_collapse(self):
+        """Raise UnstableIntegrationError if the cell is too small."""
+        lam = self.system.lam_value()
         if not lam > LAMBDA_MIN:
             raise UnstableIntegrationError(
                 f'The cell collapsed: its linear scale reached {lam:.4g} of '
@@ -520,8 +542,6 @@ class Piston(SubStep):
                 'use a larger pdamp, a smaller time step, or a pressure '
                 'nearer the system\'s own. The step was not taken; the '
                 'state is valid and reversible.')
-        s.show_cell()
-        s.show_positions()
 
     def rollback(self):
         s = self.system
