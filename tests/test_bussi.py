@@ -16,7 +16,7 @@ from ase import units
 from ase.constraints import FixAtoms, FixCartesian, FixCom, FixedLine
 from ase.io import Trajectory, read
 from ase.md.bussi import Bussi
-from hypothesis import assume, given, settings, strategies as st
+from hypothesis import assume, example, given, settings, strategies as st
 
 from ase_reversible import (AnchorMovedWarning, RetraceLimitError,
                             ReversibleBussi, UnstableIntegrationError,
@@ -63,6 +63,8 @@ ratios = st.lists(st.integers(N_MIN, N_MAX - 1)
 
 @settings(max_examples=150, deadline=None)
 @given(counts, ratios, st.integers(0, 2**32))
+# A chain whose product leaves the counts' range (found by hypothesis).
+@example([4503599249092482], [37748738, 134217727], 265556934)
 def test_scaling_is_undone_bit_for_bit_for_ratios_on_both_sides_of_one(
         xs, ns, seed):
     """Any sequence of ratios, below and above 1, out and back: the counts
@@ -73,6 +75,10 @@ def test_scaling_is_undone_bit_for_bit_for_ratios_on_both_sides_of_one(
     x = np.array(xs, dtype=np.int64)
     path = [x]
     for n in ns:
+        if np.abs(path[-1]).max() >= 2**53:
+            # The momentum variable refuses counts from 2**53 on (before
+            # the buffer sees them): beyond is outside the coder's domain.
+            break
         new = buffer.scale(path[-1], n)
         exact = path[-1].astype(object) * n
         assert all(-D < int(a) * D - int(e) < n

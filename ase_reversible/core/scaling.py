@@ -151,8 +151,9 @@ class ScalingBuffer:
 
     def scale(self, x_k, n, mask_k=None):
         """``x n / 2**20`` exactly (int64 ``[size]``), ``n`` stored.
-        ``mask_k`` (bool) leaves other coordinates and their buffers as
-        they are."""
+        ``x_k``: counts below ``2**53`` in magnitude, the exact variables'
+        range (the products then stay below ``2**63``).  ``mask_k`` (bool)
+        leaves other coordinates and their buffers as they are."""
         x_k = np.asarray(x_k, dtype=np.int64)
         s, top = self.state_k.copy(), self.top_k.copy()
         if n < _D:
