@@ -13,7 +13,7 @@ from typing import Callable
 import numpy as np
 from ase import units
 
-from .. import LennardJones, PendulumChain, SoftenedGravity
+from ..calculators import LennardJones, PendulumChain, SoftenedGravity
 # The builders stay at their modules' paths: only the calculators are
 # exported by the package.
 from ..calculators import make_chain, make_ring

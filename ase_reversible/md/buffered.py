@@ -23,6 +23,7 @@ from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
 from ..core.plans import SubStep
 from .base import ReversibleDynamics
+from .checks import checked_seed
 from .machine import frame_section
 
 
@@ -63,17 +64,20 @@ def load_buffer_arrays(prefix, buffers, saved, unknown):
                         saved[f'{prefix}_{n}_words'])
 
 
-def resume_point(section, timestep):
-    """``(seed, step)`` from a restart record's section of a dynamics with
-    noise if it was written at this size of time step (the draws of a step
-    are keyed by both), else ``(None, 0)``: a new run from step 0."""
+def resume_point(section, timestep, seed):
+    """``(seed, step)`` to go on from: the record's seed and step if its
+    ``section`` of a dynamics with noise was written at this size of time
+    step (the draws of a step are keyed by both), else a new run from step
+    0.  A ``seed`` the user passes wins over the record's; the result is
+    checked (:func:`~.checks.checked_seed`: None draws a fresh one)."""
+    resumed, step = None, 0
     try:
         if section is not None and float(section['timestep']) == abs(
                 timestep):
-            return int(section['seed']), int(section['step'])
+            resumed, step = int(section['seed']), int(section['step'])
     except (KeyError, TypeError, ValueError):
         pass
-    return None, 0
+    return checked_seed(resumed if seed is None else seed), step
 
 
 #: How a buffer file shows which dynamics wrote it: an array only that

@@ -58,7 +58,7 @@ from ..core import portable
 from ..core.scaling import N_MAX, N_MIN, RATIO_BITS, ScalingBuffer
 from ..errors import RetraceLimitError
 from .buffered import BufferedDynamics, BufferedMomentumStep, resume_point
-from .checks import (check_energy_watch, check_timestep, checked_seed,
+from .checks import (check_energy_watch, check_timestep,
                      refuse_plane_and_line_constraints)
 from .hamiltonian import largest_kick
 from .watch import SystemWatch
@@ -371,9 +371,8 @@ class ReversibleBussi(BufferedDynamics):
                                 KICK),
             position_quantum, momentum_quantum,
             force_purity, force_noise)
-        resumed_seed, step = resume_point(
-            record.get('bussi') if record else None, timestep)
-        self._seed = checked_seed(resumed_seed if seed is None else seed)
+        self._seed, step = resume_point(
+            record.get('bussi') if record else None, timestep, seed)
         rescale = Rescale(system, self._settings, self._step_of)
         substep = {KICK: system.kick, DRIFT: system.drift, RESCALE: rescale}
         engine = self._buffered_engine(system, SCHEME, substep, timestep,

@@ -43,7 +43,7 @@ from ..errors import RetraceLimitError
 from .buffered import (BufferedDynamics, BufferedMomentumStep, buffer_arrays,
                        load_buffer_arrays, resume_point)
 from .checks import (check_energy_watch, check_temperature_K,
-                     check_timestep, checked_friction, checked_seed,
+                     check_timestep, checked_friction,
                      refuse_plane_and_line_constraints)
 from .hamiltonian import largest_kick
 from .watch import SystemWatch
@@ -354,9 +354,8 @@ class ReversibleLangevin(BufferedDynamics):
                                 KICK),
             position_quantum, momentum_quantum,
             force_purity, force_noise)
-        resumed_seed, step = resume_point(
-            record.get('langevin') if record else None, timestep)
-        self._seed = checked_seed(resumed_seed if seed is None else seed)
+        self._seed, step = resume_point(
+            record.get('langevin') if record else None, timestep, seed)
         friction_step = Friction(system, self._settings, self._step_of)
         substep = {KICK: system.kick, DRIFT: system.drift,
                    FRICTION: friction_step}

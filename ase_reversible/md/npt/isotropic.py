@@ -17,7 +17,7 @@ from ...core.record import read_record
 from ...errors import MachineChangedWarning
 from ..buffered import BufferedDynamics, resume_point
 from ..checks import (check_energy_watch, check_timestep, checked_friction,
-                      checked_seed, fixed)
+                      fixed)
 from ..hamiltonian import largest_kick
 from ..langevin import FrictionSettings
 from ..machine import describe, digest, platform
@@ -232,8 +232,7 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         # Compared with this machine's stress once the integrator stands.
         self._resumed_stress = None if section is None else \
             section.get('stress')
-        resumed_seed, step = resume_point(section, timestep)
-        self._seed = checked_seed(resumed_seed if seed is None else seed)
+        self._seed, step = resume_point(section, timestep, seed)
         piston = PistonFriction(system, checked_friction(
             1.0 / pdamp, timestep), system.p_lam.ints.size) \
             if PISTON_FRICTION else None
