@@ -1,12 +1,38 @@
-"""The sections of docs/benchmarks.md, each rendered from its stored JSON.
+"""What each section of the docs shows of its stored JSON.
 
-One module per section, named like its measurement script, with ``TITLE``,
-``markdown(results) -> str`` and ``plot(results, figures)`` (writes the
-section's PNG files into ``figures``).  Nothing here measures or imports
-the library: a page can be rebuilt from the JSON alone.
+``SPECS[name]`` (in the order of docs/benchmarks.md) is a ``Spec``: the
+section's heading, its blocks (each a function of the stored JSON to
+Markdown: tables, lists, figure links) and its plots (each writes PNG
+files into a folder).  Nothing here measures, judges or imports the
+library: the pages can be rebuilt from the JSON alone.
 """
 
 from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from typing import Callable
+
+
+@dataclass(frozen=True)
+class Spec:
+    """A section: its ``## title`` in docs/benchmarks.md, ``blocks``
+    {name: function(stored JSON) -> Markdown}, each filled between its
+    markers in whichever docs page holds them, and ``plots`` (functions
+    of ``results`` and a folder, writing PNG files)."""
+    title: str
+    blocks: dict = field(default_factory=dict)
+    plots: tuple[Callable, ...] = ()
+
+
+def measured(stored) -> str:
+    """The line that says when, how and where a section was measured."""
+    machine = stored['machine']
+    return (f"*Measured {stored['date']} by `{stored['command']}` in "
+            f"{stored['wall_seconds']:.0f} s on {machine['cpu_model']} "
+            f"({machine['nproc']} cores), commit {machine['git_commit']}"
+            + (', **quick mode: small cases, few repeats**'
+               if stored['quick'] else '') + '.*')
 
 
 def markdown_table(header, rows) -> str:
@@ -23,3 +49,25 @@ def pyplot():
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     return plt
+
+
+def legacy_spec(module) -> Spec:
+    blocks = {'page': lambda stored: module.markdown(stored['results'])}
+    for (_, block), make in getattr(module, 'DOC_BLOCKS', {}).items():
+        blocks[block] = make
+    return Spec(module.TITLE, blocks, (module.plot,))
+
+
+NAMES = ('step_cost', 'calculators', 'savings', 'work_precision',
+         'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
+         'thermostat', 'nose', 'npt_sampling', 'npt_cost', 'lammps_cost',
+         'portable', 'force_noise', 'full_precision', 'long_reversal',
+         'torch_products', 'training')
+
+
+def load(name) -> Spec:
+    module = importlib.import_module(f'pages.{name}')
+    return getattr(module, 'SPEC', None) or legacy_spec(module)
+
+
+SPECS = {name: load(name) for name in NAMES}
