@@ -35,6 +35,10 @@ DOCS = ROOT / 'docs'
 SECTIONS = tuple(SPECS)
 
 MARKER = re.compile(r'<!-- (\w+) ([\w-]+): written by benchmarks/render\.py')
+#: A number in the prose: ``<!--=section {field:format}-->value<!---->``,
+#: the field a ``str.format`` one of the section's results (or of its
+#: spec's ``values``); the value after it is rewritten.
+INLINE = re.compile(r'<!--=(\w+) (.*?)-->(.*?)<!---->')
 
 
 def block_markers(name, block):
@@ -81,6 +85,19 @@ def block_markdown(name, block, stored) -> str:
     return SPECS[name].blocks[block](stored[name])
 
 
+def inline_values(text, stored) -> str:
+    """``text`` with every inline value rewritten from ``stored``."""
+    def value(match):
+        name, template = match[1], match[2]
+        if name not in stored:
+            return f'<!--={name} {template}-->?<!---->'
+        results = stored[name]['results']
+        fields = {**results, **SPECS[name].values(results)}
+        return (f'<!--={name} {template}-->{template.format(**fields)}'
+                '<!---->')
+    return INLINE.sub(value, text)
+
+
 def rendered_pages(out: Path) -> dict:
     """{page path: (old text, new text)} of every page of ``out`` with
     generated blocks.  Raises if a block is unknown or a declared one is
@@ -95,11 +112,11 @@ def rendered_pages(out: Path) -> dict:
                                      and block not in SPECS[name].blocks):
                 raise ValueError(f'{path.name}: no block {name} {block}')
             seen.setdefault((name, block), []).append(path.name)
-        if found:
-            new = text
-            for name, block in found:
-                new = with_blocks(new, name, {
-                    block: block_markdown(name, block, stored)})
+        new = inline_values(text, stored)
+        for name, block in found:
+            new = with_blocks(new, name, {
+                block: block_markdown(name, block, stored)})
+        if new != text or found:
             pages[path] = (text, new)
     for name, spec in SPECS.items():
         for block in ('measured', *spec.blocks):

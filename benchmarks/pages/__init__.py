@@ -18,11 +18,25 @@ from typing import Callable
 class Spec:
     """A section: its ``## title`` in docs/benchmarks.md, ``blocks``
     {name: function(stored JSON) -> Markdown}, each filled between its
-    markers in whichever docs page holds them, and ``plots`` (functions
-    of ``results`` and a folder, writing PNG files)."""
+    markers in whichever docs page holds them, ``plots`` (functions of
+    ``results`` and a folder, writing PNG files) and ``values``."""
     title: str
     blocks: dict = field(default_factory=dict)
     plots: tuple[Callable, ...] = ()
+    #: Named numbers derived from ``results`` for the pages' inline values
+    #: (beside the results' own fields): function(results) -> dict.
+    values: Callable = dict
+
+
+def block(make, *keys):
+    """A block: ``make`` of the stored results, or of the part of them
+    reached through ``keys``."""
+    def markdown(stored):
+        part = stored['results']
+        for key in keys:
+            part = part[key]
+        return make(part)
+    return markdown
 
 
 def measured(stored) -> str:
