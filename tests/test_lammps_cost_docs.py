@@ -33,8 +33,13 @@ def test_lammps_page_holds_the_stored_numbers():
     stored = json.loads((DOCS / 'benchmarks' / 'lammps_cost.json').read_text())
     assert stored['results']
     # Both blocks are there and hold more than their markers.
-    for name in ('costs', 'scaling'):
+    for name in ('costs', 'costs-goal'):
         assert re.search(r'\d', block('lammps.md', 'lammps_cost', name)), name
+    # The scaling model's inputs are the renderer's inline values.
+    scaling = (DOCS / 'lammps.md').read_text().split(
+        '## Scaling to 10^3 ranks')[1].split('## Not supported')[0]
+    inline = re.findall(r'<!--=lammps_cost [^>]*-->([^<]*)<!---->', scaling)
+    assert len(inline) > 10 and all(re.search(r'\d', v) for v in inline)
 
 
 def test_a_page_without_a_blocks_markers_is_refused(tmp_path):
@@ -47,12 +52,12 @@ def test_a_page_without_a_blocks_markers_is_refused(tmp_path):
         shutil.copy(DOCS / page, tmp_path)
     lammps = tmp_path / 'lammps.md'
     lammps.write_text(lammps.read_text().replace(
-        '<!-- lammps_cost scaling: written', '<!-- lammps_cost: written'))
+        '<!-- lammps_cost costs-goal: written', '<!-- lammps_cost: written'))
     checked = subprocess.run(
         [sys.executable, str(ROOT / 'benchmarks' / 'render.py'), '--check',
          '--out', str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert checked.returncode == 2, checked.stdout
-    assert 'block lammps_cost scaling is in no page' in checked.stdout
+    assert 'block lammps_cost costs-goal is in no page' in checked.stdout
 
 
 @pytest.mark.parametrize('path', ['compiled', 'python'])
