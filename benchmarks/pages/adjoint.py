@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import markdown_table, pyplot
+from . import Spec, block, markdown_table, pyplot
 
-TITLE = 'Gradients by the reversible adjoint'
 MEMORY_PLOT = 'adjoint_memory.png'
 COST_PLOT = 'adjoint_cost.png'
 MEMORY_KINDS = ('reversible', 'stored')
@@ -240,71 +239,12 @@ def cost_observations(cases):
     return '\n'.join(lines)
 
 
-def markdown(results):
-    memory, cost = results['memory'], results['cost']
-    s, cs = memory['system'], cost['settings']
-    systems = '\n'.join(f'- {v}' for v in results['cost_systems'].values())
-    return f"""\
-`ReversibleVerlet.backpropagate(N, dL/dx, dL/dp)` integrates the adjoint
-back along the exact forward path by running the N steps back, instead of
-storing the N states (`benchmarks/adjoint.py`). Time step
-{results['timestep_fs']:g} fs, default settings unless stated.
-
-### Memory against the number of steps
-
-{s['cluster']} at {s['temperature_K']:g} K (seed {s['seed']}; cold so the
-gradient stays moderate over long runs, net momentum removed so the cluster
-stays in its cell), {s['calculator']}. Every point is a
-fresh process; `tracemalloc` starts after the imports and the integrator's
-construction, so its peak covers the forward run and the gradient.
-
-- **reversible**: `dyn.run(N)`, then `dyn.backpropagate(N, dL/dx, dL/dp)`
-  for a fixed random linear loss on the final state; then `np.array_equal`
-  of positions and momenta with the start.
-- **stored**: the same integrator runs N steps with an observer appending
-  copies of the positions and momenta to a list at every step (what a
-  stored-trajectory adjoint keeps), then the same adjoint arithmetic runs
-  backwards over the stored positions with the calculator's
-  Hessian-vector product (`stored_adjoint`).
-
-Peak RSS is `ru_maxrss` at the end (in brackets: its growth over its value
-before the run); it includes the imported libraries and, for these runs,
-tracemalloc's own bookkeeping, shown for the stored runs in its own column.
-The workers ran {memory['parallel_workers']} at a time.
-
-![Peak memory against steps]\
-(benchmarks/{MEMORY_PLOT})
-
-{memory_table(memory['points'])}
-
-{memory_observations(memory)}
-
-### Cost of a gradient
-
-{systems}
-
-Per case: rounds of N steps (N chosen so a forward block takes about
-{cs['block_seconds']:g} s, at least {cs['min_steps']}), each `run(N)`
-followed by `backpropagate(N, ...)`, which returns the atoms to the start
-of the round, so every round repeats the same work.
-{cs['counting_rounds']} counting round(s) first: the calls of the
-calculator's `get_forces` / `get_potential_energy` that computed
-(`calculation_required`), with force calls made inside a Hessian-vector
-product counted apart, and the products through a counting wrapper; calls
-per step are totals over these rounds / steps. From the same rounds
-(medians): "backward time in products", the products' share of the
-backward time, and "one product in force calls", the time of a product
-over that of a forward force call. Then {cs['rounds']} timed rounds
-without wrappers: medians of time per step; "round spread" is the larger
-(max − min) / median of forward and backward; "wall / CPU" near 1.00
-means the process had the CPU to itself. Products: 'analytic' is the
-calculator's `hessian_vector_product`; the EMT calculators have none, so
-'auto' takes `FiniteDifferenceHVP` (two force calls per product).
-
-![Backward time per step in forward steps]\
-(benchmarks/{COST_PLOT})
-
-{cost_table(cost['cases'])}
-
-{cost_observations(cost['cases'])}
-"""
+SPEC = Spec(
+    'Gradients by the reversible adjoint',
+    blocks={'memory': block(memory_table, 'memory', 'points'),
+            'memory-observations': block(memory_observations, 'memory'),
+            'systems': block(lambda systems: '\n'.join(
+                f'- {v}' for v in systems.values()), 'cost_systems'),
+            'cost': block(cost_table, 'cost', 'cases'),
+            'cost-observations': block(cost_observations, 'cost', 'cases')},
+    plots=(plot,))
