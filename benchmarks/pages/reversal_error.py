@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import markdown_table, pyplot
+from . import Spec, block, markdown_table, pyplot
 
-TITLE = 'Reversal error against steps'
 ERROR_PLOT = 'reversal_error.png'
 ENERGY_PLOT = 'reversal_energy.png'
 
@@ -112,13 +111,9 @@ def markdown_energy(en) -> str:
                 rows))
 
 
-def markdown(results) -> str:
-    s = results['system']
-    vv = results['velocity_verlet']
-    ours = results['reversible']
-    en = results['energy']
-    sh = ours['shape_at_turn']
-    vsh = vv['shape_at_end']
+def errors_table(results) -> str:
+    """Both integrators' distance from the start after N steps and back."""
+    vv, ours = results['velocity_verlet'], results['reversible']
     by_n = {c['steps']: c for c in ours['checkpoints']}
     rows = []
     for p in vv['points']:
@@ -132,73 +127,31 @@ def markdown(results) -> str:
         rows.append([f"{final['steps']:,}", 'not run', 'not run',
                      _g(final['position_error']) + ' / '
                      + _g(final['momentum_error']), str(final['exact'])])
-    all_exact = all(c['exact'] for c in ours['checkpoints'])
-    all_resumed = all(c['resumed_exactly'] for c in ours['checkpoints'][:-1])
-    vv_last = vv['points'][-1]
-    return f"""
-Ar{s['atoms']} icosahedron thermalised at {s['temperature_K']:g} K (seed
-{s['seed']}), {s['calculator']}, {s['timestep_fs']:g} fs, in a periodic cube
-of edge {s['cell_edge']:.1f} Å: the cluster ({2 * s['cluster_radius_start']:.1f} Å
-across at the start) does not interact with its images, and atoms that
-evaporate stay nearby as vapour. (With free boundaries, an evaporated atom
-flies off and asap3's neighbour list grows with the box enclosing all
-atoms, and the cost of a step grows with it.) N steps forward, then N steps
-with the time step negated; the error is the largest coordinate difference
-from the start.
-Both integrators start from the same state (the one ReversibleVerlet's
-constructor put on its grid: position quantum {results['grid']['position_quantum']:.3g} Å,
-momentum quantum {results['grid']['momentum_quantum']:.3g} amu Å / ASE time).
+    return markdown_table(
+        ['N', 'VelocityVerlet max \\|Δx\\| (Å)',
+         'VelocityVerlet max \\|Δp\\| (amu Å / ASE time)',
+         'ReversibleVerlet max \\|Δx\\| / \\|Δp\\|',
+         'ReversibleVerlet bitwise equal'], rows)
 
-![reversal error](benchmarks/{ERROR_PLOT})
 
-### Method
+def values(results):
+    """The prose's derived numbers."""
+    s, vv, ours = (results['system'], results['velocity_verlet'],
+                   results['reversible'])
+    return {'diameter': 2 * s['cluster_radius_start'],
+            'vv_us': vv['seconds_per_step'] * 1e6,
+            'ours_us': ours['seconds_per_step'] * 1e6,
+            'all_exact': all(c['exact'] for c in ours['checkpoints']),
+            'all_resumed': all(c['resumed_exactly']
+                               for c in ours['checkpoints'][:-1]),
+            'noise': _g(ours['max_observed_noise']),
+            'bound': _g(ours['force_noise_bound']),
+            'vv_last': vv['points'][-1]['steps'],
+            'vv_last_error': _g(vv['points'][-1]['position_error']),
+            'diameter_g': _g(2 * s['cluster_radius_start'])}
 
-- VelocityVerlet: one forward run; at each N a copy of the atoms with a
-  fresh asap3 calculator runs N steps back. The forward run keeps its own
-  calculator, so it is one uninterrupted trajectory; the backward leg starts
-  from a neighbour list built at the turning point rather than the one the
-  forward run last used. The forward run goes on to
-  {results['final_steps']:,} steps for its energy only.
-  {vv['steps_run']:,} steps in {vv['seconds']:.0f} s
-  ({vv['seconds_per_step'] * 1e6:.0f} µs/step).
-- ReversibleVerlet: one integrator and only its public API. At each N it
-  reverses, runs N steps, is compared with the start by `np.array_equal` on
-  positions and momenta, reverses again and runs N steps forward, where it
-  met the saved state bitwise at every N: {all_resumed}. Then it goes on to
-  {results['final_steps']:,} steps and back. {ours['steps_run']:,} steps in
-  {ours['seconds']:.0f} s ({ours['seconds_per_step'] * 1e6:.0f} µs/step),
-  force purity `{ours['force_purity']}`: {ours['clean_recomputations']:,}
-  clean recomputations, largest noise removed
-  {_g(ours['max_observed_noise'])} eV/Å (the bound exactness relies on:
-  {_g(ours['force_noise_bound'])} eV/Å).
 
-### Results
-
-| N | VelocityVerlet max \\|Δx\\| (Å) | VelocityVerlet max \\|Δp\\| (amu Å / ASE time) | ReversibleVerlet max \\|Δx\\| / \\|Δp\\| | ReversibleVerlet bitwise equal |
-| --- | --- | --- | --- | --- |
-""" + '\n'.join('| ' + ' | '.join(r) + ' |' for r in rows) + f"""
-
-ReversibleVerlet returned to the start bit for bit at every N: {all_exact}.
-VelocityVerlet after {vv_last['steps']:,} steps each way is
-{_g(vv_last['position_error'])} Å from the start; the cluster's diameter at
-the start is {_g(2 * s['cluster_radius_start'])} Å.
-
-### Energy over the {results['final_steps']:,}-step run
-
-![energy](benchmarks/{ENERGY_PLOT})
-
-Total energy along the forward runs, read every
-{results['energy_every']:,} steps ({en['reversible']['duration_ns']:.3g} ns).
-VelocityVerlet ran the same length from the same start as the reference:
-the two trajectories part after a few thousand steps (the table above), so
-only their statistics compare.
-
-""" + markdown_energy(en) + f"""
-
-After the {results['final_steps']:,} forward steps the centre of mass had
-moved {sh['centre_displacement']:.3g} Å in ReversibleVerlet's run
-({vsh['centre_displacement']:.3g} Å in VelocityVerlet's; the thermalised
-momenta carry a net momentum), and {sh['isolated_atoms']}
-({vsh['isolated_atoms']}) atoms had no neighbour within the {s['cutoff']:g} Å
-cutoff: evaporated, a vapour in the periodic box.
-"""
+SPEC = Spec('Reversal error against steps',
+            blocks={'errors': block(errors_table),
+                    'energy': block(markdown_energy, 'energy')},
+            plots=(plot,), values=values)
