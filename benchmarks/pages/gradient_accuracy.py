@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import math
 
-from . import markdown_table, pyplot
+from . import Spec, block, markdown_table, pyplot
 
-TITLE = 'Gradient accuracy'
 PLOT = 'gradient_accuracy.png'
 
 
@@ -59,44 +58,19 @@ def plot(results, figures):
     plt.close(fig)
 
 
-def markdown(results):
+def hvp_table(results):
     hvp = results['hvp']
-    fd_h = finite_difference_steps(results)
-    q = results['settings']
     steps = list(hvp[0]['errors'])
-    lines = [
-        'How accurate the gradients of `ReversibleVerlet.backpropagate` '
-        'are (`benchmarks/gradient_accuracy.py`).',
-        '',
-        f'![gradient accuracy](benchmarks/{PLOT})',
-        '',
-        '### Finite-difference Hessian-vector products',
-        '',
-        'Largest component error over the largest component of the '
-        'reference, for one random direction; the default step is '
-        f"{hvp[0]['default_step']:g} Å. Reference: `analytic` is the "
-        "calculator's exact product, `stencil` a fourth-order difference at "
-        f"{_short(q['stencil_step'])} Å.",
-        '',
-        markdown_table(
-            ['case', 'reference'] + [f'{float(s):g} Å' for s in steps],
-            [[r['case'], r['reference']]
-             + [f"{r['errors'][s]:.1e}" for s in steps] for r in hvp]),
-        '',
-        '### Whole-run gradients',
-        '',
-        'Linear loss `L = <a, x_T> + <b, p_T>` with random `a`, `b`; '
-        'relative error of the directional derivative `<dL/dx0, u>` (and '
-        'the same for `p0`) against central finite differences of the whole '
-        'run with h = ' + ', '.join(f'{h:g}' for h in fd_h) + ' (Å, or amu '
-        'Å / ASE time), for random `u`. "best h" is the smallest of the '
-        'three errors, the largest over directions; "growth" the gradient '
-        'growth over the run. Fine quanta '
-        f"(2^{_exponent(q['position_quantum'])} Å, "
-        f"2^{_exponent(q['momentum_quantum'])}), time step "
-        f"{q['timestep_fs']:g} fs.",
-        '',
-    ]
+    return markdown_table(
+        ['case', 'reference'] + [f'{float(s):g} Å' for s in steps],
+        [[r['case'], r['reference']]
+         + [f"{r['errors'][s]:.1e}" for s in steps] for r in hvp])
+
+
+def run_tables(results):
+    """Per case: each run length's errors against finite differences."""
+    fd_h = finite_difference_steps(results)
+    lines = []
     for case in results['runs']:
         lines += [f"**{case['case']}** ({case['n_atoms']} atoms)", '']
         rows = []
@@ -113,20 +87,32 @@ def markdown(results):
             + [f'error, h={h:g}' for h in fd_h]
             + ['back at start bit for bit', 'backward / forward time'],
             rows), '']
-    worst_case, worst_row = max(
+    return '\n'.join(lines)
+
+
+def values(results):
+    """The finite-difference steps, and the worst case at its best h."""
+    fd_h = finite_difference_steps(results)
+    q = results['settings']
+    case, row = max(
         ((case, r) for case in results['runs'] for r in case['rows']),
         key=lambda cr: max(min(d['errors'].values())
                            for d in cr[1]['directions']))
-    worst = max(min(d['errors'].values()) for d in worst_row['directions'])
-    per_h = [max(d['errors'][repr(h)] for d in worst_row['directions'])
+    per_h = [max(d['errors'][repr(h)] for d in row['directions'])
              for h in fd_h]
-    falls = ', '.join(f'{a / b:.0f}×' for a, b in zip(per_h, per_h[1:]))
-    lines += [f"Largest error at the best h: {worst:.1e} ({worst_case['case']}, "
-              f"{worst_row['steps']} steps, growth {worst_row['growth']:.3g}). "
-              f'There, each 10× smaller h divides the error by {falls}: '
-              'the finite differences\' truncation error (∝ h², growing '
-              'with the curvature of the run map) still dominates the '
-              'comparison, so it bounds the error of the adjoint from '
-              'above only.']
-    return '\n'.join(lines)
+    return {'default_step': results['hvp'][0]['default_step'],
+            'stencil_step': _short(q['stencil_step']),
+            'fd_h': ', '.join(f'{h:g}' for h in fd_h),
+            'position_exponent': _exponent(q['position_quantum']),
+            'momentum_exponent': _exponent(q['momentum_quantum']),
+            'worst': max(min(d['errors'].values())
+                         for d in row['directions']),
+            'worst_case': case['case'], 'worst_steps': row['steps'],
+            'worst_growth': row['growth'],
+            'falls': ', '.join(f'{a / b:.0f}×'
+                               for a, b in zip(per_h, per_h[1:]))}
 
+
+SPEC = Spec('Gradient accuracy',
+            blocks={'hvp': block(hvp_table), 'runs': block(run_tables)},
+            plots=(plot,), values=values)
