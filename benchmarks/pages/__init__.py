@@ -65,13 +65,6 @@ def pyplot():
     return plt
 
 
-def legacy_spec(module) -> Spec:
-    blocks = {'page': lambda stored: module.markdown(stored['results'])}
-    for (_, block), make in getattr(module, 'DOC_BLOCKS', {}).items():
-        blocks[block] = make
-    return Spec(module.TITLE, blocks, (module.plot,))
-
-
 NAMES = ('step_cost', 'calculators', 'savings', 'work_precision',
          'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
          'thermostat', 'nose', 'npt_sampling', 'npt_cost', 'lammps_cost',
@@ -80,8 +73,13 @@ NAMES = ('step_cost', 'calculators', 'savings', 'work_precision',
 
 
 def load(name) -> Spec:
-    module = importlib.import_module(f'pages.{name}')
-    return getattr(module, 'SPEC', None) or legacy_spec(module)
+    """The spec of section ``name``: its module's ``SPEC``, or its entry
+    in ``pages.small``'s ``SPECS`` (the sections that are a table or
+    two)."""
+    from . import small
+    if name in small.SPECS:
+        return small.SPECS[name]
+    return importlib.import_module(f'pages.{name}').SPEC
 
 
 SPECS = {name: load(name) for name in NAMES}
