@@ -74,6 +74,13 @@ def paired_overhead_ratios(r, name):
 
 # -- plot ------------------------------------------------------------------
 
+#: The goals the plot draws as lines (docs/benchmarks.md states them).
+TARGET_RATIO_TO_VV = 1.0
+TARGET_OVERHEAD_PERCENT = 3.0
+TARGET_OVERHEAD_CALCULATOR = 'asap3 EMT'
+TARGET_OVERHEAD_MIN_ATOMS = 4000
+
+
 def plot(results, figures):
     if results.get('overhead'):
         plot_overhead(results['overhead'], figures)
