@@ -10,6 +10,7 @@ library: the pages can be rebuilt from the JSON alone.
 from __future__ import annotations
 
 import importlib
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -57,12 +58,34 @@ def markdown_table(header, rows) -> str:
     return '\n'.join(lines)
 
 
+def table(columns, records) -> str:
+    """A Markdown table of ``records`` (dicts): ``columns`` is ((header,
+    cell), ...), each cell a ``str.format`` template of the record's
+    fields or a function of the record."""
+    return markdown_table(
+        [header for header, _ in columns],
+        [[cell.format(**r) if isinstance(cell, str) else cell(r)
+          for _, cell in columns] for r in records])
+
+
 def pyplot():
     """matplotlib's pyplot on the non-interactive Agg backend."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     return plt
+
+
+@contextmanager
+def figure(path, ncols=1, size=(7, 4), dpi=110):
+    """(pyplot, figure, axes) of a new figure of ``ncols`` panels, laid
+    out and saved to ``path`` (PNG) when the block ends."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, ncols, figsize=size)
+    yield plt, fig, axes
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
 
 
 NAMES = ('step_cost', 'calculators', 'savings', 'work_precision',

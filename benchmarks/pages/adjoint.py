@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import Spec, block, markdown_table, pyplot
+from . import Spec, block, pyplot, table
 
 MEMORY_PLOT = 'adjoint_memory.png'
 COST_PLOT = 'adjoint_cost.png'
-MEMORY_KINDS = ('reversible', 'stored')
 
 
 def plot(results, figures):
@@ -103,148 +102,101 @@ def _kib(b):
     return f'{b / 2**10:.4g}'
 
 
-def memory_table(points):
-    rows = []
-    for p in points:
-        ours, st = p['reversible'], p['stored']
-        rows.append([
-            f"{p['steps']:,}",
-            _kib(ours['traced_peak_bytes']),
-            f"{_mib(ours['max_rss_bytes'])} "
-            f"(+{_mib(ours['max_rss_bytes'] - ours['max_rss_before_bytes'])})",
-            str(ours['exact_return']),
-            _kib(st['traced_peak_bytes']), _kib(st['stored_bytes']),
-            f"{_mib(st['max_rss_bytes'])} "
-            f"(+{_mib(st['max_rss_bytes'] - st['max_rss_before_bytes'])})",
-            _kib(st['tracemalloc_own_bytes']),
-            'bitwise' if p['gradients_bitwise_equal']
-            else f"{p['gradient_max_relative_difference']:.2g}",
-        ])
-    return markdown_table(
-        ['N', 'reversible: traced peak (KiB)',
-         'reversible: peak RSS (MiB, + growth)', 'reversible: back at start',
-         'stored: traced peak (KiB)', 'stored: array data (KiB)',
-         'stored: peak RSS (MiB, + growth)',
-         "stored: tracemalloc's own (KiB)",
-         'gradients equal (else max rel. difference)'], rows)
+def rss(run):
+    """Peak RSS in MiB, with its growth during the run."""
+    return (f"{_mib(run['max_rss_bytes'])} "
+            f"(+{_mib(run['max_rss_bytes'] - run['max_rss_before_bytes'])})")
 
 
-def memory_observations(memory):
-    points = memory['points']
-    last = points[-1]
+MEMORY_COLUMNS = (
+    ('N', '{steps:,}'),
+    ('reversible: traced peak (KiB)',
+     lambda p: _kib(p['reversible']['traced_peak_bytes'])),
+    ('reversible: peak RSS (MiB, + growth)', lambda p: rss(p['reversible'])),
+    ('reversible: back at start', '{reversible[exact_return]}'),
+    ('stored: traced peak (KiB)',
+     lambda p: _kib(p['stored']['traced_peak_bytes'])),
+    ('stored: array data (KiB)', lambda p: _kib(p['stored']['stored_bytes'])),
+    ('stored: peak RSS (MiB, + growth)', lambda p: rss(p['stored'])),
+    ("stored: tracemalloc's own (KiB)",
+     lambda p: _kib(p['stored']['tracemalloc_own_bytes'])),
+    ('gradients equal (else max rel. difference)',
+     lambda p: 'bitwise' if p['gradients_bitwise_equal']
+     else f"{p['gradient_max_relative_difference']:.2g}"))
+
+COST_COLUMNS = (
+    ('case', case_name), ('Hessian-vector product', '{hvp_class}'),
+    ('atoms', '{atoms}'), ('N', '{steps_per_block}'),
+    ('forward: force calls / step', '{per_step[forward_force_calls]:.3g}'),
+    ('backward: retrace force calls / step',
+     '{per_step[backward_force_calls_retrace]:.3g}'),
+    ('backward: products / step', '{per_step[backward_products]:.3g}'),
+    ('backward: force calls in products / step',
+     '{per_step[backward_force_calls_in_products]:.3g}'),
+    ('forward ms / step', '{forward_ms_per_step:.3g}'),
+    ('backward ms / step', '{backward_ms_per_step:.3g}'),
+    ('backward / forward (forward steps per step)',
+     '**{backward_over_forward:.2f}**'),
+    ('backward time in products', '{backward_share_in_products:.0%}'),
+    ('one product in force calls (time)',
+     '{product_over_force_call_time:.2g}'),
+    ('round spread', '{spread:.0%}'), ('wall / CPU', '{wall_over_cpu:.2f}'),
+    ('back at start every round', '{exact_return_every_round}'))
+
+#: What the counting rounds saw besides the cost table's columns.
+COUNT_COLUMNS = (
+    ('case', case_name),
+    ('backward: force calls / step', lambda c: f"{c['per_step']['backward_force_calls_retrace'] + c['per_step']['backward_force_calls_in_products']:.3g}"),
+    ('products per block of N', lambda c: ' or '.join(
+        map(str, sorted(set(c['products_per_block']))))),
+    ('clean recomputations / step, forward / backward',
+     lambda c: '{forward_clean_recomputations:.3g} / '
+     '{backward_clean_recomputations:.3g}'.format(**c['per_step'])
+     if c['force_purity'] == 'guarded' else '-'),
+    ('energy-only calls / step, forward / backward',
+     '{per_step[forward_energy_only_calls]:.3g} / '
+     '{per_step[backward_energy_only_calls]:.3g}'))
+
+
+def memory_values(results):
+    """The prose's numbers: growth of the traced peaks over the points."""
+    points = results['memory']['points']
+    first, last = points[0], points[-1]
     ours = [p['reversible']['traced_peak_bytes'] for p in points]
     stored = [p['stored']['traced_peak_bytes'] for p in points]
-    n = [p['steps'] for p in points]
     # Bytes per step of the stored trajectory, from the two longest runs.
-    slope = (stored[-1] - stored[-2]) / (n[-1] - n[-2])
-    payload = last['stored']['stored_bytes'] / last['stored']['frames']
-    rss = [p[kind]['max_rss_bytes'] - p[kind]['max_rss_before_bytes']
-           for p in (last,) for kind in MEMORY_KINDS]
-    lines = [
-        f"- ReversibleVerlet's traced peak went from {_kib(ours[0])} KiB at "
-        f"N = {n[0]:,} to {_kib(ours[-1])} KiB at N = {n[-1]:,} (x"
-        f"{ours[-1] / ours[0]:.3g} for x{n[-1] / n[0]:.3g} the steps). At "
-        f"N = {n[-1]:,} the process's peak RSS grew by {_mib(rss[0])} MiB "
-        f"during the run and gradient ({_mib(rss[1])} MiB for the stored "
-        'trajectory).',
-        f"- The stored trajectory's traced peak grew by {slope:.4g} bytes per "
-        f"step between the two longest runs (array data: {payload:.4g} bytes "
-        f"per step), to {stored[-1] / ours[-1]:.3g} times ReversibleVerlet's "
-        f"at N = {n[-1]:,}.",
-    ]
-    if slope > 0:
-        crossover = ours[-1] / slope
-        lines.append(f"- At that rate the stored trajectory alone passes "
-                     f"ReversibleVerlet's whole traced peak after about "
-                     f"{crossover:,.0f} steps.")
-    exact = all(p['reversible']['exact_return'] for p in points)
-    lines.append(f"- backpropagate left the atoms bitwise at the start at "
-                 f"every N: {exact}.")
+    slope = (stored[-1] - stored[-2]) / (last['steps'] - points[-2]['steps'])
     equal = [p['steps'] for p in points if p['gradients_bitwise_equal']]
-    if len(equal) == len(points):
-        lines.append('- The gradients of the two adjoints were bitwise '
-                     'equal at every N: the retrace took every '
-                     'Hessian-vector product at exactly the stored '
-                     'positions.')
-    else:
-        worst = max(p['gradient_max_relative_difference'] for p in points)
-        lines.append(f"- The gradients of the two adjoints were bitwise equal "
-                     f"at N = {', '.join(f'{s:,}' for s in equal) or 'none'};"
-                     f" largest relative difference {worst:.2g}.")
-    moved = max(p['reversible']['centre_of_mass_moved'] for p in points)
-    lines.append('- Largest gradient component: '
-                 + ', '.join(f"{p['gradient_max_abs']:.3g} (N = "
-                             f"{p['steps']:,})" for p in points)
-                 + f'. The centre of mass had moved by at most {moved:.2g} Å '
-                 'at the turning point.')
-    return '\n'.join(lines)
-
-
-def cost_table(cases):
-    rows = []
-    for c in cases:
-        ps = c['per_step']
-        rows.append([
-            case_name(c), c['hvp_class'], c['atoms'], c['steps_per_block'],
-            f"{ps['forward_force_calls']:.3g}",
-            f"{ps['backward_force_calls_retrace']:.3g}",
-            f"{ps['backward_products']:.3g}",
-            f"{ps['backward_force_calls_in_products']:.3g}",
-            f"{c['forward_ms_per_step']:.3g}",
-            f"{c['backward_ms_per_step']:.3g}",
-            f"**{c['backward_over_forward']:.2f}**",
-            f"{c['backward_share_in_products']:.0%}",
-            f"{c['product_over_force_call_time']:.2g}",
-            f"{c['spread']:.0%}", f"{c['wall_over_cpu']:.2f}",
-            str(c['exact_return_every_round']),
-        ])
-    return markdown_table(
-        ['case', 'Hessian-vector product', 'atoms', 'N',
-         'forward: force calls / step', 'backward: retrace force calls / step',
-         'backward: products / step',
-         'backward: force calls in products / step',
-         'forward ms / step', 'backward ms / step',
-         'backward / forward (forward steps per step)',
-         'backward time in products', 'one product in force calls (time)',
-         'round spread', 'wall / CPU', 'back at start every round'], rows)
-
-
-def cost_observations(cases):
-    lines = []
-    for c in cases:
-        ps, n = c['per_step'], c['steps_per_block']
-        backward_calls = (ps['backward_force_calls_retrace']
-                          + ps['backward_force_calls_in_products'])
-        products = sorted(set(c['products_per_block']))
-        line = (f"- {case_name(c)}: per step, forward "
-                f"{ps['forward_force_calls']:.3g} force calls; backward "
-                f"{backward_calls:.3g} force calls (retrace "
-                f"{ps['backward_force_calls_retrace']:.3g}, in products "
-                f"{ps['backward_force_calls_in_products']:.3g}) and "
-                f"{ps['backward_products']:.3g} products "
-                f"({' or '.join(map(str, products))} for {n} steps). A "
-                f"backward step took {c['backward_over_forward']:.2f} "
-                "forward steps' time.")
-        if c['force_purity'] == 'guarded':
-            line += (f" Guarded purity: "
-                     f"{ps['forward_clean_recomputations']:.3g} clean "
-                     f"recomputations per step forward, "
-                     f"{ps['backward_clean_recomputations']:.3g} backward "
-                     '(included in the force calls).')
-        if ps['forward_energy_only_calls'] or ps['backward_energy_only_calls']:
-            line += (f" Energy-only calls (the energy check) per step: "
-                     f"{ps['forward_energy_only_calls']:.3g} forward, "
-                     f"{ps['backward_energy_only_calls']:.3g} backward.")
-        lines.append(line)
-    return '\n'.join(lines)
+    return {
+        'first_kib': _kib(ours[0]), 'last_kib': _kib(ours[-1]),
+        'first_n': first['steps'], 'last_n': last['steps'],
+        'peak_growth': ours[-1] / ours[0],
+        'steps_growth': last['steps'] / first['steps'],
+        'rss_ours': _mib(last['reversible']['max_rss_bytes']
+                         - last['reversible']['max_rss_before_bytes']),
+        'rss_stored': _mib(last['stored']['max_rss_bytes']
+                           - last['stored']['max_rss_before_bytes']),
+        'slope': slope,
+        'payload': last['stored']['stored_bytes'] / last['stored']['frames'],
+        'stored_over_ours': stored[-1] / ours[-1],
+        'crossover': ours[-1] / slope if slope > 0 else float('nan'),
+        'all_exact': all(p['reversible']['exact_return'] for p in points),
+        'gradients_equal_at': ', '.join(f'{n:,}' for n in equal) or 'none',
+        'largest_gradients': ', '.join(
+            f"{p['gradient_max_abs']:.3g} (N = {p['steps']:,})"
+            for p in points),
+        'moved': max(p['reversible']['centre_of_mass_moved']
+                     for p in points)}
 
 
 SPEC = Spec(
     'Gradients by the reversible adjoint',
-    blocks={'memory': block(memory_table, 'memory', 'points'),
-            'memory-observations': block(memory_observations, 'memory'),
+    blocks={'memory': lambda stored: table(
+                MEMORY_COLUMNS, stored['results']['memory']['points']),
             'systems': block(lambda systems: '\n'.join(
                 f'- {v}' for v in systems.values()), 'cost_systems'),
-            'cost': block(cost_table, 'cost', 'cases'),
-            'cost-observations': block(cost_observations, 'cost', 'cases')},
-    plots=(plot,))
+            'cost': lambda stored: table(COST_COLUMNS,
+                                         stored['results']['cost']['cases']),
+            'counts': lambda stored: table(
+                COUNT_COLUMNS, stored['results']['cost']['cases'])},
+    plots=(plot,), values=memory_values)
