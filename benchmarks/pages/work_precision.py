@@ -182,81 +182,35 @@ def every_run(r):
          'max error', 'RMS error'], table)
 
 
-def checks(r):
-    """The sampling, cache, quantum and EMT checks, as paragraphs."""
-    lines = []
-    c = r.get('sampling_check')
-    if c:
-        lines += [
-            f"**Sampling check.**  {c['method']} at dt = {c['dt_fs']:.4g} fs "
-            f"with the energy sampled after every step ({c['steps']} steps, "
-            f"the largest sampling share in the sweeps), median of "
-            f"{c['repeats']} interleaved pairs of runs: the observer took "
-            f"{c['sampling_wall_s']:.3g} s; the run time with it subtracted "
-            f"was {c['subtracted_wall_s']:.3g} s wall / "
-            f"{c['subtracted_cpu_s']:.3g} s CPU against "
-            f"{c['unobserved_wall_s']:.3g} s / {c['unobserved_cpu_s']:.3g} s "
-            f"for runs with no observer "
-            f"({c['subtracted_wall_s'] / c['unobserved_wall_s'] - 1:+.1%} / "
-            f"{c['subtracted_cpu_s'] / c['unobserved_cpu_s'] - 1:+.1%}).", '']
-    cc = r.get('cache_check')
-    if cc:
-        text = (f"**Cached results.**  The bare `{r['calculator']}`: a "
-                f"repeated `get_forces` at unchanged positions takes "
-                f"{cc['repeated_call_us']:.3g} µs, a real computation "
-                f"{cc['fresh_call_us']:.3g} µs.")
-        if 'vv_bare_us_per_step' in cc:
-            text += (f"  VelocityVerlet, which asks for the forces three "
-                     f"times per step, takes {cc['vv_bare_us_per_step']:.3g}"
-                     f" µs per step with the bare potential and "
-                     f"{cc['vv_cached_us_per_step']:.3g} µs behind "
-                     f"`ResultCache`, a cache of the last results keyed by "
-                     f"the exact positions, used for every run of this "
-                     f"section (ReversibleVerlet keeps its own cache and "
-                     f"asks once per stage).")
-        lines += [text, '']
-    q = r.get('quantum_check')
-    if q:
-        lines += [
-            f"**Momentum-quantum check.**  The most accurate "
-            f"ReversibleVerlet run ({q['method']}, dt = {q['dt_fs']:.4g} fs)"
-            f" used the default momentum quantum {q['default_quantum']:.3g} "
-            f"(raised by the guarded force mode so that clean "
-            f"recomputations stay rare) and reached {q['default_error']:.2e}"
-            f"; with a quantum of {q['fine_quantum']:.3g} it reaches "
-            f"{_e(q['fine_error'])} ({q['fine_clean_recomputations']} clean "
-            f"recomputations, {q['fine_force_calls']} force calls instead "
-            f"of {q['default_force_calls']}).", '']
-    emt = r.get('emt_check')
-    cut = r.get('emt_cutoff')
-    if emt:
-        gap = cut['fourth_neighbour'] - cut['list_cutoff']
-        table = [[row['calculator'], f"{row['dt_fs']:.4g}",
-                  _e(row['max_error']), _e(row['rms_error'])]
-                 for row in emt]
-        gains = []
-        for name in dict.fromkeys(row['calculator'] for row in emt):
-            coarse, fine = [row for row in emt if row['calculator'] == name]
-            if coarse['max_error'] and fine['max_error']:
-                gain = coarse['max_error'] / fine['max_error']
-                gains.append(f'{name} {gain:.3g}×')
-            else:
-                gains.append(f'{name} –')
-            ratio = coarse['dt_fs'] / fine['dt_fs']
-        lines += [
-            '**Why not EMT.**  VelocityVerlet on the same crystal with '
-            "asap3's EMT and with RGL at two time steps.  For a smooth "
-            f'potential, dividing the step by {ratio:g} divides the max '
-            f'error by {ratio ** 2:g}; measured: ' + ', '.join(gains)
-            + f".  asap3's EMT cuts its neighbour list at "
-            f"{cut['list_cutoff']:.3f} Å, where its logistic cutoff "
-            f"function is still {cut['weight_at_cutoff']:.2g} (ASE's EMT "
-            "with `asap_cutoff=True`, which mirrors it, tells): the energy "
-            'jumps whenever a pair crosses that distance, and the 4th '
-            f"neighbours sit only {gap:.2f} Å outside it.", '',
-            markdown_table(['calculator', 'dt (fs)', 'max error',
-                                   'RMS error'], table), '']
-    return '\n'.join(lines)
+def emt_table(r):
+    return markdown_table(
+        ['calculator', 'dt (fs)', 'max error', 'RMS error'],
+        [[row['calculator'], f"{row['dt_fs']:.4g}", _e(row['max_error']),
+          _e(row['rms_error'])] for row in r['emt_check']])
+
+
+def system_values(r):
+    """A system's results and the checks' derived numbers, for the prose."""
+    out = dict(r)
+    c, q = r['sampling_check'], r['quantum_check']
+    out.update(wall_gap=c['subtracted_wall_s'] / c['unobserved_wall_s'] - 1,
+               cpu_gap=c['subtracted_cpu_s'] / c['unobserved_cpu_s'] - 1,
+               fine_error=_e(q['fine_error']))
+    if r.get('emt_check'):
+        gains = {}
+        for name in dict.fromkeys(row['calculator'] for row in r['emt_check']):
+            coarse, fine = [row for row in r['emt_check']
+                            if row['calculator'] == name]
+            gains[name] = (f"{coarse['max_error'] / fine['max_error']:.3g}×"
+                           if coarse['max_error'] and fine['max_error']
+                           else '–')
+        out.update(
+            emt_ratio=coarse['dt_fs'] / fine['dt_fs'],
+            emt_gains=', '.join(f'{n} {g}' for n, g in gains.items()),
+            emt_gap=(r['emt_cutoff']['fourth_neighbour']
+                     - r['emt_cutoff']['list_cutoff']))
+        out['emt_ratio_squared'] = out['emt_ratio'] ** 2
+    return out
 
 
 def of_system(make, key):
@@ -268,10 +222,11 @@ SPEC = Spec(
     'Work against precision',
     blocks={**{f'{key}{part}': of_system(make, key)
                for key in ('argon_cluster', 'copper_crystal')
-               for part, make in (('', summary), ('-checks', checks),
-                                  ('-runs', every_run))},
+               for part, make in (('', summary), ('-runs', every_run))},
+            'copper_crystal-emt': of_system(emt_table, 'copper_crystal'),
             'convergence': block(convergence, 'convergence')},
     plots=(plot,),
     values=lambda results: {
+        **{r['key']: system_values(r) for r in results['systems']},
         'ladder_start': ', '.join(map(str, results['ladder'][:7])),
         'half_convergence_target': results['convergence']['target'] / 2})
