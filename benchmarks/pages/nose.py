@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import Spec, block, markdown_table, pyplot
+from . import Spec, block, markdown_table, pyplot, table
 from .thermostat import (forces_again_lines, histograms, sampling_table,
                          size, speed_table, warning_lines, yes)
 
@@ -52,135 +52,125 @@ def plot(results, figures):
     plt.close(fig)
 
 
-# -- judgements --------------------------------------------------------------
+# -- tables ------------------------------------------------------------------
+
+def system(s):
+    return f"{s['system']} {s['n_atoms']}"
 
 
-def last_decade(points, key):
-    """Ratio of ``key`` at the last point to the one before."""
-    return points[-1][key] / points[-2][key]
+def meV_per_atom(s, energy, sign=''):
+    return f"{1e3 * energy / s['n_atoms']:{sign}.3f}"
 
 
-# -- sections ----------------------------------------------------------------
-
-def thermostat_table(results):
-    rows = []
-    for s in results['systems']:
-        th = s['thermostat']
-        sv, rs, e = th['s'], th['real_timestep_fs'], th['extended_energy_eV']
-        rt = s['round_trip']
-        real_over_virtual = rt['real_time_forward_fs'] / (
-            rt['steps_each_way'] * s['timestep_fs'])
-        rows.append([
-            f"{s['system']} {s['n_atoms']}",
-            f"{sv['mean']:.4f} ± {sv['standard_error']:.4f}",
-            f"{sv['std']:.4f}", f"{sv['min']:.3f} – {sv['max']:.3f}",
-            f"{th['s_from_start']['min']:.3f} – "
-            f"{th['s_from_start']['max']:.3f}",
-            f"{sv['correlation_time_steps']:.0f}",
-            f"{rs['mean']:.3f} ({rs['min']:.3f} – {rs['max']:.3f})",
-            f'{real_over_virtual:.4f}',
-            f"{1e3 * e['max_deviation'] / s['n_atoms']:.3f}",
-            f"{1e3 * (e['last'] - e['first']) / s['n_atoms']:+.3f}"])
-    return markdown_table(
-        ['system', 's (mean ± SE)', 's std', 's range, sampled',
-         's range, from the start', 'g of s (steps)',
-         'real step dt / s (fs): mean (range)', 'real time / (steps × dt)',
-         'extended energy: max |E − E₀| (meV/atom)',
-         'last − first (meV/atom)'], rows)
+THERMOSTAT_COLUMNS = (
+    ('system', system),
+    ('s (mean ± SE)',
+     '{thermostat[s][mean]:.4f} ± {thermostat[s][standard_error]:.4f}'),
+    ('s std', '{thermostat[s][std]:.4f}'),
+    ('s range, sampled', '{thermostat[s][min]:.3f} – {thermostat[s][max]:.3f}'),
+    ('s range, from the start', '{thermostat[s_from_start][min]:.3f} – '
+                                '{thermostat[s_from_start][max]:.3f}'),
+    ('g of s (steps)', '{thermostat[s][correlation_time_steps]:.0f}'),
+    ('real step dt / s (fs): mean (range)',
+     '{thermostat[real_timestep_fs][mean]:.3f} '
+     '({thermostat[real_timestep_fs][min]:.3f} – '
+     '{thermostat[real_timestep_fs][max]:.3f})'),
+    ('real time / (steps × dt)', lambda s: '{:.4f}'.format(
+        s['round_trip']['real_time_forward_fs']
+        / (s['round_trip']['steps_each_way'] * s['timestep_fs']))),
+    ('extended energy: max |E − E₀| (meV/atom)', lambda s: meV_per_atom(
+        s, s['thermostat']['extended_energy_eV']['max_deviation'])),
+    ('last − first (meV/atom)', lambda s: meV_per_atom(
+        s, s['thermostat']['extended_energy_eV']['last']
+        - s['thermostat']['extended_energy_eV']['first'], '+')))
 
 
 def harmonic_lines(results):
-    out = []
-    for s in results['systems']:
-        r = s['sampling']['reversible_nose']
-        th = s['thermostat']
-        t = r['temperature_K']
-        measured = 100 * (t['mean'] / s['temperature_K'] - 1)
-        error = 100 * t['standard_error'] / s['temperature_K']
-        out.append(f"- {s['system']} ({s['timestep_fs']:g} fs, rms real step "
-                   f"{th['real_timestep_fs']['rms']:.3f} fs): ⟨ω²⟩ = "
-                   f"{r['mean_omega_squared_per_fs2']:.3g} / fs², estimate "
-                   f"{th['harmonic_kinetic_offset_percent']:+.2f}%, measured "
-                   f'{measured:+.2f} ± {error:.2f}%.')
-    return '\n'.join(out)
+    return '\n'.join(
+        f"- {s['system']} ({s['timestep_fs']:g} fs, rms real step "
+        f"{s['thermostat']['real_timestep_fs']['rms']:.3f} fs): ⟨ω²⟩ = "
+        f"{r['mean_omega_squared_per_fs2']:.3g} / fs², estimate "
+        f"{s['thermostat']['harmonic_kinetic_offset_percent']:+.2f}%, "
+        f"measured {100 * (r['temperature_K']['mean'] / s['temperature_K'] - 1):+.2f}"
+        f" ± {100 * r['temperature_K']['standard_error'] / s['temperature_K']:.2f}%."
+        for s in results['systems']
+        for r in [s['sampling']['reversible_nose']])
 
 
 def potential_lines(results):
-    out = []
-    for s in results['systems']:
-        d = s['potential_difference_eV']
-        se = s['potential_difference_standard_error_eV']
-        out.append(f"- {s['system']} {s['n_atoms']}: ReversibleNose − "
-                   f'ASE Langevin = {d:+.4f} ± {se:.4f} eV '
-                   f'({d / se:+.1f} standard errors; '
-                   f"{1e3 * d / s['n_atoms']:+.3f} meV per atom).")
-    return '\n'.join(out)
+    return '\n'.join(
+        f"- {system(s)}: ReversibleNose − ASE Langevin = {d:+.4f} ± {se:.4f}"
+        f" eV ({d / se:+.1f} standard errors; {meV_per_atom(s, d, '+')} meV"
+        " per atom)." for s in results['systems']
+        for d, se in [(s['potential_difference_eV'],
+                       s['potential_difference_standard_error_eV'])])
 
 
-def round_trip_table(results):
-    rows = []
-    for s in results['systems']:
-        rt = s['round_trip']
-        rows.append(
-            [f"{s['system']} {s['n_atoms']}", f"{rt['steps_each_way']:,}"]
-            + [yes(rt['counts_equal'][k]) if k in rt['counts_equal']
-               else '–' for k in COUNTS]
-            + [yes(rt['positions_equal']), yes(rt['momenta_equal']),
-               f"{rt['time_after_fs']:g}",
-               f"{rt['forward_seconds']:.0f}", f"{rt['back_seconds']:.0f}",
-               f"{rt['forward_seconds'] + rt['back_seconds']:.0f}"])
-    return markdown_table(
-        ['system', 'steps each way']
-        + [f'counts `{k}` equal' for k in COUNTS]
-        + ['atoms: positions equal', 'atoms: momenta equal',
-           'get_time() after (fs)', 'forward (s)', 'back (s)',
-           'total (s)'], rows)
+def equal(flags, key):
+    return yes(flags[key]) if key in flags else '–'
 
 
-def memory_table(results):
-    m = results['memory']
-    rows = []
-    for r in m['nose']:
-        resident = r['resident_bytes']
-        grown = (size(resident[-1] - resident[0])
-                 if None not in resident else '–')
-        rows.append([
-            f"{r['steps']:,}", size(r['forward_traced_peak_bytes']),
-            size(r['forward_traced_end_bytes']),
-            size(r['backpropagate_traced_peak_bytes']),
-            size(r['backpropagate_traced_end_bytes']), grown,
-            yes(r['counts_equal_after_backpropagate']),
-            f"{r['hessian_vector_products']:,}",
-            f"{r['gradient_max_abs']:.2g}"
-            + ('' if r['gradient_finite'] else ' (**not finite**)'),
-            f"{r['forward_seconds']:.1f} / {r['backpropagate_seconds']:.1f}"])
-    return markdown_table(
-        ['steps N', 'run(N): traced peak', 'held after run',
-         'backpropagate(N): traced peak', 'held after backpropagate',
-         'resident size, end − start', 'counts back at the start',
-         'Hessian-vector products', 'max |gradient|',
-         'run / backpropagate (s, traced)'], rows)
+ROUND_TRIP_COLUMNS = (
+    ('system', system), ('steps each way', '{round_trip[steps_each_way]:,}'),
+    *((f'counts `{k}` equal',
+       lambda s, k=k: equal(s['round_trip']['counts_equal'], k))
+      for k in COUNTS),
+    ('atoms: positions equal', lambda s: equal(s['round_trip'],
+                                               'positions_equal')),
+    ('atoms: momenta equal', lambda s: equal(s['round_trip'],
+                                             'momenta_equal')),
+    ('get_time() after (fs)', '{round_trip[time_after_fs]:g}'),
+    ('forward (s)', '{round_trip[forward_seconds]:.0f}'),
+    ('back (s)', '{round_trip[back_seconds]:.0f}'),
+    ('total (s)', lambda s: '{:.0f}'.format(
+        s['round_trip']['forward_seconds'] + s['round_trip']['back_seconds'])))
+
+
+def grown(r):
+    resident = r['resident_bytes']
+    return size(resident[-1] - resident[0]) if None not in resident else '–'
+
+
+MEMORY_COLUMNS = (
+    ('steps N', '{steps:,}'),
+    ('run(N): traced peak', lambda r: size(r['forward_traced_peak_bytes'])),
+    ('held after run', lambda r: size(r['forward_traced_end_bytes'])),
+    ('backpropagate(N): traced peak',
+     lambda r: size(r['backpropagate_traced_peak_bytes'])),
+    ('held after backpropagate',
+     lambda r: size(r['backpropagate_traced_end_bytes'])),
+    ('resident size, end − start', grown),
+    ('counts back at the start',
+     lambda r: yes(r['counts_equal_after_backpropagate'])),
+    ('Hessian-vector products', '{hessian_vector_products:,}'),
+    ('max |gradient|', lambda r: f"{r['gradient_max_abs']:.2g}"
+     + ('' if r['gradient_finite'] else ' (**not finite**)')),
+    ('run / backpropagate (s, traced)',
+     '{forward_seconds:.1f} / {backpropagate_seconds:.1f}'))
 
 
 def comparison_table(results):
     m = results['memory']
     langevin = {c['steps']: c for c in m['langevin']['checkpoints']}
-    rows = []
-    for r in m['nose']:
-        c = langevin.get(r['steps'])
-        peak = max(r['forward_traced_peak_bytes'],
-                   r['backpropagate_traced_peak_bytes'])
-        rows.append([
-            f"{r['steps']:,}", size(peak),
-            size(c['nbytes']) if c else '–',
-            size(c['allocated_bytes']) if c else '–',
-            size(c['traced_bytes']) if c else '–',
-            size(r['trajectory_bytes'])])
-    return markdown_table(
-        ['steps', 'ReversibleNose: largest traced peak',
-         'ReversibleLangevin: buffer (nbytes)', 'buffer allocated',
-         'ReversibleLangevin: traced memory held',
-         'trajectory (x and p, float64)'], rows)
+
+    def held(key):
+        return lambda r: (size(langevin[r['steps']][key])
+                          if r['steps'] in langevin else '–')
+    return table((
+        ('steps', '{steps:,}'),
+        ('ReversibleNose: largest traced peak', lambda r: size(max(
+            r['forward_traced_peak_bytes'],
+            r['backpropagate_traced_peak_bytes']))),
+        ('ReversibleLangevin: buffer (nbytes)', held('nbytes')),
+        ('buffer allocated', held('allocated_bytes')),
+        ('ReversibleLangevin: traced memory held', held('traced_bytes')),
+        ('trajectory (x and p, float64)',
+         lambda r: size(r['trajectory_bytes']))), m['nose'])
+
+
+def last_decade(points, key):
+    """Ratio of ``key`` at the last point to the one before."""
+    return points[-1][key] / points[-2][key]
 
 
 def memory_lines(results):
@@ -378,13 +368,16 @@ SPEC = Spec(
     "Nosé thermostat: ReversibleNose against ASE's thermostats",
     blocks={'sampling': lambda stored: sampling_table(stored['results'],
                                                       THERMOSTATS),
-            'thermostat': block(thermostat_table),
+            'thermostat': lambda stored: table(
+                THERMOSTAT_COLUMNS, stored['results']['systems']),
             'harmonic': block(harmonic_lines),
             'potential': block(potential_lines),
-            'round-trip': block(round_trip_table),
+            'round-trip': lambda stored: table(
+                ROUND_TRIP_COLUMNS, stored['results']['systems']),
             'warnings': lambda stored: warning_lines(stored['results'],
                                                      'ReversibleNose'),
-            'memory': block(memory_table),
+            'memory': lambda stored: table(
+                MEMORY_COLUMNS, stored['results']['memory']['nose']),
             'comparison': block(comparison_table),
             'memory-lines': block(memory_lines),
             'profile': block(profile_lines),
