@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import Spec, block, pyplot, table
+from . import figure, Spec, block, pyplot, table
 
 MEMORY_PLOT = 'adjoint_memory.png'
 COST_PLOT = 'adjoint_cost.png'
@@ -20,69 +20,62 @@ def plot(results, figures):
 
 
 def _plot_memory(memory, figures):
-    plt = pyplot()
-    points = memory['points']
-    n = [p['steps'] for p in points]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    ax = axes[0]
-    ax.loglog(n, [p['reversible']['traced_peak_bytes'] / 2**20
-                  for p in points], 'o-', color='C0',
-              label='ReversibleVerlet: run + backpropagate')
-    ax.loglog(n, [p['stored']['traced_peak_bytes'] / 2**20 for p in points],
-              's-', color='C3', label='stored trajectory: run + adjoint')
-    ax.loglog(n, [p['stored']['stored_bytes'] / 2**20 for p in points], ':',
-              color='C3', label='  of which array data stored')
-    ax.set_xlabel('steps N')
-    ax.set_ylabel('tracemalloc peak (MiB)')
-    ax.grid(True, which='major', alpha=0.3)
-    ax.legend(loc='upper left', fontsize=8)
-    ax = axes[1]
-    for kind, label, marker, color in (
-            ('reversible', 'ReversibleVerlet', 'o-', 'C0'),
-            ('stored', 'stored trajectory', 's-', 'C3')):
-        ax.semilogx(n, [p[kind]['max_rss_bytes'] / 2**20 for p in points],
-                    marker, color=color, label=f'{label}: peak')
-        ax.semilogx(n, [p[kind]['max_rss_before_bytes'] / 2**20
-                        for p in points], marker[0] + ':', color=color,
-                    alpha=0.5, label=f'{label}: before the run')
-    ax.set_xlabel('steps N')
-    ax.set_ylabel('peak resident set size (MiB)')
-    ax.grid(True, which='major', alpha=0.3)
-    ax.legend(loc='upper left', fontsize=8)
-    s = memory['system']
-    fig.suptitle(f"{s['cluster']}, {s['temperature_K']:g} K, "
-                 f"{s['timestep_fs']:g} fs: memory of a gradient through "
-                 'N steps (one process per point)')
-    fig.tight_layout()
-    fig.savefig(figures / MEMORY_PLOT, dpi=110)
-    plt.close(fig)
+    with figure(figures / MEMORY_PLOT, 2, (10, 4)) as (plt, fig, axes):
+        points = memory['points']
+        n = [p['steps'] for p in points]
+        ax = axes[0]
+        ax.loglog(n, [p['reversible']['traced_peak_bytes'] / 2**20
+                      for p in points], 'o-', color='C0',
+                  label='ReversibleVerlet: run + backpropagate')
+        ax.loglog(n, [p['stored']['traced_peak_bytes'] / 2**20 for p in points],
+                  's-', color='C3', label='stored trajectory: run + adjoint')
+        ax.loglog(n, [p['stored']['stored_bytes'] / 2**20 for p in points], ':',
+                  color='C3', label='  of which array data stored')
+        ax.set_xlabel('steps N')
+        ax.set_ylabel('tracemalloc peak (MiB)')
+        ax.grid(True, which='major', alpha=0.3)
+        ax.legend(loc='upper left', fontsize=8)
+        ax = axes[1]
+        for kind, label, marker, color in (
+                ('reversible', 'ReversibleVerlet', 'o-', 'C0'),
+                ('stored', 'stored trajectory', 's-', 'C3')):
+            ax.semilogx(n, [p[kind]['max_rss_bytes'] / 2**20 for p in points],
+                        marker, color=color, label=f'{label}: peak')
+            ax.semilogx(n, [p[kind]['max_rss_before_bytes'] / 2**20
+                            for p in points], marker[0] + ':', color=color,
+                        alpha=0.5, label=f'{label}: before the run')
+        ax.set_xlabel('steps N')
+        ax.set_ylabel('peak resident set size (MiB)')
+        ax.grid(True, which='major', alpha=0.3)
+        ax.legend(loc='upper left', fontsize=8)
+        s = memory['system']
+        fig.suptitle(f"{s['cluster']}, {s['temperature_K']:g} K, "
+                     f"{s['timestep_fs']:g} fs: memory of a gradient through "
+                     'N steps (one process per point)')
 
 
 def _plot_cost(cost, figures):
-    plt = pyplot()
     cases = cost['cases']
-    labels = [case_name(c) for c in cases]
-    ratio = np.array([c['backward_over_forward'] for c in cases])
-    share = np.array([c['backward_share_in_products'] for c in cases])
-    y = np.arange(len(cases))[::-1]
-    fig, ax = plt.subplots(figsize=(9, 0.5 * len(cases) + 1.8))
-    ax.barh(y, ratio * (1 - share), color='C0',
-            label='retrace and adjoint bookkeeping')
-    ax.barh(y, ratio * share, left=ratio * (1 - share), color='C1',
-            label='Hessian-vector products')
-    for yi, r in zip(y, ratio):
-        ax.annotate(f'{r:.2f}', (r, yi), xytext=(3, 0),
-                    textcoords='offset points', va='center', fontsize=8)
-    ax.axvline(1, color='grey', lw=0.5)
-    ax.set_yticks(y)
-    ax.set_yticklabels(labels, fontsize=8)
-    ax.set_xlabel('backpropagate time per step, in forward steps')
-    ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.16), ncol=2,
-              fontsize=8, frameon=False)
-    ax.set_xlim(0, ratio.max() * 1.15)
-    fig.tight_layout()
-    fig.savefig(figures / COST_PLOT, dpi=110)
-    plt.close(fig)
+    with figure(figures / COST_PLOT, 1,
+                (9, 0.5 * len(cases) + 1.8)) as (plt, fig, ax):
+        labels = [case_name(c) for c in cases]
+        ratio = np.array([c['backward_over_forward'] for c in cases])
+        share = np.array([c['backward_share_in_products'] for c in cases])
+        y = np.arange(len(cases))[::-1]
+        ax.barh(y, ratio * (1 - share), color='C0',
+                label='retrace and adjoint bookkeeping')
+        ax.barh(y, ratio * share, left=ratio * (1 - share), color='C1',
+                label='Hessian-vector products')
+        for yi, r in zip(y, ratio):
+            ax.annotate(f'{r:.2f}', (r, yi), xytext=(3, 0),
+                        textcoords='offset points', va='center', fontsize=8)
+        ax.axvline(1, color='grey', lw=0.5)
+        ax.set_yticks(y)
+        ax.set_yticklabels(labels, fontsize=8)
+        ax.set_xlabel('backpropagate time per step, in forward steps')
+        ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.16), ncol=2,
+                  fontsize=8, frameon=False)
+        ax.set_xlim(0, ratio.max() * 1.15)
 
 
 # -- render -------------------------------------------------------------------

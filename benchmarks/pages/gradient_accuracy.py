@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from . import Spec, block, markdown_table, pyplot
+from . import figure, Spec, block, markdown_table, pyplot
 
 PLOT = 'gradient_accuracy.png'
 
@@ -30,32 +30,28 @@ def _exponent(power_of_two):
 
 
 def plot(results, figures):
-    plt = pyplot()
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for row in results['hvp']:
-        steps = [float(k) for k in row['errors']]
-        left.loglog(steps, list(row['errors'].values()), 'o-',
-                    label=row['case'])
-    default = results['hvp'][0]['default_step']
-    left.axvline(default, color='grey', ls=':', label='default step')
-    left.set_xlabel('finite-difference step (Å)')
-    left.set_ylabel('relative error of H v')
-    left.set_title('Finite-difference Hessian-vector products')
-    left.legend(fontsize=7)
-    for case in results['runs']:
-        steps = [r['steps'] for r in case['rows']]
-        best = [max(min(d['errors'].values()) for d in r['directions'])
-                for r in case['rows']]
-        growth = [r['growth'] for r in case['rows']]
-        line, = right.loglog(steps, best, 'o-', label=f"{case['case']}: error")
-        right.loglog(steps, growth, 's--', color=line.get_color(),
-                     label='gradient growth')
-    right.set_xlabel(f"steps ({results['settings']['timestep_fs']:g} fs)")
-    right.set_title('backpropagate against whole-run finite differences')
-    right.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(figures / PLOT, dpi=120)
-    plt.close(fig)
+    with figure(figures / PLOT, 2, (11, 4.2), dpi=120) as (plt, fig, (left, right)):
+        for row in results['hvp']:
+            steps = [float(k) for k in row['errors']]
+            left.loglog(steps, list(row['errors'].values()), 'o-',
+                        label=row['case'])
+        default = results['hvp'][0]['default_step']
+        left.axvline(default, color='grey', ls=':', label='default step')
+        left.set_xlabel('finite-difference step (Å)')
+        left.set_ylabel('relative error of H v')
+        left.set_title('Finite-difference Hessian-vector products')
+        left.legend(fontsize=7)
+        for case in results['runs']:
+            steps = [r['steps'] for r in case['rows']]
+            best = [max(min(d['errors'].values()) for d in r['directions'])
+                    for r in case['rows']]
+            growth = [r['growth'] for r in case['rows']]
+            line, = right.loglog(steps, best, 'o-', label=f"{case['case']}: error")
+            right.loglog(steps, growth, 's--', color=line.get_color(),
+                         label='gradient growth')
+        right.set_xlabel(f"steps ({results['settings']['timestep_fs']:g} fs)")
+        right.set_title('backpropagate against whole-run finite differences')
+        right.legend(fontsize=7)
 
 
 def hvp_table(results):

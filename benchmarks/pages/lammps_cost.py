@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from . import Spec, block, markdown_table, pyplot
+from . import figure, Spec, block, markdown_table, pyplot
 
 PLOT = 'lammps_cost.png'
 
@@ -121,70 +121,66 @@ def _atoms(case):
 # -- the plot ------------------------------------------------------------------
 
 def plot(results, figures):
-    plt = pyplot()
-    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 5.5))
-    cases = results['cases']
-    names = exact_names(cases[0])
-    colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
-    for k, (name, _) in enumerate(names):
-        for ranks, marker in ((1, 'o'), (2, 's')):
-            for system, fill in (('argon', True), ('copper', False)):
-                chosen = sorted((c for c in cases if c['ranks'] == ranks
-                                 and c['system'] == system),
-                                key=lambda c: c['natoms'])
-                if not chosen:
-                    continue
-                left.plot([c['natoms'] for c in chosen],
-                          [long_ratio(c, name) for c in chosen],
-                          marker + '-',
-                          color=colours[k], lw=0.8,
-                          mfc=colours[k] if fill else 'none',
-                          label=f"{label(cases[0], name)}: "
-                                f"{'Ar LJ' if system == 'argon' else 'Cu EAM'}"
-                                f", {ranks} rank{'s' if ranks > 1 else ''}")
-    left.axhline(results['goal_ratio'], color='k', lw=0.8, ls=':',
-                 label=f"goal ≤ {results['goal_ratio']:g} "
-                       f"(N ≥ {results['goal_min_atoms']:,})")
-    left.axhline(1.0, color='grey', lw=0.5)
-    left.set_xscale('log')
-    left.set_xlabel('number of atoms')
-    left.set_ylabel('exact / fix nve, CPU time per step of a long run')
-    left.set_title('Time per step relative to fix nve')
-    left.legend(fontsize=6, ncol=2, loc='lower center',
-                bbox_to_anchor=(0.5, -0.45))
+    with figure(figures / PLOT, 2, (12, 5.5)) as (plt, fig, (left, right)):
+        cases = results['cases']
+        names = exact_names(cases[0])
+        colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
+        for k, (name, _) in enumerate(names):
+            for ranks, marker in ((1, 'o'), (2, 's')):
+                for system, fill in (('argon', True), ('copper', False)):
+                    chosen = sorted((c for c in cases if c['ranks'] == ranks
+                                     and c['system'] == system),
+                                    key=lambda c: c['natoms'])
+                    if not chosen:
+                        continue
+                    left.plot([c['natoms'] for c in chosen],
+                              [long_ratio(c, name) for c in chosen],
+                              marker + '-',
+                              color=colours[k], lw=0.8,
+                              mfc=colours[k] if fill else 'none',
+                              label=f"{label(cases[0], name)}: "
+                                    f"{'Ar LJ' if system == 'argon' else 'Cu EAM'}"
+                                    f", {ranks} rank{'s' if ranks > 1 else ''}")
+        left.axhline(results['goal_ratio'], color='k', lw=0.8, ls=':',
+                     label=f"goal ≤ {results['goal_ratio']:g} "
+                           f"(N ≥ {results['goal_min_atoms']:,})")
+        left.axhline(1.0, color='grey', lw=0.5)
+        left.set_xscale('log')
+        left.set_xlabel('number of atoms')
+        left.set_ylabel('exact / fix nve, CPU time per step of a long run')
+        left.set_title('Time per step relative to fix nve')
+        left.legend(fontsize=6, ncol=2, loc='lower center',
+                    bbox_to_anchor=(0.5, -0.45))
 
-    # Per-step time of each case, every instance, stacked by where it
-    # goes, in units of fix nve's step.
-    instances = list(cases[0]['integrators'])
-    width = len(instances) + 1
-    ticks, top = [], 0.0
-    for i, c in enumerate(cases):
-        unit = c['median']['nve']['ms_per_step']
-        for j, name in enumerate(instances):
-            x = width * i + j
-            bottom = 0.0
-            for colour, (part, value) in zip(colours,
-                                             breakdown(c, name).items()):
-                right.bar(x, value / unit, bottom=bottom, color=colour,
-                          label=part if i == 0 and j == 0 else None,
-                          edgecolor='k' if j else None, linewidth=0.5,
-                          hatch='//' if j == 2 else None)
-                bottom += value / unit
-            top = max(top, bottom)
-        ticks.append((width * i + (len(instances) - 1) / 2,
-                      c['label'].replace(', ', '\n')
-                      .replace(f" {c['natoms']}", f"\n{c['natoms']}")))
-    right.set_xticks([x for x, _ in ticks])
-    right.set_xticklabels([t for _, t in ticks], fontsize=5)
-    right.set_ylabel("time per step / fix nve's")
-    right.set_title('Where a step goes: ' + ', '.join(
-        label(cases[0], n) for n in instances) + ' (left to right)',
-        fontsize=9)
-    right.set_ylim(0, 1.3 * top)
-    right.legend(fontsize=7, loc='upper left', ncol=3)
-    fig.tight_layout()
-    fig.savefig(figures / PLOT, dpi=110)
-    plt.close(fig)
+        # Per-step time of each case, every instance, stacked by where it
+        # goes, in units of fix nve's step.
+        instances = list(cases[0]['integrators'])
+        width = len(instances) + 1
+        ticks, top = [], 0.0
+        for i, c in enumerate(cases):
+            unit = c['median']['nve']['ms_per_step']
+            for j, name in enumerate(instances):
+                x = width * i + j
+                bottom = 0.0
+                for colour, (part, value) in zip(colours,
+                                                 breakdown(c, name).items()):
+                    right.bar(x, value / unit, bottom=bottom, color=colour,
+                              label=part if i == 0 and j == 0 else None,
+                              edgecolor='k' if j else None, linewidth=0.5,
+                              hatch='//' if j == 2 else None)
+                    bottom += value / unit
+                top = max(top, bottom)
+            ticks.append((width * i + (len(instances) - 1) / 2,
+                          c['label'].replace(', ', '\n')
+                          .replace(f" {c['natoms']}", f"\n{c['natoms']}")))
+        right.set_xticks([x for x, _ in ticks])
+        right.set_xticklabels([t for _, t in ticks], fontsize=5)
+        right.set_ylabel("time per step / fix nve's")
+        right.set_title('Where a step goes: ' + ', '.join(
+            label(cases[0], n) for n in instances) + ' (left to right)',
+            fontsize=9)
+        right.set_ylim(0, 1.3 * top)
+        right.legend(fontsize=7, loc='upper left', ncol=3)
 
 
 # -- tables and values ---------------------------------------------------------

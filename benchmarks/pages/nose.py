@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import Spec, block, markdown_table, pyplot, table
+from . import figure, Spec, block, markdown_table, pyplot, table
 from .thermostat import (forces_again_lines, histograms, sampling_table,
                          size, speed_table, warning_lines, yes)
 
@@ -30,26 +30,22 @@ def plot(results, figures):
     systems = results['systems']
     histograms(systems, THERMOSTATS, figures / PLOT)
 
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 3.4))
-    for s, color in zip(systems, ('C0', 'C1')):
-        th = s['thermostat']
-        trace = np.asarray(th['s_trace'])
-        steps = np.arange(len(trace)) * th['s_trace_every']
-        ax.plot(steps * s['timestep_fs'] / 1000, trace, color=color, lw=0.6,
-                label=f"{s['system']} {s['n_atoms']}, tdamp "
-                      f"{th['tdamp_fs']:g} fs")
-    first = systems[0]
-    ax.axvline(first['equilibration_steps'] * first['timestep_fs'] / 1000,
-               color='k', lw=0.8, ls=':', label='end of equilibration')
-    ax.set_xlabel('virtual time (ps)')
-    ax.set_ylabel('s (real step = dt / s)')
-    ax.set_title(f"Nosé's s over the forward run, every "
-                 f"{first['thermostat']['s_trace_every']} steps", fontsize=10)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(figures / PLOT_S, dpi=110)
-    plt.close(fig)
+    with figure(figures / PLOT_S, 1, (8, 3.4)) as (plt, fig, ax):
+        for s, color in zip(systems, ('C0', 'C1')):
+            th = s['thermostat']
+            trace = np.asarray(th['s_trace'])
+            steps = np.arange(len(trace)) * th['s_trace_every']
+            ax.plot(steps * s['timestep_fs'] / 1000, trace, color=color, lw=0.6,
+                    label=f"{s['system']} {s['n_atoms']}, tdamp "
+                          f"{th['tdamp_fs']:g} fs")
+        first = systems[0]
+        ax.axvline(first['equilibration_steps'] * first['timestep_fs'] / 1000,
+                   color='k', lw=0.8, ls=':', label='end of equilibration')
+        ax.set_xlabel('virtual time (ps)')
+        ax.set_ylabel('s (real step = dt / s)')
+        ax.set_title(f"Nosé's s over the forward run, every "
+                     f"{first['thermostat']['s_trace_every']} steps", fontsize=10)
+        ax.legend(fontsize=8)
 
 
 # -- tables ------------------------------------------------------------------

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import Spec, block, markdown_table, pyplot
+from . import figure, Spec, block, markdown_table, pyplot
 
 ERROR_PLOT = 'reversal_error.png'
 ENERGY_PLOT = 'reversal_energy.png'
@@ -20,67 +20,59 @@ def plot(results, figures):
 
 
 def _plot_errors(results, figures):
-    plt = pyplot()
-    vv = results['velocity_verlet']['points']
-    ours = results['reversible']['checkpoints']
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, key, symbol, unit in (
-            (axes[0], 'position_error', 'x', 'Å'),
-            (axes[1], 'momentum_error', 'p', 'amu Å / ASE time')):
-        n = [p['steps'] for p in vv]
-        err = [p[key] for p in vv]
-        ax.plot(n, err, 'o-', color='C3', label='VelocityVerlet')
-        ax.plot([c['steps'] for c in ours], [c[key] for c in ours], 's-',
-                color='C0', label='ReversibleVerlet')
-        positive = [e for e in err if e > 0]
-        # Zero has to sit on the axis itself: symlog, linear just below the
-        # smallest VelocityVerlet error.
-        threshold = 10.0 ** np.floor(np.log10(min(positive))) / 10 \
-            if positive else 1e-16
-        ax.set_yscale('symlog', linthresh=threshold, linscale=0.5)
-        ax.axhline(0, color='C0', lw=0.5)
-        ax.set_xscale('log')
-        ax.set_xlabel('steps N forward, then N back')
-        ax.set_ylabel(f'max |{symbol} - {symbol}0| ({unit})')
-        ax.grid(True, which='major', alpha=0.3)
-        top = max(err + [threshold])
-        ax.set_ylim(-threshold / 2, top * 30)
-        low, high = int(np.log10(threshold)), int(np.ceil(np.log10(top * 30)))
-        ax.set_yticks([0] + [10.0 ** k for k in range(low, high + 1, 3)])
-        ax.annotate('ReversibleVerlet: exactly 0', xy=(0.98, 0.06),
-                    xycoords='axes fraction', ha='right', color='C0')
-    axes[0].axhline(2 * results['system']['cluster_radius_start'],
-                    color='grey', ls=':', label='cluster diameter at start')
-    axes[0].legend(loc='upper left')
-    s = results['system']
-    fig.suptitle(f"Ar{s['atoms']}, {s['temperature_K']:g} K, asap3 LJ, "
-                 f"{s['timestep_fs']:g} fs: distance from the start after a "
-                 'round trip')
-    fig.tight_layout()
-    fig.savefig(figures / ERROR_PLOT, dpi=110)
-    plt.close(fig)
+    with figure(figures / ERROR_PLOT, 2, (10, 4)) as (plt, fig, axes):
+        vv = results['velocity_verlet']['points']
+        ours = results['reversible']['checkpoints']
+        for ax, key, symbol, unit in (
+                (axes[0], 'position_error', 'x', 'Å'),
+                (axes[1], 'momentum_error', 'p', 'amu Å / ASE time')):
+            n = [p['steps'] for p in vv]
+            err = [p[key] for p in vv]
+            ax.plot(n, err, 'o-', color='C3', label='VelocityVerlet')
+            ax.plot([c['steps'] for c in ours], [c[key] for c in ours], 's-',
+                    color='C0', label='ReversibleVerlet')
+            positive = [e for e in err if e > 0]
+            # Zero has to sit on the axis itself: symlog, linear just below the
+            # smallest VelocityVerlet error.
+            threshold = 10.0 ** np.floor(np.log10(min(positive))) / 10 \
+                if positive else 1e-16
+            ax.set_yscale('symlog', linthresh=threshold, linscale=0.5)
+            ax.axhline(0, color='C0', lw=0.5)
+            ax.set_xscale('log')
+            ax.set_xlabel('steps N forward, then N back')
+            ax.set_ylabel(f'max |{symbol} - {symbol}0| ({unit})')
+            ax.grid(True, which='major', alpha=0.3)
+            top = max(err + [threshold])
+            ax.set_ylim(-threshold / 2, top * 30)
+            low, high = int(np.log10(threshold)), int(np.ceil(np.log10(top * 30)))
+            ax.set_yticks([0] + [10.0 ** k for k in range(low, high + 1, 3)])
+            ax.annotate('ReversibleVerlet: exactly 0', xy=(0.98, 0.06),
+                        xycoords='axes fraction', ha='right', color='C0')
+        axes[0].axhline(2 * results['system']['cluster_radius_start'],
+                        color='grey', ls=':', label='cluster diameter at start')
+        axes[0].legend(loc='upper left')
+        s = results['system']
+        fig.suptitle(f"Ar{s['atoms']}, {s['temperature_K']:g} K, asap3 LJ, "
+                     f"{s['timestep_fs']:g} fs: distance from the start after a "
+                     'round trip')
 
 
 def _plot_energy(results, figures):
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7, 3.4))
-    for key, label, color in (('velocity_verlet', 'VelocityVerlet', 'C3'),
-                              ('reversible', 'ReversibleVerlet', 'C0')):
-        run = results[key]
-        e = np.asarray(run['energies'])
-        t_ns = (np.asarray(run['energy_steps'])
-                * results['system']['timestep_fs'] * 1e-6)
-        ax.plot(t_ns, (e - e[0]) / abs(e[0]), lw=0.8, color=color,
-                label=label)
-    ax.axhline(0, color='grey', lw=0.5)
-    ax.set_xlabel('time (ns)')
-    ax.set_ylabel('(E - E0) / |E0|')
-    ax.legend(loc='best')
-    ax.set_title(f"{results['final_steps']:,} steps forward, total energy "
-                 f"every {results['energy_every']} steps")
-    fig.tight_layout()
-    fig.savefig(figures / ENERGY_PLOT, dpi=110)
-    plt.close(fig)
+    with figure(figures / ENERGY_PLOT, 1, (7, 3.4)) as (plt, fig, ax):
+        for key, label, color in (('velocity_verlet', 'VelocityVerlet', 'C3'),
+                                  ('reversible', 'ReversibleVerlet', 'C0')):
+            run = results[key]
+            e = np.asarray(run['energies'])
+            t_ns = (np.asarray(run['energy_steps'])
+                    * results['system']['timestep_fs'] * 1e-6)
+            ax.plot(t_ns, (e - e[0]) / abs(e[0]), lw=0.8, color=color,
+                    label=label)
+        ax.axhline(0, color='grey', lw=0.5)
+        ax.set_xlabel('time (ns)')
+        ax.set_ylabel('(E - E0) / |E0|')
+        ax.legend(loc='best')
+        ax.set_title(f"{results['final_steps']:,} steps forward, total energy "
+                     f"every {results['energy_every']} steps")
 
 
 def _g(x):

@@ -6,7 +6,7 @@ the prose is docs/benchmarks.md's.
 
 from __future__ import annotations
 
-from . import Spec, block, markdown_table, pyplot
+from . import figure, Spec, block, markdown_table, pyplot
 
 PLOT = 'step_cost.png'
 OVERHEAD_PLOT = 'step_cost_overhead.png'
@@ -85,82 +85,74 @@ def plot(results, figures):
     if results.get('overhead'):
         plot_overhead(results['overhead'], figures)
     steps = results['step_cost']
-    plt = pyplot()
-    from matplotlib.lines import Line2D
-    from matplotlib.ticker import FuncFormatter, NullFormatter
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.3))
-    colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
-    sizes = sorted({r['n_atoms'] for r in steps})
-    for colour, (label, rs) in zip(colours, by_calculator(steps).items()):
-        n = [r['n_atoms'] for r in rs]
-        left.plot(n, [ratio(r, 'rv_velocity') for r in rs], 'o-',
-                  color=colour, label=label)
-        right.plot(n, [overhead_percent(r, 'rv_velocity') for r in rs],
-                   'o-', color=colour)
-        right.plot(n, [overhead_percent(r, 'vv') for r in rs], 'x--',
-                   color=colour, alpha=0.7)
-    left.axhline(TARGET_RATIO_TO_VV, color='k', lw=0.8, ls=':',
-                 label=f'target: ≤ {TARGET_RATIO_TO_VV:g}')
-    left.set_ylabel('Reversible (velocity) / VelocityVerlet, per step')
-    left.set_title('Time per step relative to VelocityVerlet')
-    right.axhline(TARGET_OVERHEAD_PERCENT, color='k', lw=0.8, ls=':')
-    right.axhline(0, color='grey', lw=0.5)
-    # Overheads span from a few % (noise around 0) to a few hundred %.
-    right.set_yscale('symlog', linthresh=10)
-    right.margins(y=0.08)
-    low, high = right.get_ylim()
-    right.set_yticks([t for t in (-200, -100, -50, -20, -10, -5, 0, 5, 10,
-                                  20, 50, 100, 200, 500, 1000)
-                      if low <= t <= high])
-    right.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
-    right.set_ylabel('time beyond the replay floor, % of the floor')
-    right.set_title('Overhead beyond the force calls of real MD')
-    right.legend(loc='best', handles=[
-        Line2D([], [], color='k', marker='o', label='Reversible (velocity)'),
-        Line2D([], [], color='k', marker='x', ls='--', alpha=0.7,
-               label='VelocityVerlet'),
-        Line2D([], [], color='k', lw=0.8, ls=':',
-               label=f'target ({TARGET_OVERHEAD_CALCULATOR}, '
-                     f'N ≥ {TARGET_OVERHEAD_MIN_ATOMS}): '
-                     f'< {TARGET_OVERHEAD_PERCENT:g}%')], fontsize=8)
-    left.legend(fontsize=8)
-    for ax in (left, right):
-        ax.set_xscale('log')
-        ax.set_xticks(sizes)
-        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
-        ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.set_xlabel('number of atoms')
-        ax.grid(True, which='major', alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(figures / PLOT, dpi=110)
-    plt.close(fig)
+    with figure(figures / PLOT, 2, (11, 4.3)) as (plt, fig, (left, right)):
+        from matplotlib.lines import Line2D
+        from matplotlib.ticker import FuncFormatter, NullFormatter
+        colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
+        sizes = sorted({r['n_atoms'] for r in steps})
+        for colour, (label, rs) in zip(colours, by_calculator(steps).items()):
+            n = [r['n_atoms'] for r in rs]
+            left.plot(n, [ratio(r, 'rv_velocity') for r in rs], 'o-',
+                      color=colour, label=label)
+            right.plot(n, [overhead_percent(r, 'rv_velocity') for r in rs],
+                       'o-', color=colour)
+            right.plot(n, [overhead_percent(r, 'vv') for r in rs], 'x--',
+                       color=colour, alpha=0.7)
+        left.axhline(TARGET_RATIO_TO_VV, color='k', lw=0.8, ls=':',
+                     label=f'target: ≤ {TARGET_RATIO_TO_VV:g}')
+        left.set_ylabel('Reversible (velocity) / VelocityVerlet, per step')
+        left.set_title('Time per step relative to VelocityVerlet')
+        right.axhline(TARGET_OVERHEAD_PERCENT, color='k', lw=0.8, ls=':')
+        right.axhline(0, color='grey', lw=0.5)
+        # Overheads span from a few % (noise around 0) to a few hundred %.
+        right.set_yscale('symlog', linthresh=10)
+        right.margins(y=0.08)
+        low, high = right.get_ylim()
+        right.set_yticks([t for t in (-200, -100, -50, -20, -10, -5, 0, 5, 10,
+                                      20, 50, 100, 200, 500, 1000)
+                          if low <= t <= high])
+        right.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+        right.set_ylabel('time beyond the replay floor, % of the floor')
+        right.set_title('Overhead beyond the force calls of real MD')
+        right.legend(loc='best', handles=[
+            Line2D([], [], color='k', marker='o', label='Reversible (velocity)'),
+            Line2D([], [], color='k', marker='x', ls='--', alpha=0.7,
+                   label='VelocityVerlet'),
+            Line2D([], [], color='k', lw=0.8, ls=':',
+                   label=f'target ({TARGET_OVERHEAD_CALCULATOR}, '
+                         f'N ≥ {TARGET_OVERHEAD_MIN_ATOMS}): '
+                         f'< {TARGET_OVERHEAD_PERCENT:g}%')], fontsize=8)
+        left.legend(fontsize=8)
+        for ax in (left, right):
+            ax.set_xscale('log')
+            ax.set_xticks(sizes)
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+            ax.xaxis.set_minor_formatter(NullFormatter())
+            ax.set_xlabel('number of atoms')
+            ax.grid(True, which='major', alpha=0.3)
 
 
 def plot_overhead(overheads, figures):
-    plt = pyplot()
-    from matplotlib.ticker import FuncFormatter, NullFormatter
-    fig, ax = plt.subplots(figsize=(6.5, 4.3))
-    n = [r['n_atoms'] for r in overheads]
-    for name, label, style in (('vv', 'VelocityVerlet', 'x--'),
-                               ('rv_velocity', 'Reversible velocity', 'o-'),
-                               ('rv_position', 'Reversible position', 's:')):
-        ax.plot(n, [1e6 * r['overhead_seconds'][name] for r in overheads],
-                style, label=label)
-    ax.plot(n, [1e6 * r['median_seconds']['force'] for r in overheads],
-            'k.-', lw=0.8, alpha=0.6, label='the force call (floor)')
-    ax.set_xscale('log')
-    ax.set_yscale('log')
-    ax.set_xticks(n)
-    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
-    ax.xaxis.set_minor_formatter(NullFormatter())
-    ax.set_xlabel('number of atoms')
-    ax.set_ylabel('µs per step beyond the force call')
-    ax.set_title('Integrator overhead (CachedForces calculator)')
-    ax.grid(True, which='major', alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(figures / OVERHEAD_PLOT, dpi=110)
-    plt.close(fig)
+    with figure(figures / OVERHEAD_PLOT, 1, (6.5, 4.3)) as (plt, fig, ax):
+        from matplotlib.ticker import FuncFormatter, NullFormatter
+        n = [r['n_atoms'] for r in overheads]
+        for name, label, style in (('vv', 'VelocityVerlet', 'x--'),
+                                   ('rv_velocity', 'Reversible velocity', 'o-'),
+                                   ('rv_position', 'Reversible position', 's:')):
+            ax.plot(n, [1e6 * r['overhead_seconds'][name] for r in overheads],
+                    style, label=label)
+        ax.plot(n, [1e6 * r['median_seconds']['force'] for r in overheads],
+                'k.-', lw=0.8, alpha=0.6, label='the force call (floor)')
+        ax.set_xscale('log')
+        ax.set_yscale('log')
+        ax.set_xticks(n)
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel('number of atoms')
+        ax.set_ylabel('µs per step beyond the force call')
+        ax.set_title('Integrator overhead (CachedForces calculator)')
+        ax.grid(True, which='major', alpha=0.3)
+        ax.legend(fontsize=8)
 
 
 # -- Markdown --------------------------------------------------------------
@@ -233,10 +225,6 @@ def integrator_overhead_table(results):
             f"{100 * max(r['spread'].values()):.0f}%",
             f'{wall_over_cpu(r):.2f}'))
     return markdown_table(header, rows)
-
-
-def case_label(r):
-    return f"{r['calculator']}, N={r['n_atoms']}"
 
 
 def step_cost_table(results):

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from . import Spec, block, markdown_table, pyplot
+from . import figure, Spec, block, markdown_table, pyplot
 
 SWEEP_PLOT = 'stress_dt_sweep.png'
 TRACES_PLOT = 'stress_blowup_traces.png'
@@ -34,73 +34,65 @@ def _floored(values):
 
 
 def _plot_sweep(sweeps, figures):
-    plt = pyplot()
-    fig, axes = plt.subplots(1, len(sweeps), figsize=(6 * len(sweeps), 4.5))
-    for ax, result in zip(np.atleast_1d(axes), sweeps):
-        rows = result['rows']
-        dts = [r['dt_fs'] for r in rows]
-        # Runs stopped before their first step have no error to show:
-        # they sit on the floor of the plot, labelled with the step.
-        ours = list(_floored(r['max_energy_error'] for r in rows))
-        vv = list(np.minimum(_floored(r['vv']['max_energy_error']
-                                      for r in rows), 1e30))
-        ax.plot(dts, vv, 's-', color='0.5', label='VelocityVerlet')
-        ax.plot(dts, ours, '-', color='C0', lw=1)
-        done = [r['error'] is None for r in rows]
-        ax.plot([d for d, ok in zip(dts, done) if ok],
-                [e for e, ok in zip(ours, done) if ok], 'o', color='C0',
-                label=f'ReversibleVerlet, all {result["steps"]} steps')
-        ax.plot([d for d, ok in zip(dts, done) if not ok],
-                [e for e, ok in zip(ours, done) if not ok], 'X', color='C3',
-                ms=9, label='ReversibleVerlet, stopped by an error')
-        stopped = [(r, e) for r, e in zip(rows, ours)
-                   if r['error'] is not None]
-        for i, (row, e) in enumerate(stopped):
-            # Alternate above and below: neighbouring labels overlap.
-            ax.annotate(f'step {row["error"]["step"]}', (row['dt_fs'], e),
-                        textcoords='offset points',
-                        xytext=(4, -12 if i % 2 == 0 else 8),
-                        fontsize=7, color='C3')
-        ax.axhline(1.0, color='k', ls=':', lw=1)
-        ax.set_xscale('log')
-        ax.set_yscale('log')
-        ax.set_xlabel('time step (fs)')
-        ax.set_ylabel('max |E - E0| / K0 over the run')
-        ax.set_title(f'{result["name"]}, {result["calculator"]}',
-                     fontsize=10)
-        ax.legend(fontsize=8, loc='upper left')
-    fig.tight_layout()
-    fig.savefig(figures / SWEEP_PLOT, dpi=110)
-    plt.close(fig)
+    with figure(figures / SWEEP_PLOT, len(sweeps), (6 * len(sweeps), 4.5)) as (plt, fig, axes):
+        for ax, result in zip(np.atleast_1d(axes), sweeps):
+            rows = result['rows']
+            dts = [r['dt_fs'] for r in rows]
+            # Runs stopped before their first step have no error to show:
+            # they sit on the floor of the plot, labelled with the step.
+            ours = list(_floored(r['max_energy_error'] for r in rows))
+            vv = list(np.minimum(_floored(r['vv']['max_energy_error']
+                                          for r in rows), 1e30))
+            ax.plot(dts, vv, 's-', color='0.5', label='VelocityVerlet')
+            ax.plot(dts, ours, '-', color='C0', lw=1)
+            done = [r['error'] is None for r in rows]
+            ax.plot([d for d, ok in zip(dts, done) if ok],
+                    [e for e, ok in zip(ours, done) if ok], 'o', color='C0',
+                    label=f'ReversibleVerlet, all {result["steps"]} steps')
+            ax.plot([d for d, ok in zip(dts, done) if not ok],
+                    [e for e, ok in zip(ours, done) if not ok], 'X', color='C3',
+                    ms=9, label='ReversibleVerlet, stopped by an error')
+            stopped = [(r, e) for r, e in zip(rows, ours)
+                       if r['error'] is not None]
+            for i, (row, e) in enumerate(stopped):
+                # Alternate above and below: neighbouring labels overlap.
+                ax.annotate(f'step {row["error"]["step"]}', (row['dt_fs'], e),
+                            textcoords='offset points',
+                            xytext=(4, -12 if i % 2 == 0 else 8),
+                            fontsize=7, color='C3')
+            ax.axhline(1.0, color='k', ls=':', lw=1)
+            ax.set_xscale('log')
+            ax.set_yscale('log')
+            ax.set_xlabel('time step (fs)')
+            ax.set_ylabel('max |E - E0| / K0 over the run')
+            ax.set_title(f'{result["name"]}, {result["calculator"]}',
+                         fontsize=10)
+            ax.legend(fontsize=8, loc='upper left')
 
 
 def _plot_traces(sweeps, figures):
     """Energy error step by step in the run of each system that started
     sane and then spent the most steps with |E - E0| > K0."""
-    plt = pyplot()
-    fig, axes = plt.subplots(1, len(sweeps), figsize=(6 * len(sweeps), 4))
-    for ax, result in zip(np.atleast_1d(axes), sweeps):
-        row = next(r for r in result['rows']
-                   if r['dt_fs'] == result['traced_dt_fs'])
-        trace = result['trace']
-        ax.plot(_floored(trace['velocity_verlet']), color='0.6', lw=4,
-                alpha=0.6, label='VelocityVerlet')
-        ax.plot(_floored(trace['reversible']), color='C0',
-                label='ReversibleVerlet')
-        if row['error'] is not None:
-            ax.axvline(row['error']['step'], color='C3', ls='--',
-                       label=f'{row["error"]["type"]} (step '
-                             f'{row["error"]["step"]})')
-        ax.axhline(1.0, color='k', ls=':', lw=1)
-        ax.set_yscale('log')
-        ax.set_xlabel('step')
-        ax.set_ylabel('|E - E0| / K0')
-        ax.set_title(f'{result["name"]}, {result["calculator"]}, '
-                     f'dt = {row["dt_fs"]:g} fs', fontsize=10)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(figures / TRACES_PLOT, dpi=110)
-    plt.close(fig)
+    with figure(figures / TRACES_PLOT, len(sweeps), (6 * len(sweeps), 4)) as (plt, fig, axes):
+        for ax, result in zip(np.atleast_1d(axes), sweeps):
+            row = next(r for r in result['rows']
+                       if r['dt_fs'] == result['traced_dt_fs'])
+            trace = result['trace']
+            ax.plot(_floored(trace['velocity_verlet']), color='0.6', lw=4,
+                    alpha=0.6, label='VelocityVerlet')
+            ax.plot(_floored(trace['reversible']), color='C0',
+                    label='ReversibleVerlet')
+            if row['error'] is not None:
+                ax.axvline(row['error']['step'], color='C3', ls='--',
+                           label=f'{row["error"]["type"]} (step '
+                                 f'{row["error"]["step"]})')
+            ax.axhline(1.0, color='k', ls=':', lw=1)
+            ax.set_yscale('log')
+            ax.set_xlabel('step')
+            ax.set_ylabel('|E - E0| / K0')
+            ax.set_title(f'{result["name"]}, {result["calculator"]}, '
+                         f'dt = {row["dt_fs"]:g} fs', fontsize=10)
+            ax.legend(fontsize=8)
 
 
 def _float(value):

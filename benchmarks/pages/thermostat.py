@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from . import Spec, block, markdown_table, pyplot
+from . import figure, Spec, block, markdown_table, pyplot
 
 PLOT = 'thermostat_kinetic_energy.png'
 
@@ -48,29 +48,25 @@ def plot(results, figures):
 def histograms(systems, thermostats, path):
     """One panel per system: each thermostat's histogram of the internal
     kinetic energy against the analytic Gamma density, saved to ``path``."""
-    plt = pyplot()
-    fig, axes = plt.subplots(1, len(systems), figsize=(5 * len(systems), 3.8))
-    for ax, s in zip(np.atleast_1d(axes), systems):
-        edges = np.asarray(s['histogram_edges_eV'])
-        width = np.diff(edges)
-        for (key, label), color in zip(thermostats, ('C0', 'C3')):
-            run = s['sampling'][key]
-            density = np.asarray(run['histogram_counts']) / (
-                run['samples'] * width)
-            ax.stairs(density, edges, color=color, lw=1.4,
-                      label=f'{label} ({run["samples"]:,} steps)')
-        x = np.linspace(edges[0], edges[-1], 400)
-        ax.plot(x, gamma_density(x, s['dof'] / 2, s['kT_eV']), 'k--', lw=1,
-                label=f"Gamma({s['dof']}/2, kT)")
-        ax.set_xlabel('internal kinetic energy (eV)')
-        ax.set_ylabel('density (1/eV)')
-        ax.set_title(f"{s['system']} {s['n_atoms']} atoms, "
-                     f"{s['calculator']}, {s['temperature_K']:g} K, "
-                     f"{s['timestep_fs']:g} fs", fontsize=10)
-        ax.legend(fontsize=8, loc='upper right')
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    with figure(path, len(systems), (5 * len(systems), 3.8)) as (plt, fig, axes):
+        for ax, s in zip(np.atleast_1d(axes), systems):
+            edges = np.asarray(s['histogram_edges_eV'])
+            width = np.diff(edges)
+            for (key, label), color in zip(thermostats, ('C0', 'C3')):
+                run = s['sampling'][key]
+                density = np.asarray(run['histogram_counts']) / (
+                    run['samples'] * width)
+                ax.stairs(density, edges, color=color, lw=1.4,
+                          label=f'{label} ({run["samples"]:,} steps)')
+            x = np.linspace(edges[0], edges[-1], 400)
+            ax.plot(x, gamma_density(x, s['dof'] / 2, s['kT_eV']), 'k--', lw=1,
+                    label=f"Gamma({s['dof']}/2, kT)")
+            ax.set_xlabel('internal kinetic energy (eV)')
+            ax.set_ylabel('density (1/eV)')
+            ax.set_title(f"{s['system']} {s['n_atoms']} atoms, "
+                         f"{s['calculator']}, {s['temperature_K']:g} K, "
+                         f"{s['timestep_fs']:g} fs", fontsize=10)
+            ax.legend(fontsize=8, loc='upper right')
 
 
 # -- helpers -----------------------------------------------------------------
