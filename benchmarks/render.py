@@ -1,8 +1,8 @@
 """Fill the generated blocks of the docs pages from the stored results.
 
-    python benchmarks/render.py                  # docs/ from docs/benchmarks/*.json
-    python benchmarks/render.py --check          # exit 1, with a diff, if stale
-    python benchmarks/render.py --out DIR        # DIR/*.md from DIR/benchmarks/
+    python benchmarks/render.py            # docs/ from docs/benchmarks/*.json
+    python benchmarks/render.py --check    # exit 1, with a diff, if stale
+    python benchmarks/render.py --out DIR  # DIR/*.md from DIR/benchmarks/
 
 The prose of ``docs/benchmarks.md`` and of the other pages is written by
 hand; the numbers are not.  They sit between marker comments (see
@@ -122,8 +122,8 @@ def rendered_pages(out: Path) -> dict:
         for block in ('measured', *spec.blocks):
             where = seen.get((name, block), [])
             if len(where) != 1:
-                raise ValueError(f'block {name} {block} is in {where or "no page"}'
-                                 ', expected once')
+                raise ValueError(f'block {name} {block} is in '
+                                 f'{where or "no page"}, expected once')
         if f'\n## {spec.title}\n' not in (out / 'benchmarks.md').read_text():
             raise ValueError(f'benchmarks.md has no heading ## {spec.title}')
     return pages

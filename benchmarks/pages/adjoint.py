@@ -139,7 +139,9 @@ COST_COLUMNS = (
 #: What the counting rounds saw besides the cost table's columns.
 COUNT_COLUMNS = (
     ('case', case_name),
-    ('backward: force calls / step', lambda c: f"{c['per_step']['backward_force_calls_retrace'] + c['per_step']['backward_force_calls_in_products']:.3g}"),
+    ('backward: force calls / step', lambda c: '{:.3g}'.format(
+        c['per_step']['backward_force_calls_retrace']
+        + c['per_step']['backward_force_calls_in_products'])),
     ('products per block of N', lambda c: ' or '.join(
         map(str, sorted(set(c['products_per_block']))))),
     ('clean recomputations / step, forward / backward',

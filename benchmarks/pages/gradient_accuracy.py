@@ -30,7 +30,8 @@ def _exponent(power_of_two):
 
 
 def plot(results, figures):
-    with figure(figures / PLOT, 2, (11, 4.2), dpi=120) as (plt, fig, (left, right)):
+    with figure(figures / PLOT, 2, (11, 4.2),
+                dpi=120) as (plt, fig, (left, right)):
         for row in results['hvp']:
             steps = [float(k) for k in row['errors']]
             left.loglog(steps, list(row['errors'].values()), 'o-',

@@ -63,7 +63,8 @@ THERMOSTAT_COLUMNS = (
     ('s (mean ± SE)',
      '{thermostat[s][mean]:.4f} ± {thermostat[s][standard_error]:.4f}'),
     ('s std', '{thermostat[s][std]:.4f}'),
-    ('s range, sampled', '{thermostat[s][min]:.3f} – {thermostat[s][max]:.3f}'),
+    ('s range, sampled',
+     '{thermostat[s][min]:.3f} – {thermostat[s][max]:.3f}'),
     ('s range, from the start', '{thermostat[s_from_start][min]:.3f} – '
                                 '{thermostat[s_from_start][max]:.3f}'),
     ('g of s (steps)', '{thermostat[s][correlation_time_steps]:.0f}'),
@@ -87,10 +88,11 @@ def harmonic_lines(results):
         f"{s['thermostat']['real_timestep_fs']['rms']:.3f} fs): ⟨ω²⟩ = "
         f"{r['mean_omega_squared_per_fs2']:.3g} / fs², estimate "
         f"{s['thermostat']['harmonic_kinetic_offset_percent']:+.2f}%, "
-        f"measured {100 * (r['temperature_K']['mean'] / s['temperature_K'] - 1):+.2f}"
-        f" ± {100 * r['temperature_K']['standard_error'] / s['temperature_K']:.2f}%."
+        f"measured {100 * (t['mean'] / s['temperature_K'] - 1):+.2f}"
+        f" ± {100 * t['standard_error'] / s['temperature_K']:.2f}%."
         for s in results['systems']
-        for r in [s['sampling']['reversible_nose']])
+        for r in [s['sampling']['reversible_nose']]
+        for t in [r['temperature_K']])
 
 
 def potential_lines(results):

@@ -34,7 +34,8 @@ def _floored(values):
 
 
 def _plot_sweep(sweeps, figures):
-    with figure(figures / SWEEP_PLOT, len(sweeps), (6 * len(sweeps), 4.5)) as (plt, fig, axes):
+    with figure(figures / SWEEP_PLOT, len(sweeps),
+                (6 * len(sweeps), 4.5)) as (plt, fig, axes):
         for ax, result in zip(np.atleast_1d(axes), sweeps):
             rows = result['rows']
             dts = [r['dt_fs'] for r in rows]
@@ -73,7 +74,8 @@ def _plot_sweep(sweeps, figures):
 def _plot_traces(sweeps, figures):
     """Energy error step by step in the run of each system that started
     sane and then spent the most steps with |E - E0| > K0."""
-    with figure(figures / TRACES_PLOT, len(sweeps), (6 * len(sweeps), 4)) as (plt, fig, axes):
+    with figure(figures / TRACES_PLOT, len(sweeps),
+                (6 * len(sweeps), 4)) as (plt, fig, axes):
         for ax, result in zip(np.atleast_1d(axes), sweeps):
             row = next(r for r in result['rows']
                        if r['dt_fs'] == result['traced_dt_fs'])

@@ -48,7 +48,8 @@ def plot(results, figures):
 def histograms(systems, thermostats, path):
     """One panel per system: each thermostat's histogram of the internal
     kinetic energy against the analytic Gamma density, saved to ``path``."""
-    with figure(path, len(systems), (5 * len(systems), 3.8)) as (plt, fig, axes):
+    with figure(path, len(systems),
+                (5 * len(systems), 3.8)) as (plt, fig, axes):
         for ax, s in zip(np.atleast_1d(axes), systems):
             edges = np.asarray(s['histogram_edges_eV'])
             width = np.diff(edges)
