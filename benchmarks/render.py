@@ -92,9 +92,13 @@ def inline_values(text, stored) -> str:
         if name not in stored:
             return f'<!--={name} {template}-->?<!---->'
         results = stored[name]['results']
-        fields = {**results, **SPECS[name].values(results)}
-        return (f'<!--={name} {template}-->{template.format(**fields)}'
-                '<!---->')
+        try:
+            text = template.format(**{**results,
+                                      **SPECS[name].values(results)})
+        except (KeyError, IndexError, TypeError, ValueError):
+            # A run that measured less (quick mode, an older JSON).
+            text = '(not measured)'
+        return f'<!--={name} {template}-->{text}<!---->'
     return INLINE.sub(value, text)
 
 

@@ -192,10 +192,13 @@ def emt_table(r):
 def system_values(r):
     """A system's results and the checks' derived numbers, for the prose."""
     out = dict(r)
-    c, q = r['sampling_check'], r['quantum_check']
-    out.update(wall_gap=c['subtracted_wall_s'] / c['unobserved_wall_s'] - 1,
-               cpu_gap=c['subtracted_cpu_s'] / c['unobserved_cpu_s'] - 1,
-               fine_error=_e(q['fine_error']))
+    c, q = r.get('sampling_check'), r.get('quantum_check')
+    if c:
+        out.update(
+            wall_gap=c['subtracted_wall_s'] / c['unobserved_wall_s'] - 1,
+            cpu_gap=c['subtracted_cpu_s'] / c['unobserved_cpu_s'] - 1)
+    if q:
+        out['fine_error'] = _e(q['fine_error'])
     if r.get('emt_check'):
         gains = {}
         for name in dict.fromkeys(row['calculator'] for row in r['emt_check']):
@@ -214,8 +217,11 @@ def system_values(r):
 
 
 def of_system(make, key):
-    return lambda stored: make(next(r for r in stored['results']['systems']
-                                    if r['key'] == key))
+    """A block of the system ``key`` (a line where this run has none)."""
+    def markdown(stored):
+        found = [r for r in stored['results']['systems'] if r['key'] == key]
+        return make(found[0]) if found else '*Not measured in this run.*'
+    return markdown
 
 
 SPEC = Spec(
