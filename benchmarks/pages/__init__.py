@@ -26,7 +26,7 @@ class Spec:
     plots: tuple[Callable, ...] = ()
     #: Named numbers derived from ``results`` for the pages' inline values
     #: (beside the results' own fields): function(results) -> dict.
-    values: Callable = dict
+    values: Callable = lambda results: {}
 
 
 def block(make, *keys):
