@@ -76,6 +76,14 @@ def pyplot():
     return plt
 
 
+def label(ax, xlabel, ylabel, title, fontsize=10):
+    """Name a panel's axes and title it; a legend if it has labels."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=fontsize)
+    ax.legend(fontsize=8)
+
+
 @contextmanager
 def figure(path, ncols=1, size=(7, 4), dpi=110):
     """(pyplot, figure, axes) of a new figure of ``ncols`` panels, laid

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import figure, Spec, block, pyplot, table
+from . import Spec, block, figure, table
 
 MEMORY_PLOT = 'adjoint_memory.png'
 COST_PLOT = 'adjoint_cost.png'

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from . import figure, Spec, block, markdown_table, pyplot
+from . import Spec, block, figure, markdown_table
 
 PLOT = 'lammps_cost.png'
 

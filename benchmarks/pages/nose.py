@@ -8,20 +8,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import figure, Spec, block, markdown_table, pyplot, table
-from .thermostat import (forces_again_lines, histograms, sampling_table,
-                         size, speed_table, warning_lines, yes)
+from . import Spec, block, figure, label, markdown_table, table
+from . import thermostat
+from .thermostat import (forces_again_lines, histograms, potential_lines,
+                         sampling_table, size, speed_table, warning_lines,
+                         yes)
 
 PLOT = 'nose_kinetic_energy.png'
 PLOT_S = 'nose_thermostat_position.png'
 
-THERMOSTATS = (('reversible_nose', 'ReversibleNose'),
-               ('ase_langevin', 'ASE Langevin'))
-SPEED_COLUMNS = (('reversible_nose', 'ReversibleNose'),
-                 ('ase_nose_hoover_chain', 'ASE NoseHooverChainNVT'),
-                 ('ase_langevin', 'ASE Langevin'),
-                 ('velocity_verlet', 'ASE VelocityVerlet'),
-                 ('reversible_verlet', 'ReversibleVerlet'))
+NOSE = ('reversible_nose', 'ReversibleNose')
+#: ReversibleNose in place of ReversibleLangevin, beside ASE's Langevin.
+THERMOSTATS = (NOSE, *thermostat.THERMOSTATS[1:])
+SPEED_COLUMNS = (NOSE, ('ase_nose_hoover_chain', 'ASE NoseHooverChainNVT'),
+                 *thermostat.SPEED_COLUMNS[1:])
 COUNTS = ('position', 'momentum', 'thermostat_position',
           'thermostat_momentum', 'time')
 
@@ -41,11 +41,9 @@ def plot(results, figures):
         first = systems[0]
         ax.axvline(first['equilibration_steps'] * first['timestep_fs'] / 1000,
                    color='k', lw=0.8, ls=':', label='end of equilibration')
-        ax.set_xlabel('virtual time (ps)')
-        ax.set_ylabel('s (real step = dt / s)')
-        ax.set_title(f"Nosé's s over the forward run, every "
-                     f"{first['thermostat']['s_trace_every']} steps", fontsize=10)
-        ax.legend(fontsize=8)
+        label(ax, 'virtual time (ps)', 's (real step = dt / s)',
+              f"Nosé's s over the forward run, every "
+              f"{first['thermostat']['s_trace_every']} steps")
 
 
 # -- tables ------------------------------------------------------------------
@@ -93,15 +91,6 @@ def harmonic_lines(results):
         for s in results['systems']
         for r in [s['sampling']['reversible_nose']]
         for t in [r['temperature_K']])
-
-
-def potential_lines(results):
-    return '\n'.join(
-        f"- {system(s)}: ReversibleNose − ASE Langevin = {d:+.4f} ± {se:.4f}"
-        f" eV ({d / se:+.1f} standard errors; {meV_per_atom(s, d, '+')} meV"
-        " per atom)." for s in results['systems']
-        for d, se in [(s['potential_difference_eV'],
-                       s['potential_difference_standard_error_eV'])])
 
 
 def equal(flags, key):
@@ -369,7 +358,8 @@ SPEC = Spec(
             'thermostat': lambda stored: table(
                 THERMOSTAT_COLUMNS, stored['results']['systems']),
             'harmonic': block(harmonic_lines),
-            'potential': block(potential_lines),
+            'potential': lambda stored: potential_lines(stored['results'],
+                                                        'ReversibleNose'),
             'round-trip': lambda stored: table(
                 ROUND_TRIP_COLUMNS, stored['results']['systems']),
             'warnings': lambda stored: warning_lines(stored['results'],

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import figure, Spec, block, markdown_table, pyplot
+from . import Spec, block, figure, markdown_table
 
 ERROR_PLOT = 'reversal_error.png'
 ENERGY_PLOT = 'reversal_energy.png'

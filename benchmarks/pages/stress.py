@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from . import figure, Spec, block, markdown_table, pyplot
+from . import Spec, block, figure, label, markdown_table
 
 SWEEP_PLOT = 'stress_dt_sweep.png'
 TRACES_PLOT = 'stress_blowup_traces.png'
@@ -90,11 +90,9 @@ def _plot_traces(sweeps, figures):
                                  f'{row["error"]["step"]})')
             ax.axhline(1.0, color='k', ls=':', lw=1)
             ax.set_yscale('log')
-            ax.set_xlabel('step')
-            ax.set_ylabel('|E - E0| / K0')
-            ax.set_title(f'{result["name"]}, {result["calculator"]}, '
-                         f'dt = {row["dt_fs"]:g} fs', fontsize=10)
-            ax.legend(fontsize=8)
+            label(ax, 'step', '|E - E0| / K0',
+                  f'{result["name"]}, {result["calculator"]}, '
+                  f'dt = {row["dt_fs"]:g} fs')
 
 
 def _float(value):

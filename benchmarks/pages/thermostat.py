@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from . import figure, Spec, block, markdown_table, pyplot
+from . import Spec, block, figure, markdown_table
 
 PLOT = 'thermostat_kinetic_energy.png'
 
@@ -132,30 +132,29 @@ def sampling_table(results, thermostats=THERMOSTATS):
          'E_pot (eV)', 'g of E_pot (steps)', 'max K_cm / kT'], rows)
 
 
-def potential_lines(results):
-    out = []
-    for s in results['systems']:
-        d = s['potential_difference_eV']
-        se = s['potential_difference_standard_error_eV']
-        out.append(f"- {s['system']} {s['n_atoms']}: ReversibleLangevin − "
-                   f'ASE Langevin = {d:+.4f} ± {se:.4f} eV '
-                   f'({d / se:+.1f} standard errors; '
-                   f"{1e3 * d / s['n_atoms']:+.3f} meV per atom).")
-    return '\n'.join(out)
+def potential_lines(results, name='ReversibleLangevin'):
+    """Per system: ``name``'s mean potential energy minus ASE Langevin's,
+    with the two errors added in quadrature."""
+    return '\n'.join(
+        f"- {s['system']} {s['n_atoms']}: {name} − ASE Langevin = "
+        f"{d:+.4f} ± {se:.4f} eV ({d / se:+.1f} standard errors; "
+        f"{1e3 * d / s['n_atoms']:+.3f} meV per atom)."
+        for s in results['systems']
+        for d, se in [(s['potential_difference_eV'],
+                       s['potential_difference_standard_error_eV'])])
 
 
 def baoab_lines(results):
-    out = []
-    for s in results['systems']:
-        r = s['sampling']['reversible_langevin']
-        t = r['temperature_K']
-        measured = 100 * (t['mean'] / s['temperature_K'] - 1)
-        error = 100 * t['standard_error'] / s['temperature_K']
-        out.append(f"- {s['system']} ({s['timestep_fs']:g} fs): ⟨ω²⟩ = "
-                   f"{r['mean_omega_squared_per_fs2']:.3g} / fs², predicted "
-                   f"{r['baoab_harmonic_kinetic_bias_percent']:+.2f}%, "
-                   f'measured {measured:+.2f} ± {error:.2f}%.')
-    return '\n'.join(out)
+    """Per system: BAOAB's predicted kinetic-temperature offset against
+    ReversibleLangevin's measured one, in %."""
+    return '\n'.join(
+        f"- {s['system']} ({s['timestep_fs']:g} fs): ⟨ω²⟩ = "
+        f"{r['mean_omega_squared_per_fs2']:.3g} / fs², predicted "
+        f"{r['baoab_harmonic_kinetic_bias_percent']:+.2f}%, measured "
+        f"{deviation_percent(s, 'reversible_langevin'):+.2f} ± "
+        f"{100 * r['temperature_K']['standard_error'] / s['temperature_K']:.2f}%."
+        for s in results['systems']
+        for r in [s['sampling']['reversible_langevin']])
 
 
 def round_trip_table(results):
@@ -220,13 +219,13 @@ def memory_table(results):
 
 
 def forces_again_lines(results):
-    out = []
-    for r in results['speed']:
-        again = r['get_forces_again_seconds']
-        out.append(f"{r['calculator']} {r['n_atoms']}: {us(again)} µs "
-                   f"({again / r['median_seconds']['velocity_verlet']:.2f} "
-                   'of a VelocityVerlet step)')
-    return '; '.join(out) + '.'
+    """What a repeated get_forces() cost, per case, in µs and in
+    VelocityVerlet steps."""
+    return '; '.join(
+        f"{r['calculator']} {r['n_atoms']}: "
+        f"{us(r['get_forces_again_seconds'])} µs "
+        f"({r['get_forces_again_seconds'] / r['median_seconds']['velocity_verlet']:.2f}"
+        " of a VelocityVerlet step)" for r in results['speed']) + '.'
 
 
 def speed_table(results, columns=SPEED_COLUMNS, base_key='ase_langevin'):

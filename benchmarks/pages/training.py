@@ -7,7 +7,7 @@ Measured by benchmarks/training.py, whose docstring gives the method.
 
 from __future__ import annotations
 
-from . import figure, Spec, block, markdown_table, pyplot
+from . import Spec, block, figure, markdown_table
 
 MEMORY_PLOT = 'training_memory.png'
 
