@@ -8,9 +8,10 @@ The prose of ``docs/benchmarks.md`` and of the other pages is written by
 hand; the numbers are not.  They sit between marker comments (see
 ``block_markers``) that name a section (``<out>/benchmarks/<section>.json``
 as written by ``run_all.py``) and one of its blocks (``pages.SPECS``:
-tables, lists, figure links); every block found in a page is rewritten
-from the stored JSON, and every block a section declares must be found
-once.  The renderer formats, it does not judge: verdicts are the prose's.
+tables, lists); every block found in a page is rewritten from the
+stored JSON, and every block a section declares must be found once.
+Numbers inside the prose are inline values (``INLINE``), rewritten the
+same way.  The renderer formats, it does not judge: verdicts are the prose's.
 Measures nothing, so the pages can be rebuilt (or restyled) without
 rerunning hours of measurements.
 """
