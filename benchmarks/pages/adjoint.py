@@ -8,12 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import markdown_table, pyplot
+from . import Spec, block, figure, table
 
-TITLE = 'Gradients by the reversible adjoint'
 MEMORY_PLOT = 'adjoint_memory.png'
 COST_PLOT = 'adjoint_cost.png'
-MEMORY_KINDS = ('reversible', 'stored')
 
 
 def plot(results, figures):
@@ -22,69 +20,62 @@ def plot(results, figures):
 
 
 def _plot_memory(memory, figures):
-    plt = pyplot()
-    points = memory['points']
-    n = [p['steps'] for p in points]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    ax = axes[0]
-    ax.loglog(n, [p['reversible']['traced_peak_bytes'] / 2**20
-                  for p in points], 'o-', color='C0',
-              label='ReversibleVerlet: run + backpropagate')
-    ax.loglog(n, [p['stored']['traced_peak_bytes'] / 2**20 for p in points],
-              's-', color='C3', label='stored trajectory: run + adjoint')
-    ax.loglog(n, [p['stored']['stored_bytes'] / 2**20 for p in points], ':',
-              color='C3', label='  of which array data stored')
-    ax.set_xlabel('steps N')
-    ax.set_ylabel('tracemalloc peak (MiB)')
-    ax.grid(True, which='major', alpha=0.3)
-    ax.legend(loc='upper left', fontsize=8)
-    ax = axes[1]
-    for kind, label, marker, color in (
-            ('reversible', 'ReversibleVerlet', 'o-', 'C0'),
-            ('stored', 'stored trajectory', 's-', 'C3')):
-        ax.semilogx(n, [p[kind]['max_rss_bytes'] / 2**20 for p in points],
-                    marker, color=color, label=f'{label}: peak')
-        ax.semilogx(n, [p[kind]['max_rss_before_bytes'] / 2**20
-                        for p in points], marker[0] + ':', color=color,
-                    alpha=0.5, label=f'{label}: before the run')
-    ax.set_xlabel('steps N')
-    ax.set_ylabel('peak resident set size (MiB)')
-    ax.grid(True, which='major', alpha=0.3)
-    ax.legend(loc='upper left', fontsize=8)
-    s = memory['system']
-    fig.suptitle(f"{s['cluster']}, {s['temperature_K']:g} K, "
-                 f"{s['timestep_fs']:g} fs: memory of a gradient through "
-                 'N steps (one process per point)')
-    fig.tight_layout()
-    fig.savefig(figures / MEMORY_PLOT, dpi=110)
-    plt.close(fig)
+    with figure(figures / MEMORY_PLOT, 2, (10, 4)) as (plt, fig, axes):
+        points = memory['points']
+        n = [p['steps'] for p in points]
+        ax = axes[0]
+        ax.loglog(n, [p['reversible']['traced_peak_bytes'] / 2**20
+                      for p in points], 'o-', color='C0',
+                  label='ReversibleVerlet: run + backpropagate')
+        ax.loglog(n, [p['stored']['traced_peak_bytes'] / 2**20 for p in points],
+                  's-', color='C3', label='stored trajectory: run + adjoint')
+        ax.loglog(n, [p['stored']['stored_bytes'] / 2**20 for p in points], ':',
+                  color='C3', label='  of which array data stored')
+        ax.set_xlabel('steps N')
+        ax.set_ylabel('tracemalloc peak (MiB)')
+        ax.grid(True, which='major', alpha=0.3)
+        ax.legend(loc='upper left', fontsize=8)
+        ax = axes[1]
+        for kind, label, marker, color in (
+                ('reversible', 'ReversibleVerlet', 'o-', 'C0'),
+                ('stored', 'stored trajectory', 's-', 'C3')):
+            ax.semilogx(n, [p[kind]['max_rss_bytes'] / 2**20 for p in points],
+                        marker, color=color, label=f'{label}: peak')
+            ax.semilogx(n, [p[kind]['max_rss_before_bytes'] / 2**20
+                            for p in points], marker[0] + ':', color=color,
+                        alpha=0.5, label=f'{label}: before the run')
+        ax.set_xlabel('steps N')
+        ax.set_ylabel('peak resident set size (MiB)')
+        ax.grid(True, which='major', alpha=0.3)
+        ax.legend(loc='upper left', fontsize=8)
+        s = memory['system']
+        fig.suptitle(f"{s['cluster']}, {s['temperature_K']:g} K, "
+                     f"{s['timestep_fs']:g} fs: memory of a gradient through "
+                     'N steps (one process per point)')
 
 
 def _plot_cost(cost, figures):
-    plt = pyplot()
     cases = cost['cases']
-    labels = [case_name(c) for c in cases]
-    ratio = np.array([c['backward_over_forward'] for c in cases])
-    share = np.array([c['backward_share_in_products'] for c in cases])
-    y = np.arange(len(cases))[::-1]
-    fig, ax = plt.subplots(figsize=(9, 0.5 * len(cases) + 1.8))
-    ax.barh(y, ratio * (1 - share), color='C0',
-            label='retrace and adjoint bookkeeping')
-    ax.barh(y, ratio * share, left=ratio * (1 - share), color='C1',
-            label='Hessian-vector products')
-    for yi, r in zip(y, ratio):
-        ax.annotate(f'{r:.2f}', (r, yi), xytext=(3, 0),
-                    textcoords='offset points', va='center', fontsize=8)
-    ax.axvline(1, color='grey', lw=0.5)
-    ax.set_yticks(y)
-    ax.set_yticklabels(labels, fontsize=8)
-    ax.set_xlabel('backpropagate time per step, in forward steps')
-    ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.16), ncol=2,
-              fontsize=8, frameon=False)
-    ax.set_xlim(0, ratio.max() * 1.15)
-    fig.tight_layout()
-    fig.savefig(figures / COST_PLOT, dpi=110)
-    plt.close(fig)
+    with figure(figures / COST_PLOT, 1,
+                (9, 0.5 * len(cases) + 1.8)) as (plt, fig, ax):
+        labels = [case_name(c) for c in cases]
+        ratio = np.array([c['backward_over_forward'] for c in cases])
+        share = np.array([c['backward_share_in_products'] for c in cases])
+        y = np.arange(len(cases))[::-1]
+        ax.barh(y, ratio * (1 - share), color='C0',
+                label='retrace and adjoint bookkeeping')
+        ax.barh(y, ratio * share, left=ratio * (1 - share), color='C1',
+                label='Hessian-vector products')
+        for yi, r in zip(y, ratio):
+            ax.annotate(f'{r:.2f}', (r, yi), xytext=(3, 0),
+                        textcoords='offset points', va='center', fontsize=8)
+        ax.axvline(1, color='grey', lw=0.5)
+        ax.set_yticks(y)
+        ax.set_yticklabels(labels, fontsize=8)
+        ax.set_xlabel('backpropagate time per step, in forward steps')
+        ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.16), ncol=2,
+                  fontsize=8, frameon=False)
+        ax.set_xlim(0, ratio.max() * 1.15)
 
 
 # -- render -------------------------------------------------------------------
@@ -104,207 +95,103 @@ def _kib(b):
     return f'{b / 2**10:.4g}'
 
 
-def memory_table(points):
-    rows = []
-    for p in points:
-        ours, st = p['reversible'], p['stored']
-        rows.append([
-            f"{p['steps']:,}",
-            _kib(ours['traced_peak_bytes']),
-            f"{_mib(ours['max_rss_bytes'])} "
-            f"(+{_mib(ours['max_rss_bytes'] - ours['max_rss_before_bytes'])})",
-            str(ours['exact_return']),
-            _kib(st['traced_peak_bytes']), _kib(st['stored_bytes']),
-            f"{_mib(st['max_rss_bytes'])} "
-            f"(+{_mib(st['max_rss_bytes'] - st['max_rss_before_bytes'])})",
-            _kib(st['tracemalloc_own_bytes']),
-            'bitwise' if p['gradients_bitwise_equal']
-            else f"{p['gradient_max_relative_difference']:.2g}",
-        ])
-    return markdown_table(
-        ['N', 'reversible: traced peak (KiB)',
-         'reversible: peak RSS (MiB, + growth)', 'reversible: back at start',
-         'stored: traced peak (KiB)', 'stored: array data (KiB)',
-         'stored: peak RSS (MiB, + growth)',
-         "stored: tracemalloc's own (KiB)",
-         'gradients equal (else max rel. difference)'], rows)
+def rss(run):
+    """Peak RSS in MiB, with its growth during the run."""
+    return (f"{_mib(run['max_rss_bytes'])} "
+            f"(+{_mib(run['max_rss_bytes'] - run['max_rss_before_bytes'])})")
 
 
-def memory_observations(memory):
-    points = memory['points']
-    last = points[-1]
+MEMORY_COLUMNS = (
+    ('N', '{steps:,}'),
+    ('reversible: traced peak (KiB)',
+     lambda p: _kib(p['reversible']['traced_peak_bytes'])),
+    ('reversible: peak RSS (MiB, + growth)', lambda p: rss(p['reversible'])),
+    ('reversible: back at start', '{reversible[exact_return]}'),
+    ('stored: traced peak (KiB)',
+     lambda p: _kib(p['stored']['traced_peak_bytes'])),
+    ('stored: array data (KiB)', lambda p: _kib(p['stored']['stored_bytes'])),
+    ('stored: peak RSS (MiB, + growth)', lambda p: rss(p['stored'])),
+    ("stored: tracemalloc's own (KiB)",
+     lambda p: _kib(p['stored']['tracemalloc_own_bytes'])),
+    ('gradients equal (else max rel. difference)',
+     lambda p: 'bitwise' if p['gradients_bitwise_equal']
+     else f"{p['gradient_max_relative_difference']:.2g}"))
+
+COST_COLUMNS = (
+    ('case', case_name), ('Hessian-vector product', '{hvp_class}'),
+    ('atoms', '{atoms}'), ('N', '{steps_per_block}'),
+    ('forward: force calls / step', '{per_step[forward_force_calls]:.3g}'),
+    ('backward: retrace force calls / step',
+     '{per_step[backward_force_calls_retrace]:.3g}'),
+    ('backward: products / step', '{per_step[backward_products]:.3g}'),
+    ('backward: force calls in products / step',
+     '{per_step[backward_force_calls_in_products]:.3g}'),
+    ('forward ms / step', '{forward_ms_per_step:.3g}'),
+    ('backward ms / step', '{backward_ms_per_step:.3g}'),
+    ('backward / forward (forward steps per step)',
+     '**{backward_over_forward:.2f}**'),
+    ('backward time in products', '{backward_share_in_products:.0%}'),
+    ('one product in force calls (time)',
+     '{product_over_force_call_time:.2g}'),
+    ('round spread', '{spread:.0%}'), ('wall / CPU', '{wall_over_cpu:.2f}'),
+    ('back at start every round', '{exact_return_every_round}'))
+
+#: What the counting rounds saw besides the cost table's columns.
+COUNT_COLUMNS = (
+    ('case', case_name),
+    ('backward: force calls / step', lambda c: '{:.3g}'.format(
+        c['per_step']['backward_force_calls_retrace']
+        + c['per_step']['backward_force_calls_in_products'])),
+    ('products per block of N', lambda c: ' or '.join(
+        map(str, sorted(set(c['products_per_block']))))),
+    ('clean recomputations / step, forward / backward',
+     lambda c: '{forward_clean_recomputations:.3g} / '
+     '{backward_clean_recomputations:.3g}'.format(**c['per_step'])
+     if c['force_purity'] == 'guarded' else '-'),
+    ('energy-only calls / step, forward / backward',
+     '{per_step[forward_energy_only_calls]:.3g} / '
+     '{per_step[backward_energy_only_calls]:.3g}'))
+
+
+def memory_values(results):
+    """The prose's numbers: growth of the traced peaks over the points."""
+    points = results['memory']['points']
+    first, last = points[0], points[-1]
     ours = [p['reversible']['traced_peak_bytes'] for p in points]
     stored = [p['stored']['traced_peak_bytes'] for p in points]
-    n = [p['steps'] for p in points]
     # Bytes per step of the stored trajectory, from the two longest runs.
-    slope = (stored[-1] - stored[-2]) / (n[-1] - n[-2])
-    payload = last['stored']['stored_bytes'] / last['stored']['frames']
-    rss = [p[kind]['max_rss_bytes'] - p[kind]['max_rss_before_bytes']
-           for p in (last,) for kind in MEMORY_KINDS]
-    lines = [
-        f"- ReversibleVerlet's traced peak went from {_kib(ours[0])} KiB at "
-        f"N = {n[0]:,} to {_kib(ours[-1])} KiB at N = {n[-1]:,} (x"
-        f"{ours[-1] / ours[0]:.3g} for x{n[-1] / n[0]:.3g} the steps). At "
-        f"N = {n[-1]:,} the process's peak RSS grew by {_mib(rss[0])} MiB "
-        f"during the run and gradient ({_mib(rss[1])} MiB for the stored "
-        'trajectory).',
-        f"- The stored trajectory's traced peak grew by {slope:.4g} bytes per "
-        f"step between the two longest runs (array data: {payload:.4g} bytes "
-        f"per step), to {stored[-1] / ours[-1]:.3g} times ReversibleVerlet's "
-        f"at N = {n[-1]:,}.",
-    ]
-    if slope > 0:
-        crossover = ours[-1] / slope
-        lines.append(f"- At that rate the stored trajectory alone passes "
-                     f"ReversibleVerlet's whole traced peak after about "
-                     f"{crossover:,.0f} steps.")
-    exact = all(p['reversible']['exact_return'] for p in points)
-    lines.append(f"- backpropagate left the atoms bitwise at the start at "
-                 f"every N: {exact}.")
+    slope = (stored[-1] - stored[-2]) / (last['steps'] - points[-2]['steps'])
     equal = [p['steps'] for p in points if p['gradients_bitwise_equal']]
-    if len(equal) == len(points):
-        lines.append('- The gradients of the two adjoints were bitwise '
-                     'equal at every N: the retrace took every '
-                     'Hessian-vector product at exactly the stored '
-                     'positions.')
-    else:
-        worst = max(p['gradient_max_relative_difference'] for p in points)
-        lines.append(f"- The gradients of the two adjoints were bitwise equal "
-                     f"at N = {', '.join(f'{s:,}' for s in equal) or 'none'};"
-                     f" largest relative difference {worst:.2g}.")
-    moved = max(p['reversible']['centre_of_mass_moved'] for p in points)
-    lines.append('- Largest gradient component: '
-                 + ', '.join(f"{p['gradient_max_abs']:.3g} (N = "
-                             f"{p['steps']:,})" for p in points)
-                 + f'. The centre of mass had moved by at most {moved:.2g} Å '
-                 'at the turning point.')
-    return '\n'.join(lines)
+    return {
+        'first_kib': _kib(ours[0]), 'last_kib': _kib(ours[-1]),
+        'first_n': first['steps'], 'last_n': last['steps'],
+        'peak_growth': ours[-1] / ours[0],
+        'steps_growth': last['steps'] / first['steps'],
+        'rss_ours': _mib(last['reversible']['max_rss_bytes']
+                         - last['reversible']['max_rss_before_bytes']),
+        'rss_stored': _mib(last['stored']['max_rss_bytes']
+                           - last['stored']['max_rss_before_bytes']),
+        'slope': slope,
+        'payload': last['stored']['stored_bytes'] / last['stored']['frames'],
+        'stored_over_ours': stored[-1] / ours[-1],
+        'crossover': ours[-1] / slope if slope > 0 else float('nan'),
+        'all_exact': all(p['reversible']['exact_return'] for p in points),
+        'gradients_equal_at': ', '.join(f'{n:,}' for n in equal) or 'none',
+        'largest_gradients': ', '.join(
+            f"{p['gradient_max_abs']:.3g} (N = {p['steps']:,})"
+            for p in points),
+        'moved': max(p['reversible']['centre_of_mass_moved']
+                     for p in points)}
 
 
-def cost_table(cases):
-    rows = []
-    for c in cases:
-        ps = c['per_step']
-        rows.append([
-            case_name(c), c['hvp_class'], c['atoms'], c['steps_per_block'],
-            f"{ps['forward_force_calls']:.3g}",
-            f"{ps['backward_force_calls_retrace']:.3g}",
-            f"{ps['backward_products']:.3g}",
-            f"{ps['backward_force_calls_in_products']:.3g}",
-            f"{c['forward_ms_per_step']:.3g}",
-            f"{c['backward_ms_per_step']:.3g}",
-            f"**{c['backward_over_forward']:.2f}**",
-            f"{c['backward_share_in_products']:.0%}",
-            f"{c['product_over_force_call_time']:.2g}",
-            f"{c['spread']:.0%}", f"{c['wall_over_cpu']:.2f}",
-            str(c['exact_return_every_round']),
-        ])
-    return markdown_table(
-        ['case', 'Hessian-vector product', 'atoms', 'N',
-         'forward: force calls / step', 'backward: retrace force calls / step',
-         'backward: products / step',
-         'backward: force calls in products / step',
-         'forward ms / step', 'backward ms / step',
-         'backward / forward (forward steps per step)',
-         'backward time in products', 'one product in force calls (time)',
-         'round spread', 'wall / CPU', 'back at start every round'], rows)
-
-
-def cost_observations(cases):
-    lines = []
-    for c in cases:
-        ps, n = c['per_step'], c['steps_per_block']
-        backward_calls = (ps['backward_force_calls_retrace']
-                          + ps['backward_force_calls_in_products'])
-        products = sorted(set(c['products_per_block']))
-        line = (f"- {case_name(c)}: per step, forward "
-                f"{ps['forward_force_calls']:.3g} force calls; backward "
-                f"{backward_calls:.3g} force calls (retrace "
-                f"{ps['backward_force_calls_retrace']:.3g}, in products "
-                f"{ps['backward_force_calls_in_products']:.3g}) and "
-                f"{ps['backward_products']:.3g} products "
-                f"({' or '.join(map(str, products))} for {n} steps). A "
-                f"backward step took {c['backward_over_forward']:.2f} "
-                "forward steps' time.")
-        if c['force_purity'] == 'guarded':
-            line += (f" Guarded purity: "
-                     f"{ps['forward_clean_recomputations']:.3g} clean "
-                     f"recomputations per step forward, "
-                     f"{ps['backward_clean_recomputations']:.3g} backward "
-                     '(included in the force calls).')
-        if ps['forward_energy_only_calls'] or ps['backward_energy_only_calls']:
-            line += (f" Energy-only calls (the energy check) per step: "
-                     f"{ps['forward_energy_only_calls']:.3g} forward, "
-                     f"{ps['backward_energy_only_calls']:.3g} backward.")
-        lines.append(line)
-    return '\n'.join(lines)
-
-
-def markdown(results):
-    memory, cost = results['memory'], results['cost']
-    s, cs = memory['system'], cost['settings']
-    systems = '\n'.join(f'- {v}' for v in results['cost_systems'].values())
-    return f"""\
-`ReversibleVerlet.backpropagate(N, dL/dx, dL/dp)` integrates the adjoint
-back along the exact forward path by running the N steps back, instead of
-storing the N states (`benchmarks/adjoint.py`). Time step
-{results['timestep_fs']:g} fs, default settings unless stated.
-
-### Memory against the number of steps
-
-{s['cluster']} at {s['temperature_K']:g} K (seed {s['seed']}; cold so the
-gradient stays moderate over long runs, net momentum removed so the cluster
-stays in its cell), {s['calculator']}. Every point is a
-fresh process; `tracemalloc` starts after the imports and the integrator's
-construction, so its peak covers the forward run and the gradient.
-
-- **reversible**: `dyn.run(N)`, then `dyn.backpropagate(N, dL/dx, dL/dp)`
-  for a fixed random linear loss on the final state; then `np.array_equal`
-  of positions and momenta with the start.
-- **stored**: the same integrator runs N steps with an observer appending
-  copies of the positions and momenta to a list at every step (what a
-  stored-trajectory adjoint keeps), then the same adjoint arithmetic runs
-  backwards over the stored positions with the calculator's
-  Hessian-vector product (`stored_adjoint`).
-
-Peak RSS is `ru_maxrss` at the end (in brackets: its growth over its value
-before the run); it includes the imported libraries and, for these runs,
-tracemalloc's own bookkeeping, shown for the stored runs in its own column.
-The workers ran {memory['parallel_workers']} at a time.
-
-![Peak memory against steps]\
-(benchmarks/{MEMORY_PLOT})
-
-{memory_table(memory['points'])}
-
-{memory_observations(memory)}
-
-### Cost of a gradient
-
-{systems}
-
-Per case: rounds of N steps (N chosen so a forward block takes about
-{cs['block_seconds']:g} s, at least {cs['min_steps']}), each `run(N)`
-followed by `backpropagate(N, ...)`, which returns the atoms to the start
-of the round, so every round repeats the same work.
-{cs['counting_rounds']} counting round(s) first: the calls of the
-calculator's `get_forces` / `get_potential_energy` that computed
-(`calculation_required`), with force calls made inside a Hessian-vector
-product counted apart, and the products through a counting wrapper; calls
-per step are totals over these rounds / steps. From the same rounds
-(medians): "backward time in products", the products' share of the
-backward time, and "one product in force calls", the time of a product
-over that of a forward force call. Then {cs['rounds']} timed rounds
-without wrappers: medians of time per step; "round spread" is the larger
-(max − min) / median of forward and backward; "wall / CPU" near 1.00
-means the process had the CPU to itself. Products: 'analytic' is the
-calculator's `hessian_vector_product`; the EMT calculators have none, so
-'auto' takes `FiniteDifferenceHVP` (two force calls per product).
-
-![Backward time per step in forward steps]\
-(benchmarks/{COST_PLOT})
-
-{cost_table(cost['cases'])}
-
-{cost_observations(cost['cases'])}
-"""
+SPEC = Spec(
+    'Gradients by the reversible adjoint',
+    blocks={'memory': lambda stored: table(
+                MEMORY_COLUMNS, stored['results']['memory']['points']),
+            'systems': block(lambda systems: '\n'.join(
+                f'- {v}' for v in systems.values()), 'cost_systems'),
+            'cost': lambda stored: table(COST_COLUMNS,
+                                         stored['results']['cost']['cases']),
+            'counts': lambda stored: table(
+                COUNT_COLUMNS, stored['results']['cost']['cases'])},
+    plots=(plot,), values=memory_values)

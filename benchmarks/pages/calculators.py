@@ -8,16 +8,11 @@ from __future__ import annotations
 import math
 import re
 
-from . import markdown_table
+from . import Spec, block, markdown_table
 
-TITLE = 'Calculators'
 #: Above this many force calls, a repeated get_forces() is a recomputation
 #: rather than a cache hit (these differ a hundredfold).
 REPEAT_RECOMPUTES = 0.5
-
-
-def plot(results, figures):
-    """No plot: one table."""
 
 
 def _exponent(power_of_two):
@@ -127,56 +122,14 @@ def load_line(results):
     loads = [x for r in results['rows'] if 'cost' in r
              for x in r['cost'].get('load_average', ())]
     if not loads:
-        return ''
+        return 'No timings in this run.'
     return (f'The 1-minute load average of the machine was {min(loads):.1f} '
-            f'to {max(loads):.1f} around the timings. Where it exceeds the '
-            'number of cores, other processes competed for them: the wall '
-            'times and their per-round ranges are then noisier than the CPU '
-            'times.')
+            f'to {max(loads):.1f} around the timings.')
 
 
-def markdown(results):
-    s = results['settings']
-    rows = [row_cells(r) for r in results['rows']]
-    return f"""\
-Each calculator on a small system of its own, as a new user would run it:
-`ReversibleVerlet(atoms, dt)` with the default `force_purity='auto'` on a
-fresh calculator (`benchmarks/calculators.py`). Rows whose package is not
-installed are listed with the reason.
-
-- **force_purity='auto'**: the mode the constructor chose, or its refusal
-  (`ImpureForcesError`, with the history noise its probe saw); a refused
-  calculator is then run with `force_purity='guarded'`, the remedy the
-  refusal names (shown in brackets in the next column).
-- **exact**: the steps given out, `reverse()`, as many back; "yes" if the
-  integer positions and momenta (`dyn.state`) and the atoms' float
-  positions and momenta all equal those of the start
-  (`np.array_equal`).
-- **momentum quantum**: the integrator's, in amu Å / ASE time unit.
-- **per step / VelocityVerlet**: ReversibleVerlet with that mode against
-  ASE's `VelocityVerlet`, each on its own copy of the atoms with its own
-  fresh calculator, {s['rounds']} rounds of blocks of equal step counts
-  (a VelocityVerlet block about {s['block_seconds']:g} s, at least
-  {s['min_steps']} steps) with the order rotating; the ratio of the median
-  per-step wall times, the medians in ms, the range of the per-round
-  ratios, and the ratio of the median CPU times of the process (steadier
-  where other processes shared the machine).
-- Thermal momenta: argon {s['ar_temperature_K']:g} K, copper
-  {s['cu_temperature_K']:g} K, the molecule {s['molecule_temperature_K']:g} K
-  (Maxwell-Boltzmann, seed 0). The periodic crystals have atoms on the
-  cell faces, where neighbour lists show their history noise.
-- **notes**: how the calculator was set up; what `'auto'` made of a
-  calculator that had already computed the energy, and what
-  `check_calculator()` said, where these differ from the constructor's
-  choice on a fresh calculator; clean recomputations (`'guarded'`) over the
-  out-and-back run; warnings raised during it; where `get_forces()` asked
-  again at unchanged positions recomputes instead of returning its cached
-  result (in units of a force call), which VelocityVerlet pays within every
-  step and ReversibleVerlet does not.
-
-{markdown_table(('calculator', 'system', "force_purity='auto'", 'exact',
-                 'momentum quantum', 'per step / VelocityVerlet', 'notes'),
-                rows)}
-
-{load_line(results)}
-"""
+SPEC = Spec('Calculators', blocks={
+    'table': lambda stored: markdown_table(
+        ('calculator', 'system', "force_purity='auto'", 'exact',
+         'momentum quantum', 'per step / VelocityVerlet', 'notes'),
+        [row_cells(r) for r in stored['results']['rows']]),
+    'load': block(load_line)})

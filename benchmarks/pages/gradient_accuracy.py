@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import math
 
-from . import markdown_table, pyplot
+from . import Spec, block, figure, markdown_table
 
-TITLE = 'Gradient accuracy'
 PLOT = 'gradient_accuracy.png'
 
 
@@ -31,72 +30,44 @@ def _exponent(power_of_two):
 
 
 def plot(results, figures):
-    plt = pyplot()
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for row in results['hvp']:
-        steps = [float(k) for k in row['errors']]
-        left.loglog(steps, list(row['errors'].values()), 'o-',
-                    label=row['case'])
-    default = results['hvp'][0]['default_step']
-    left.axvline(default, color='grey', ls=':', label='default step')
-    left.set_xlabel('finite-difference step (Å)')
-    left.set_ylabel('relative error of H v')
-    left.set_title('Finite-difference Hessian-vector products')
-    left.legend(fontsize=7)
-    for case in results['runs']:
-        steps = [r['steps'] for r in case['rows']]
-        best = [max(min(d['errors'].values()) for d in r['directions'])
-                for r in case['rows']]
-        growth = [r['growth'] for r in case['rows']]
-        line, = right.loglog(steps, best, 'o-', label=f"{case['case']}: error")
-        right.loglog(steps, growth, 's--', color=line.get_color(),
-                     label='gradient growth')
-    right.set_xlabel(f"steps ({results['settings']['timestep_fs']:g} fs)")
-    right.set_title('backpropagate against whole-run finite differences')
-    right.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(figures / PLOT, dpi=120)
-    plt.close(fig)
+    with figure(figures / PLOT, 2, (11, 4.2),
+                dpi=120) as (plt, fig, (left, right)):
+        for row in results['hvp']:
+            steps = [float(k) for k in row['errors']]
+            left.loglog(steps, list(row['errors'].values()), 'o-',
+                        label=row['case'])
+        default = results['hvp'][0]['default_step']
+        left.axvline(default, color='grey', ls=':', label='default step')
+        left.set_xlabel('finite-difference step (Å)')
+        left.set_ylabel('relative error of H v')
+        left.set_title('Finite-difference Hessian-vector products')
+        left.legend(fontsize=7)
+        for case in results['runs']:
+            steps = [r['steps'] for r in case['rows']]
+            best = [max(min(d['errors'].values()) for d in r['directions'])
+                    for r in case['rows']]
+            growth = [r['growth'] for r in case['rows']]
+            line, = right.loglog(steps, best, 'o-', label=f"{case['case']}: error")
+            right.loglog(steps, growth, 's--', color=line.get_color(),
+                         label='gradient growth')
+        right.set_xlabel(f"steps ({results['settings']['timestep_fs']:g} fs)")
+        right.set_title('backpropagate against whole-run finite differences')
+        right.legend(fontsize=7)
 
 
-def markdown(results):
+def hvp_table(results):
     hvp = results['hvp']
-    fd_h = finite_difference_steps(results)
-    q = results['settings']
     steps = list(hvp[0]['errors'])
-    lines = [
-        'How accurate the gradients of `ReversibleVerlet.backpropagate` '
-        'are (`benchmarks/gradient_accuracy.py`).',
-        '',
-        f'![gradient accuracy](benchmarks/{PLOT})',
-        '',
-        '### Finite-difference Hessian-vector products',
-        '',
-        'Largest component error over the largest component of the '
-        'reference, for one random direction; the default step is '
-        f"{hvp[0]['default_step']:g} Å. Reference: `analytic` is the "
-        "calculator's exact product, `stencil` a fourth-order difference at "
-        f"{_short(q['stencil_step'])} Å.",
-        '',
-        markdown_table(
-            ['case', 'reference'] + [f'{float(s):g} Å' for s in steps],
-            [[r['case'], r['reference']]
-             + [f"{r['errors'][s]:.1e}" for s in steps] for r in hvp]),
-        '',
-        '### Whole-run gradients',
-        '',
-        'Linear loss `L = <a, x_T> + <b, p_T>` with random `a`, `b`; '
-        'relative error of the directional derivative `<dL/dx0, u>` (and '
-        'the same for `p0`) against central finite differences of the whole '
-        'run with h = ' + ', '.join(f'{h:g}' for h in fd_h) + ' (Å, or amu '
-        'Å / ASE time), for random `u`. "best h" is the smallest of the '
-        'three errors, the largest over directions; "growth" the gradient '
-        'growth over the run. Fine quanta '
-        f"(2^{_exponent(q['position_quantum'])} Å, "
-        f"2^{_exponent(q['momentum_quantum'])}), time step "
-        f"{q['timestep_fs']:g} fs.",
-        '',
-    ]
+    return markdown_table(
+        ['case', 'reference'] + [f'{float(s):g} Å' for s in steps],
+        [[r['case'], r['reference']]
+         + [f"{r['errors'][s]:.1e}" for s in steps] for r in hvp])
+
+
+def run_tables(results):
+    """Per case: each run length's errors against finite differences."""
+    fd_h = finite_difference_steps(results)
+    lines = []
     for case in results['runs']:
         lines += [f"**{case['case']}** ({case['n_atoms']} atoms)", '']
         rows = []
@@ -113,20 +84,32 @@ def markdown(results):
             + [f'error, h={h:g}' for h in fd_h]
             + ['back at start bit for bit', 'backward / forward time'],
             rows), '']
-    worst_case, worst_row = max(
+    return '\n'.join(lines)
+
+
+def values(results):
+    """The finite-difference steps, and the worst case at its best h."""
+    fd_h = finite_difference_steps(results)
+    q = results['settings']
+    case, row = max(
         ((case, r) for case in results['runs'] for r in case['rows']),
         key=lambda cr: max(min(d['errors'].values())
                            for d in cr[1]['directions']))
-    worst = max(min(d['errors'].values()) for d in worst_row['directions'])
-    per_h = [max(d['errors'][repr(h)] for d in worst_row['directions'])
+    per_h = [max(d['errors'][repr(h)] for d in row['directions'])
              for h in fd_h]
-    falls = ', '.join(f'{a / b:.0f}×' for a, b in zip(per_h, per_h[1:]))
-    lines += [f"Largest error at the best h: {worst:.1e} ({worst_case['case']}, "
-              f"{worst_row['steps']} steps, growth {worst_row['growth']:.3g}). "
-              f'There, each 10× smaller h divides the error by {falls}: '
-              'the finite differences\' truncation error (∝ h², growing '
-              'with the curvature of the run map) still dominates the '
-              'comparison, so it bounds the error of the adjoint from '
-              'above only.']
-    return '\n'.join(lines)
+    return {'default_step': results['hvp'][0]['default_step'],
+            'stencil_step': _short(q['stencil_step']),
+            'fd_h': ', '.join(f'{h:g}' for h in fd_h),
+            'position_exponent': _exponent(q['position_quantum']),
+            'momentum_exponent': _exponent(q['momentum_quantum']),
+            'worst': max(min(d['errors'].values())
+                         for d in row['directions']),
+            'worst_case': case['case'], 'worst_steps': row['steps'],
+            'worst_growth': row['growth'],
+            'falls': ', '.join(f'{a / b:.0f}×'
+                               for a, b in zip(per_h, per_h[1:]))}
 
+
+SPEC = Spec('Gradient accuracy',
+            blocks={'hvp': block(hvp_table), 'runs': block(run_tables)},
+            plots=(plot,), values=values)

@@ -7,11 +7,8 @@ from __future__ import annotations
 
 import math
 
-from . import markdown_table, pyplot
+from . import Spec, block, markdown_table, pyplot
 
-TITLE = 'Work against precision'
-#: The label of ASE's VelocityVerlet among the methods.
-VV_LABEL = 'VelocityVerlet'
 
 
 def plot_name(system):
@@ -86,57 +83,6 @@ def _time_cell(row, key):
     return f'{prefix}{row[key]:.3g} s'
 
 
-def markdown(results):
-    target = results['target']
-    lines = [
-        'Relative total-energy error `|E(t) - E(0)| / |E(0)|` against the '
-        'time a run takes, over a sweep of time steps, for ASE\'s '
-        '`VelocityVerlet` and `ReversibleVerlet` with both schemes and '
-        'each order.  Every run covers the same simulated time and samples '
-        'the energy at the same simulated times (each time step divides the '
-        'sampling interval, which is also the largest step); the max and '
-        'RMS are over the samples after t = 0.  E(0) is each run\'s own '
-        'initial energy (ReversibleVerlet snaps the state to its grid '
-        'first).  ReversibleVerlet runs in its `guarded` force-purity mode, '
-        'the one `auto` picks for asap3 calculators.',
-        '',
-        '**Timing.**  Wall time (`time.perf_counter`) of `dyn.run(n)`, '
-        'minus the time spent in the sampling observer, which times itself: '
-        'for the `position` scheme each sample costs a force call that an '
-        'unobserved run does not make, so charging it would be unfair.  '
-        'The check below compares the subtracted time with runs that have '
-        'no observer at all.  CPU time (`time.process_time`, sampling '
-        'subtracted the same way) is reported too, as it is less sensitive '
-        'to other load on a shared machine.  A run shorter than '
-        f'{results["min_timed_seconds"]:g} s is repeated, up to '
-        f'{results["repeats"]} runs with fresh atoms and calculator (the '
-        'same trajectory bit for bit: the errors are checked equal), and '
-        'timed by the median.  '
-        '**Force calls** are counted from the schedule (one per stage per '
-        'step, plus the initial call of kick-drift-kick schemes and two '
-        'per clean recomputation of the guarded force mode), excluding the '
-        'sampling.',
-        '',
-        '**Sweeps.**  Each method starts at a coarse time step ('
-        'proportional to its number of stages, capped at the sampling '
-        'interval) and refines it through '
-        + ', '.join(map(str, results['ladder'][:7]))
-        + ', ... steps per sampling interval until its max error is below '
-        f'{results["stop_fraction"]:g} × {target:g}, or its best error has '
-        f'not improved by {results["floor_gain"]:g}× while the step shrank '
-        f'{results["floor_step_ratio"]:g}× (a floor), or the next run '
-        f'would take more than {results["max_run_seconds"]:g} s.  The time '
-        f'to reach {target:g} is interpolated log-log between the last '
-        f'point above and the first point at or below {target:g}.',
-        '',
-    ]
-    for r in results['systems']:
-        lines += _render_system(r, target)
-    if results.get('convergence'):
-        lines += _render_convergence(results['convergence'])
-    return '\n'.join(lines)
-
-
 def _converged_to(run, target, slack=0.5):
     """The smallest error reached while every halving so far showed at
     least the nominal order minus ``slack``; None if the first halving
@@ -149,24 +95,11 @@ def _converged_to(run, target, slack=0.5):
     return reached
 
 
-def _render_convergence(c):
+def convergence(c):
+    """Per system: what ran, and each method's halvings."""
     target = c['target']
     lines = [
-        '### Convergence to 1e-11 under `auto`', '',
-        'Orders 4 and 6, both schemes, with the bare asap3 potential and '
-        "`force_purity='auto'` (guarded rounding with the noise bound it "
-        'measures for the system), the energy check off.  The time step '
-        'is halved from the sampling interval until the max relative '
-        f'error is below {target / 2:g}, stops falling (less than 2× over '
-        'two halvings), or the next run would exceed the time budget.  '
-        '"Observed order" is log2 of the error ratio over each halving.  '
-        'The finest point is run again with a momentum quantum 2^-10 '
-        'times as large ("fine p", exact all the same, with many more '
-        'clean recomputations), and with the position quantum 2^-8 times '
-        'as large as well ("fine p and x"): where an error drops, that '
-        'grid set the floor.  '
-        '"Nominal down to" is the smallest error reached while every '
-        'halving so far showed at least the nominal order − 0.5.', '']
+]
     for r in c['systems']:
         closest = min(p['closest_to_cutoff'] for run in r['runs']
                       for p in run['points'])
@@ -191,19 +124,19 @@ def _render_convergence(c):
                 ', '.join(_e(p['max_error']) for p in run['points']),
                 ', '.join(f'{o:.1f}' for o in run['observed_orders']),
                 _e(reached), _e(run['fine']['max_error']),
-                _e(both['max_error'] if both else None), run['stop'],
-                'yes' if reached is not None and reached <= target else 'no'])
+                _e(both['max_error'] if both else None), run['stop']])
         lines += [markdown_table(
             ['method', 'quanta at the first step: momentum / position',
              'dt (fs)', 'max error', 'observed order', 'nominal down to',
-             'finest step, fine p', 'finest step, fine p and x', 'stop',
-             f'nominal order to ≤ {target:g}'], table), '']
-    return lines
+             'finest step, fine p', 'finest step, fine p and x', 'stop'],
+            table), '']
+    return '\n'.join(lines)
 
 
-def _render_system(r, target):
+def summary(r):
+    """The system, and each method's time to the target."""
     e0_atom = r['initial_energy_eV'] / r['atoms']
-    lines = [f"### {r['label'][0].upper() + r['label'][1:]}", '']
+    lines = []
     if r['pbc']:
         desc = (f"{r['formula']} ({r['atoms']} atoms), periodic fcc, "
                 f"`{r['calculator']}` (Cleri–Rosato parameters), "
@@ -219,7 +152,6 @@ def _render_system(r, target):
                 f"{r['temperature_K']:g} K; E(0) = {e0_atom:.4g} eV/atom.")
     lines += [desc + f"  Simulated time {r['simulated_fs']:g} fs, energy "
               f"sampled every {r['interval_fs']:g} fs.", '']
-    lines += [f"![Work-precision, {r['label']}](benchmarks/{plot_name(r)})", '']
 
     rows = r['summary']
     table = []
@@ -228,16 +160,13 @@ def _render_system(r, target):
                       _time_cell(row, 'wall_s'), _g(row['wall_s_ratio']),
                       _time_cell(row, 'cpu_s'), _g(row['cpu_s_ratio']),
                       _e(row['best_error']), row['stop']])
-    lines += [f'Time to reach a max relative error of {target:g} (ratio: '
-              'to VelocityVerlet; best: smallest max error in the sweep; '
-              'stop: why the sweep ended):', '',
-              markdown_table(
-                  ['method', 'force calls / step', 'wall to target',
-                   'wall ratio', 'CPU to target', 'CPU ratio', 'best error',
-                   'stop'], table), '']
-    lines += _observations(r, target)
-    lines += _checks(r)
-    lines += ['<details><summary>Every run</summary>', '']
+    lines += [markdown_table(
+        ['method', 'force calls / step', 'wall to target', 'wall ratio',
+         'CPU to target', 'CPU ratio', 'best error', 'stop'], table)]
+    return '\n'.join(lines)
+
+
+def every_run(r):
     table = []
     for s in r['sweeps']:
         for p in s['points']:
@@ -247,170 +176,63 @@ def _render_system(r, target):
                           f"{p['cpu_s']:.3g}",
                           p.get('failure') or _e(p['max_error']),
                           _e(p['rms_error'])])
-    lines += [markdown_table(
+    return markdown_table(
         ['method', 'dt (fs)', 'steps', 'force calls', 'runs', 'wall (s)',
          'CPU (s)',
-         'max error', 'RMS error'], table), '', '</details>', '']
-    return lines
+         'max error', 'RMS error'], table)
 
 
-def _observations(r, target):
-    rows = r['summary']
-    vv = rows[0]
-    reached = [row for row in rows[1:] if row['wall_s'] is not None]
-    out = []
-    if vv['wall_s'] is None:
-        out.append(f'- VelocityVerlet did not reach {target:g} within the '
-                   f"sweep (best {_e(vv['best_error'])}).")
-    else:
-        out.append(f"- VelocityVerlet needs {vv['wall_s']:.3g} s "
-                   f"({vv['cpu_s']:.3g} s CPU) to reach {target:g}.")
-    if reached:
-        best = min(reached, key=lambda row: row['wall_s'])
-        out.append(f"- Fastest to {target:g}: {best['method']}, "
-                   f"{best['wall_s']:.3g} s"
-                   + (f", {1 / best['wall_s_ratio']:.3g}× faster than "
-                      'VelocityVerlet' if best['wall_s_ratio'] else '')
-                   + '.')
-    goal = [row for row in rows if row['method'].split()[-1] in ('4', '6')
-            and row['wall_s_ratio'] is not None]
-    if vv['wall_s'] is not None:
-        winners = [row for row in goal if row['wall_s_ratio'] < 1]
-        if winners:
-            out.append('- Goal (order 4 or 6 reaches the target in less wall '
-                       'time than VelocityVerlet): **met** by '
-                       + ', '.join(f"{row['method']} "
-                                   f"({row['wall_s_ratio']:.2g}× VV's time)"
-                                   for row in winners) + '.')
-        else:
-            out.append('- Goal (order 4 or 6 reaches the target in less wall '
-                       'time than VelocityVerlet): **not met**.')
-    missing = [row for row in rows[1:] if row['wall_s'] is None]
-    for row in missing:
-        out.append(f"- {row['method']} never reached {target:g} (best "
-                   f"{_e(row['best_error'])}, sweep stopped: {row['stop']}).")
-    bound = [row for row in rows if row['how'] == 'at most']
-    if bound:
-        out.append('- Already below the target at the coarsest step tried, '
-                   'so the time is an upper bound: '
-                   + ', '.join(row['method'] for row in bound) + '.')
-    disagree = [f"{s['method']} at {p['dt_fs']:.4g} fs" for s in r['sweeps']
-                for p in s['points'] if not p['repeats_agree']]
-    if disagree:
-        out.append('- Repeated runs gave different errors (not the same '
-                   'trajectory): ' + ', '.join(disagree) + '.')
-    order2 = [row for row in rows[1:]
-              if row['method'].endswith(' 2') and row['wall_s_ratio']]
-    if order2:
-        out.append('- At order 2, ReversibleVerlet needs '
-                   + ' and '.join(f"{row['wall_s_ratio']:.2g}× "
-                                  f"({row['cpu_s_ratio']:.2g}× CPU)"
-                                  for row in order2)
-                   + " VelocityVerlet's time to the target ("
-                   + ', '.join(row['method'] for row in order2) + ').')
-    same = _same_step_errors(r['sweeps'], 'velocity 2')
-    if same:
-        out.append(f"- At equal time steps ({same[0]} of them), velocity 2's "
-                   f"max errors are within {same[1]:.2g}% of "
-                   "VelocityVerlet's: the same integrator up to rounding, "
-                   'so its time ratio is the cost of the fixed-point step.')
-    rev = [row for row in rows[1:] if row['best_error'] is not None]
-    if rev:
-        floor = min(row['best_error'] for row in rev)
-        out.append(f"- Smallest max error reached by any ReversibleVerlet "
-                   f"run: {floor:.2e}; by VelocityVerlet: "
-                   f"{_e(vv['best_error'])}.")
-    return out + ['']
+def emt_table(r):
+    return markdown_table(
+        ['calculator', 'dt (fs)', 'max error', 'RMS error'],
+        [[row['calculator'], f"{row['dt_fs']:.4g}", _e(row['max_error']),
+          _e(row['rms_error'])] for row in r['emt_check']])
 
 
-def _same_step_errors(sweeps, label):
-    """(number of shared time steps, largest relative difference in %)."""
-    by_label = {s['method']: s for s in sweeps}
-    if VV_LABEL not in by_label or label not in by_label:
-        return None
-    vv = {p['k']: p['max_error'] for p in by_label[VV_LABEL]['points']
-          if p['max_error']}
-    diffs = [abs(p['max_error'] / vv[p['k']] - 1) * 100
-             for p in by_label[label]['points']
-             if p['max_error'] and p['k'] in vv]
-    return (len(diffs), max(diffs)) if diffs else None
-
-
-def _checks(r):
-    lines = []
-    c = r.get('sampling_check')
+def system_values(r):
+    """A system's results and the checks' derived numbers, for the prose."""
+    out = dict(r)
+    c, q = r.get('sampling_check'), r.get('quantum_check')
     if c:
-        lines += [
-            f"**Sampling check.**  {c['method']} at dt = {c['dt_fs']:.4g} fs "
-            f"with the energy sampled after every step ({c['steps']} steps, "
-            f"the largest sampling share in the sweeps), median of "
-            f"{c['repeats']} interleaved pairs of runs: the observer took "
-            f"{c['sampling_wall_s']:.3g} s; the run time with it subtracted "
-            f"was {c['subtracted_wall_s']:.3g} s wall / "
-            f"{c['subtracted_cpu_s']:.3g} s CPU against "
-            f"{c['unobserved_wall_s']:.3g} s / {c['unobserved_cpu_s']:.3g} s "
-            f"for runs with no observer "
-            f"({c['subtracted_wall_s'] / c['unobserved_wall_s'] - 1:+.1%} / "
-            f"{c['subtracted_cpu_s'] / c['unobserved_cpu_s'] - 1:+.1%}).", '']
-    cc = r.get('cache_check')
-    if cc:
-        text = (f"**Cached results.**  The bare `{r['calculator']}`: a "
-                f"repeated `get_forces` at unchanged positions takes "
-                f"{cc['repeated_call_us']:.3g} µs, a real computation "
-                f"{cc['fresh_call_us']:.3g} µs.")
-        if 'vv_bare_us_per_step' in cc:
-            text += (f"  VelocityVerlet, which asks for the forces three "
-                     f"times per step, takes {cc['vv_bare_us_per_step']:.3g}"
-                     f" µs per step with the bare potential and "
-                     f"{cc['vv_cached_us_per_step']:.3g} µs behind "
-                     f"`ResultCache`, a cache of the last results keyed by "
-                     f"the exact positions, used for every run of this "
-                     f"section (ReversibleVerlet keeps its own cache and "
-                     f"asks once per stage).")
-        lines += [text, '']
-    q = r.get('quantum_check')
+        out.update(
+            wall_gap=c['subtracted_wall_s'] / c['unobserved_wall_s'] - 1,
+            cpu_gap=c['subtracted_cpu_s'] / c['unobserved_cpu_s'] - 1)
     if q:
-        lines += [
-            f"**Momentum-quantum check.**  The most accurate "
-            f"ReversibleVerlet run ({q['method']}, dt = {q['dt_fs']:.4g} fs)"
-            f" used the default momentum quantum {q['default_quantum']:.3g} "
-            f"(raised by the guarded force mode so that clean "
-            f"recomputations stay rare) and reached {q['default_error']:.2e}"
-            f"; with a quantum of {q['fine_quantum']:.3g} it reaches "
-            f"{_e(q['fine_error'])} ({q['fine_clean_recomputations']} clean "
-            f"recomputations, {q['fine_force_calls']} force calls instead "
-            f"of {q['default_force_calls']}): "
-            + ('the default quantum, not the integrator, sets this floor.'
-               if q['fine_error'] is not None
-               and q['fine_error'] < q['default_error'] / 4 else
-               'this error is the integrator\'s, not the quantum\'s.'), '']
-    emt = r.get('emt_check')
-    cut = r.get('emt_cutoff')
-    if emt:
-        gap = cut['fourth_neighbour'] - cut['list_cutoff']
-        table = [[row['calculator'], f"{row['dt_fs']:.4g}",
-                  _e(row['max_error']), _e(row['rms_error'])]
-                 for row in emt]
-        gains = []
-        for name in dict.fromkeys(row['calculator'] for row in emt):
-            coarse, fine = [row for row in emt if row['calculator'] == name]
-            if coarse['max_error'] and fine['max_error']:
-                gain = coarse['max_error'] / fine['max_error']
-                gains.append(f'{name} {gain:.3g}×')
-            else:
-                gains.append(f'{name} –')
-            ratio = coarse['dt_fs'] / fine['dt_fs']
-        lines += [
-            '**Why not EMT.**  VelocityVerlet on the same crystal with '
-            "asap3's EMT and with RGL at two time steps.  For a smooth "
-            f'potential, dividing the step by {ratio:g} divides the max '
-            f'error by {ratio ** 2:g}; measured: ' + ', '.join(gains)
-            + f".  asap3's EMT cuts its neighbour list at "
-            f"{cut['list_cutoff']:.3f} Å, where its logistic cutoff "
-            f"function is still {cut['weight_at_cutoff']:.2g} (ASE's EMT "
-            "with `asap_cutoff=True`, which mirrors it, tells): the energy "
-            'jumps whenever a pair crosses that distance, and the 4th '
-            f"neighbours sit only {gap:.2f} Å outside it.", '',
-            markdown_table(['calculator', 'dt (fs)', 'max error',
-                                   'RMS error'], table), '']
-    return lines
+        out['fine_error'] = _e(q['fine_error'])
+    if r.get('emt_check'):
+        gains = {}
+        for name in dict.fromkeys(row['calculator'] for row in r['emt_check']):
+            coarse, fine = [row for row in r['emt_check']
+                            if row['calculator'] == name]
+            gains[name] = (f"{coarse['max_error'] / fine['max_error']:.3g}×"
+                           if coarse['max_error'] and fine['max_error']
+                           else '–')
+        out.update(
+            emt_ratio=coarse['dt_fs'] / fine['dt_fs'],
+            emt_gains=', '.join(f'{n} {g}' for n, g in gains.items()),
+            emt_gap=(r['emt_cutoff']['fourth_neighbour']
+                     - r['emt_cutoff']['list_cutoff']))
+        out['emt_ratio_squared'] = out['emt_ratio'] ** 2
+    return out
+
+
+def of_system(make, key):
+    """A block of the system ``key`` (a line where this run has none)."""
+    def markdown(stored):
+        found = [r for r in stored['results']['systems'] if r['key'] == key]
+        return make(found[0]) if found else '*Not measured in this run.*'
+    return markdown
+
+
+SPEC = Spec(
+    'Work against precision',
+    blocks={**{f'{key}{part}': of_system(make, key)
+               for key in ('argon_cluster', 'copper_crystal')
+               for part, make in (('', summary), ('-runs', every_run))},
+            'copper_crystal-emt': of_system(emt_table, 'copper_crystal'),
+            'convergence': block(convergence, 'convergence')},
+    plots=(plot,),
+    values=lambda results: {
+        **{r['key']: system_values(r) for r in results['systems']},
+        'ladder_start': ', '.join(map(str, results['ladder'][:7])),
+        'half_convergence_target': results['convergence']['target'] / 2})
