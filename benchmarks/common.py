@@ -91,14 +91,19 @@ def machine_info() -> dict:
 
 def run_worker(script, args) -> dict:
     """Run ``python script *args`` in a fresh process (from the repository
-    root) and return the JSON object its last line of output holds, with
-    the process's wall time added as ``'process_seconds'``.  A process of
-    its own measures memory from a clean start."""
+    root, this directory importable) and return the JSON object its last
+    line of output holds, with the process's wall time added as
+    ``'process_seconds'``.  A process of its own measures memory from a
+    clean start."""
     import json
     import time
+    here = str(Path(__file__).resolve().parent)
+    path = os.pathsep.join(p for p in (here, os.environ.get('PYTHONPATH'))
+                           if p)
     started = time.perf_counter()
     proc = subprocess.run([sys.executable, str(script), *map(str, args)],
-                          capture_output=True, text=True, cwd=ROOT)
+                          capture_output=True, text=True, cwd=ROOT,
+                          env={**os.environ, 'PYTHONPATH': path})
     if proc.returncode != 0:
         raise RuntimeError(f'worker {Path(script).name} {args} failed:\n'
                            + proc.stderr[-3000:])

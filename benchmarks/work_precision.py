@@ -1,37 +1,14 @@
 """Work against precision: run time to reach a given energy error.
 
-For each integrator -- ASE's VelocityVerlet and ReversibleVerlet with both
-schemes at orders 2 to 8 (and 10 in full mode) -- a sweep of time steps,
-each run over the same simulated time, records the relative total-energy
-error ``|E(t) - E(0)| / |E(0)|`` at the same simulated times (every time
-step divides the sampling interval) and the time the run took without the
-sampling.  A method's sweep starts at a coarse step and refines it until
-the error is well below the target, stops improving, or the next run would
-exceed a time budget.
-
-Systems, both through asap3 (ReversibleVerlet in its 'guarded' force
-purity with the noise bound 'auto' measures for the system, as 'auto'
-does for asap3):
-
-- a free argon icosahedron, Lennard-Jones with a cutoff larger than any
-  distance in the cluster, so no pair ever crosses it; the potential sits
-  behind ``ResultCache`` so that VelocityVerlet is not charged for asap3
-  recomputing at unchanged positions (``cache_check``);
-- periodic fcc copper with the RGL (Gupta) potential, whose cutoff function
-  is smooth.  asap3's EMT is not used for the solid: its neighbour list
-  truncates the logistic cutoff function where it is still about 3e-3, so
-  the energy jumps whenever a 4th-neighbour pair crosses the list cutoff;
-  ``emt_check`` measures the floor this puts on VelocityVerlet's error.
-
-The guarded mode coarsens the momentum quantum, which puts a floor under
-ReversibleVerlet's energy error; ``quantum_check`` measures it.
-
-``convergence`` then asks whether orders 4 and 6 keep their nominal order
-down to a relative error of 1e-11 under ``force_purity='auto'`` with the
-bare asap3 potential: the step halved from the sampling interval, on the
-free argon cluster and on a cold periodic argon crystal whose
-Lennard-Jones cutoff lies between two neighbour shells, and the finest
-step run again with finer quanta to tell which grid sets a floor.
+For ASE's VelocityVerlet and ReversibleVerlet (both schemes, orders 2 to 8,
+and 10 in full mode), a sweep of time steps over the same simulated time:
+the relative energy error at the same times and the run time without the
+sampling, refined until below the target, at a floor, or over the time
+budget.  Systems through asap3 ('guarded'): a free Ar cluster (cutoff
+beyond its diameter, behind ``ResultCache``) and periodic Cu with RGL.
+Checks: the sampling's cost, the momentum quantum's floor, asap3's cache,
+EMT's truncated cutoff; then whether orders 4 and 6 converge to 1e-11
+under 'auto'.
 """
 
 from __future__ import annotations
@@ -41,7 +18,6 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 import functools
 import math
 import statistics
-import sys
 import time
 from dataclasses import dataclass, replace
 from typing import Callable
@@ -752,8 +728,3 @@ def run(quick):
         out['systems'].append(result)
     out['convergence'] = convergence(quick, settings)
     return out
-
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'work_precision'] + sys.argv[1:]))
