@@ -11,6 +11,7 @@ import resource
 import statistics
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -361,28 +362,40 @@ def nose_statistics(sampler, first, timestep_fs):
     }
 
 
-def there_and_back(dyn, steps, checkpoints=(), at_checkpoint=None,
-                   at_turn=None):
-    """Run ``dyn`` ``steps`` steps (its observers attached), calling
-    ``at_checkpoint(dyn, step)`` at each of ``checkpoints``, then
-    ``at_turn(dyn)``, then ``reverse()`` and as many steps back with no
-    observer.  Returns whether the positions moved, the seconds each way,
-    the checkpoints' results and what ``at_turn`` returned (a dict)."""
-    x0_nc = dyn.atoms.get_positions()
-    points, done = [], 0
-    tic = time.perf_counter()
-    for stop in sorted(set(checkpoints) | {steps}):
-        dyn.run(stop - done)
-        done = stop
-        if stop in checkpoints:
-            points.append(at_checkpoint(dyn, stop))
-    forward = time.perf_counter() - tic
-    record = {'moved': not np.array_equal(dyn.atoms.get_positions(), x0_nc),
-              **(at_turn(dyn) if at_turn else {})}
-    dyn.observers.clear()  # the way back is a plain run
-    dyn.reverse()
-    tic = time.perf_counter()
-    dyn.run(steps)
-    record.update(forward_seconds=forward,
-                  back_seconds=time.perf_counter() - tic, checkpoints=points)
-    return record
+def there_and_back(make, sampler_class, steps, checkpoints=(),
+                   at_checkpoint=None, at_turn=None, snapshot=None):
+    """A round trip of the dynamics ``make()`` builds: ``steps`` steps with
+    a ``sampler_class(dyn, steps)`` observing, ``at_checkpoint(dyn, step)``
+    at each of ``checkpoints`` and ``at_turn(dyn)`` (a dict) after the
+    last, then ``reverse()`` and as many steps back with no observer, all
+    with the warnings recorded.  Returns ``(dyn, sampler, record)``; the
+    record's 'start' is ``snapshot(dyn)`` before the first step."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        dyn = make()
+        start = snapshot(dyn) if snapshot else None
+        atoms = dyn.atoms
+        x0_nc, p0_nc = atoms.get_positions(), atoms.get_momenta()
+        sampler = sampler_class(dyn, steps)
+        dyn.attach(sampler, interval=1)
+        points, done = [], 0
+        tic = time.perf_counter()
+        for stop in sorted(set(checkpoints) | {steps}):
+            dyn.run(stop - done)
+            done = stop
+            if stop in checkpoints:
+                points.append(at_checkpoint(dyn, stop))
+        forward = time.perf_counter() - tic
+        record = {'start': start,
+                  'moved': not np.array_equal(atoms.get_positions(), x0_nc),
+                  **(at_turn(dyn) if at_turn else {})}
+        dyn.observers.clear()  # the way back is a plain run
+        dyn.reverse()
+        tic = time.perf_counter()
+        dyn.run(steps)
+    record.update(
+        forward_seconds=forward, back_seconds=time.perf_counter() - tic,
+        checkpoints=points, warnings=warning_lines(caught),
+        positions_equal=bool(np.array_equal(atoms.get_positions(), x0_nc)),
+        momenta_equal=bool(np.array_equal(atoms.get_momenta(), p0_nc)))
+    return dyn, sampler, record

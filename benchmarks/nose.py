@@ -32,8 +32,7 @@ from harness import (BLOCKS, FORCE_EVERY, TRAJECTORY_BYTES_PER_COORDINATE,
                      WINDOW_C, KineticSampler, NoseSampler, Settings,
                      buffer_sizes, canonical_statistics, histogram_edges,
                      max_rss_bytes, nose_statistics, potential_difference,
-                     resident_bytes, speed_case, there_and_back,
-                     warning_lines)
+                     resident_bytes, speed_case, there_and_back)
 from systems import (FRICTION_PER_FS, NOSE_SYSTEMS, SEED, START_FACTOR,
                      TDAMP_STEPS, THERMOSTATS, ase_langevin,
                      reversible_langevin, reversible_nose)
@@ -82,27 +81,20 @@ SPEED_CONTESTANTS = ('reversible_nose', 'ase_nose_hoover_chain',
 def sampling_system(system, lengths):
     """ReversibleNose there and back against ASE's Langevin."""
     atoms = system.atoms()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        dyn = reversible_nose(atoms, system)
-        start = dyn.counts
-        x0_nc, p0_nc = atoms.get_positions(), atoms.get_momenta()
-        ours = NoseSampler(dyn, lengths.round_trip)
-        dyn.attach(ours, interval=1)
-        trip = there_and_back(dyn, lengths.round_trip, at_turn=lambda dyn: {
-            'real_time_forward_fs': dyn.get_time() / units.fs})
-    end = dyn.counts
+    dyn, ours, trip = there_and_back(
+        lambda: reversible_nose(atoms, system), NoseSampler,
+        lengths.round_trip, at_turn=lambda dyn: {
+            'real_time_forward_fs': dyn.get_time() / units.fs},
+        snapshot=lambda dyn: dyn.counts)
+    start, end = trip['start'], dyn.counts
     round_trip = {
         'steps_each_way': lengths.round_trip, 'moved': trip['moved'],
         'counts_equal': {name: bool(np.array_equal(end[name], start[name]))
                          for name in start},
-        'positions_equal': bool(np.array_equal(atoms.get_positions(), x0_nc)),
-        'momenta_equal': bool(np.array_equal(atoms.get_momenta(), p0_nc)),
+        **{k: trip[k] for k in ('positions_equal', 'momenta_equal')},
         'time_after_fs': dyn.get_time() / units.fs,
-        'real_time_forward_fs': trip['real_time_forward_fs'],
-        'forward_seconds': trip['forward_seconds'],
-        'back_seconds': trip['back_seconds'],
-        'warnings': warning_lines(caught)}
+        **{k: trip[k] for k in ('real_time_forward_fs', 'forward_seconds',
+                                'back_seconds', 'warnings')}}
     reference = ase_langevin(system.atoms(), system)
     theirs = KineticSampler(reference, lengths.round_trip)
     reference.attach(theirs, interval=1)

@@ -24,6 +24,7 @@ import numpy as np
 from ase import units
 from ase.cluster import Icosahedron
 from ase.md.verlet import VelocityVerlet
+from harness import max_rss_bytes
 from systems import (CALCULATORS, CU_BOND, argon_fluid, copper_bulk_contact,
                      pair)
 
@@ -304,8 +305,7 @@ def far_apart_worker(calculator, distance):
     atoms.positions = far_apart_cluster(distance).positions
     tic = time.perf_counter()
     atoms.get_forces()
-    print(time.perf_counter() - tic,
-          resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+    print(time.perf_counter() - tic, max_rss_bytes() / 2**20)
 
 
 def far_apart_cluster(distance):

@@ -16,7 +16,6 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 import math
 import os
 import time
-import warnings
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -26,8 +25,7 @@ from ase.md.bussi import Bussi
 from harness import (BLOCKS, FORCE_EVERY, TRAJECTORY_BYTES_PER_COORDINATE,
                      WINDOW_C, KineticSampler, Settings, buffer_sizes,
                      canonical_statistics, histogram_edges,
-                     potential_difference, speed_case, there_and_back,
-                     warning_lines)
+                     potential_difference, speed_case, there_and_back)
 from systems import (FRICTION_PER_FS, SEED, THERMOSTAT_SYSTEMS, THERMOSTATS,
                      ThermostatSystem, ase_langevin, reversible_langevin)
 
@@ -136,27 +134,20 @@ def state_equal(a, b):
 def sampling_system(system, lengths):
     """ReversibleLangevin there and back against ASE's Langevin."""
     atoms = system.atoms()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        dyn = reversible_langevin(atoms, system)
-        start = dyn.state
-        x0_nc, p0_nc = atoms.get_positions(), atoms.get_momenta()
-        sampler = KineticSampler(dyn, lengths.round_trip)
-        dyn.attach(sampler, interval=1)
-        trip = there_and_back(dyn, lengths.round_trip, lengths.checkpoints,
-                              buffer_sizes)
+    dyn, sampler, trip = there_and_back(
+        lambda: reversible_langevin(atoms, system), KineticSampler,
+        lengths.round_trip, lengths.checkpoints, buffer_sizes,
+        snapshot=lambda dyn: dyn.state)
     buffers = list(dyn.friction_step.buffers.values())
-    checkpoints = trip.pop('checkpoints')
+    checkpoints = trip['checkpoints']
     round_trip = {
-        'steps_each_way': lengths.round_trip, 'moved': trip['moved'],
-        'positions_equal': bool(np.array_equal(atoms.get_positions(), x0_nc)),
-        'momenta_equal': bool(np.array_equal(atoms.get_momenta(), p0_nc)),
-        'state_equal': state_equal(dyn.state, start),
+        **{k: trip[k] for k in ('moved', 'positions_equal', 'momenta_equal')},
+        'steps_each_way': lengths.round_trip,
+        'state_equal': state_equal(dyn.state, trip['start']),
         'buffer_empty': bool(buffers and all(b.is_empty() for b in buffers)),
         'buffer_bits_after': dyn.buffer_bits, 'heat_after_eV': dyn.heat,
-        'forward_seconds': trip['forward_seconds'],
-        'back_seconds': trip['back_seconds'],
-        'warnings': warning_lines(caught)}
+        **{k: trip[k] for k in ('forward_seconds', 'back_seconds',
+                                'warnings')}}
     n = friction_ratio(math.exp(-FRICTION_PER_FS * system.timestep_fs))
     theirs, ase_seconds = run_reference(system, ase_langevin,
                                         lengths.round_trip)
@@ -227,14 +218,10 @@ def bussi_buffer(dyn, steps):
 def bussi_system(system, lengths):
     """Both Bussi thermostats on ``system``; ours then runs back."""
     atoms = system.atoms()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        dyn = reversible_bussi(atoms, system)
-        start = dyn.state
-        ours = KineticSampler(dyn, lengths.steps)
-        dyn.attach(ours, interval=1)
-        trip = there_and_back(dyn, lengths.steps, lengths.checkpoints,
-                              bussi_buffer)
+    dyn, ours, trip = there_and_back(
+        lambda: reversible_bussi(atoms, system), KineticSampler,
+        lengths.steps, lengths.checkpoints, bussi_buffer,
+        snapshot=lambda dyn: dyn.state)
     (buffer,) = dyn.rescale_step.buffers.values()
     theirs, ase_seconds = run_reference(system, ase_bussi, lengths.steps)
     result = sampled(system, lengths.equilibration + 1,
@@ -244,11 +231,10 @@ def bussi_system(system, lengths):
             'equilibration_steps': lengths.equilibration,
             'round_trip': {
                 'steps_each_way': lengths.steps, 'moved': trip['moved'],
-                'state_equal': state_equal(dyn.state, start),
+                'state_equal': state_equal(dyn.state, trip['start']),
                 'buffer_empty': buffer.is_empty(),
-                'forward_seconds': trip['forward_seconds'],
-                'back_seconds': trip['back_seconds'],
-                'warnings': warning_lines(caught)},
+                **{k: trip[k] for k in ('forward_seconds', 'back_seconds',
+                                        'warnings')}},
             'buffer_checkpoints': trip['checkpoints']}
 
 

@@ -125,8 +125,3 @@ def run(quick):
     return {'torch': torch.__version__, 'cases': cases,
             'load_average': [load_start, os.getloadavg()[0]]}
 
-
-if __name__ == '__main__':
-    import json
-    import sys
-    print(json.dumps(run('--quick' in sys.argv), indent=1))
