@@ -23,7 +23,6 @@ import statistics
 import sys
 import time
 import tracemalloc
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -216,18 +215,12 @@ def memory_worker(kind, steps):
     print(json.dumps(result), flush=True)
 
 
-def _run_memory_worker(kind, steps):
-    return common.run_worker(Path(__file__).resolve(),
-                             ['--memory-worker', kind, steps])
-
-
 def measure_memory(quick):
     steps = MEMORY_STEPS[quick]
     jobs = sorted(((kind, n) for n in steps for kind in MEMORY_KINDS),
                   key=lambda job: -job[1])  # longest first
-    with ThreadPoolExecutor(MEMORY_PARALLEL) as pool:
-        futures = {job: pool.submit(_run_memory_worker, *job) for job in jobs}
-        raw = {job: f.result() for job, f in futures.items()}
+    raw = dict(zip(jobs, common.run_workers(Path(__file__), jobs,
+                                            MEMORY_PARALLEL)))
     points = []
     for n in steps:
         ours, stored = raw['reversible', n], raw['stored', n]

@@ -380,12 +380,9 @@ def out_and_back(row, timestep, mode, steps):
 
 
 def repeated_call_cost(atoms, calls):
-    """Median time of ``get_forces()`` asked again at unchanged positions,
-    in units of a force call after a tiny move (no list rebuild).
-
-    VelocityVerlet asks again within every step (ASE's
-    _refresh_properties); near 0 is a cache hit, near 1 a recomputation.
-    """
+    """Median time of ``get_forces()`` asked again at unchanged positions
+    (as VelocityVerlet does every step), in force calls after a tiny move:
+    near 0 a cache hit, near 1 a recomputation."""
     x_nc = atoms.arrays['positions']
     again, moved = [], []
     for i in range(calls):

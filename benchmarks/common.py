@@ -89,6 +89,16 @@ def machine_info() -> dict:
     }
 
 
+def run_workers(script, jobs, parallel=2) -> list:
+    """``run_worker(script, ['--memory-worker', *job])`` of each job, at most
+    ``parallel`` at a time (they time nothing that is compared); the
+    results in the order of ``jobs``."""
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(parallel) as pool:
+        return list(pool.map(
+            lambda job: run_worker(script, ['--memory-worker', *job]), jobs))
+
+
 def run_worker(script, args) -> dict:
     """Run ``python script *args`` in a fresh process (from the repository
     root, this directory importable) and return the JSON object its last

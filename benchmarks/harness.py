@@ -33,7 +33,7 @@ HISTOGRAM_BINS = 40
 TRAJECTORY_BYTES_PER_COORDINATE = 16
 
 
-# -- time per step --------------------------------------------------------------
+# -- time per step ------------------------------------------------------------
 
 @dataclass(frozen=True)
 class Settings:
@@ -161,7 +161,7 @@ def speed_case(system, repeat, settings, names, integrators, reference):
     return result
 
 
-# -- memory -----------------------------------------------------------------------
+# -- memory -------------------------------------------------------------------
 
 def max_rss_bytes():
     """The process's peak resident set size so far."""
@@ -192,7 +192,7 @@ def buffer_sizes(dyn, steps):
             * coordinates * steps}
 
 
-# -- statistics of a sampled series ------------------------------------------------
+# -- statistics of a sampled series -------------------------------------------
 
 def integrated_time(x, window_c=WINDOW_C):
     """Integrated autocorrelation time ``g = 1 + 2 sum_t rho(t)`` (in

@@ -15,7 +15,6 @@ as ``pppm-forces-R.npy`` to compare rank counts.
 """
 
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np

@@ -22,7 +22,6 @@ import sys
 import time
 import tracemalloc
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -138,7 +137,7 @@ def sampling_system(system, lengths):
             'round_trip': round_trip}
 
 
-# -- memory: one fresh process per point ---------------------------------------
+# -- memory: one fresh process per point --------------------------------------
 
 class WarningTally:
     """Stands in for ``warnings.showwarning``: counts the warnings by
@@ -282,9 +281,8 @@ def measure_memory(lengths):
     jobs = [('nose', (steps[-1],)), ('langevin', steps)] + [
         ('nose', (n,)) for n in reversed(steps[:-1])] + [
         ('profile', (lengths.profile_steps,))]
-    with ThreadPoolExecutor(MEMORY_PARALLEL) as pool:
-        raw = list(pool.map(lambda job: common.run_worker(
-            Path(__file__), ['--memory-worker', job[0], *job[1]]), jobs))
+    raw = common.run_workers(Path(__file__),
+                             [(kind, *n) for kind, n in jobs], MEMORY_PARALLEL)
     nose = sorted((r for r in raw if r['kind'] == 'nose'),
                   key=lambda r: r['steps'])
     langevin = next(r for r in raw if r['kind'] == 'langevin')

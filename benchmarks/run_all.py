@@ -5,7 +5,7 @@ Usage (from the repository root)::
     python benchmarks/run_all.py                    # the default sections, ~75 min
     python benchmarks/run_all.py --quick            # small cases, a few minutes
     python benchmarks/run_all.py --only step_cost   # one section (any of SECTIONS)
-    python benchmarks/run_all.py --only nose_chain  # one study (any of STUDIES)
+    python benchmarks/run_all.py --only nose_chain  # a study (STUDIES)
     python benchmarks/render.py                     # only render the stored results
 
 Each section is a script of this directory, or of ``studies/`` for those

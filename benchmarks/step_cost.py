@@ -327,12 +327,9 @@ def time_watch(dyn, steps, calls=WATCH_CALLS, blocks=WATCH_BLOCKS):
 
 
 def time_energy_check(dyn, steps):
-    """The energy check's cost (``InvariantCheck.check``: its trigger and,
-    when due, the energy measurement) in the steps of a run of ``steps``
-    steps, after the rounds, so its reference is long set.  Returns the
-    result's entries: seconds per step (all calls, measurements included),
-    the median call (the trigger path almost every step takes), the
-    measurements made and the steps."""
+    """The energy check's cost (``InvariantCheck.check``, measurements
+    included) per step of a run of ``steps`` steps, its median call, and
+    the measurements made."""
     engine = dyn.engine
     invariant = engine.invariant
     measured = invariant.measurements

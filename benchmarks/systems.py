@@ -134,6 +134,45 @@ class CachedForces(Calculator):
         self.results = dict(self._fixed)
 
 
+class ResultCache:
+    """An asap3 potential behind a cache of its last results: asap3's
+    LennardJones recomputes at unchanged positions for a free cluster
+    (work_precision's ``cache_check``), and ASE's VelocityVerlet asks
+    three times a step;
+    ASE's own ``check_state`` costs more than the force call here."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self._mirror = None  # atoms carrying the inner calculator
+        # Forces and energy are separate computations of the bare
+        # potential, so each is computed only when asked for.
+        self._forces_at = self._energy_at = None
+        self._f_nc = self._energy = None
+
+    def _move(self, atoms):
+        if self._mirror is None or len(self._mirror) != len(atoms):
+            self._mirror = atoms.copy()
+            self._mirror.calc = self.inner
+        self._mirror.positions = atoms.positions
+
+    def get_forces(self, atoms):
+        x_nc = atoms.positions
+        if self._forces_at is None or not np.array_equal(x_nc,
+                                                         self._forces_at):
+            self._move(atoms)
+            self._f_nc = self._mirror.get_forces()
+            self._forces_at = x_nc.copy()
+        return self._f_nc.copy()
+
+    def get_potential_energy(self, atoms, force_consistent=False):
+        x_nc = atoms.positions
+        if self._energy_at is None or not np.array_equal(x_nc,
+                                                         self._energy_at):
+            self._move(atoms)
+            self._energy = self._mirror.get_potential_energy()
+            self._energy_at = x_nc.copy()
+        return self._energy
+
 # -- the thermostats' systems and integrators (thermostat, nose, studies) --
 
 @dataclass(frozen=True)

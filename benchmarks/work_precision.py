@@ -25,6 +25,7 @@ from typing import Callable
 import asap3
 import numpy as np
 import systems as bench_systems
+from systems import ResultCache
 from ase import units
 from ase.build import bulk
 from ase.md.verlet import VelocityVerlet
@@ -103,52 +104,6 @@ def argon_cluster(shells):
 
 #: A fresh bare asap3 LennardJones with the cutoff above, per call.
 raw_argon_lj = bench_systems.asap3_argon_lj(AR_CUTOFF)
-
-
-class ResultCache:
-    """An asap3 potential behind a cache of its last results.
-
-    asap3's LennardJones recomputes on every call for this free cluster,
-    even at unchanged positions (``cache_check`` measures it), and ASE's
-    VelocityVerlet asks for the forces three times per step: bare, it
-    would pay three force computations per step where ReversibleVerlet,
-    which keeps its own cache, pays one.  ASE's own cache
-    (``Calculator.check_state``) is no fix: its comparisons cost more than
-    the force call itself for this small cluster.  An exact comparison of
-    the positions costs a few microseconds, the same for both integrators.
-    """
-
-    def __init__(self, inner):
-        self.inner = inner
-        self._mirror = None  # atoms carrying the inner calculator
-        # Forces and energy are separate computations of the bare
-        # potential, so each is computed only when asked for.
-        self._forces_at = self._energy_at = None
-        self._f_nc = self._energy = None
-
-    def _move(self, atoms):
-        if self._mirror is None or len(self._mirror) != len(atoms):
-            self._mirror = atoms.copy()
-            self._mirror.calc = self.inner
-        self._mirror.positions = atoms.positions
-
-    def get_forces(self, atoms):
-        x_nc = atoms.positions
-        if self._forces_at is None or not np.array_equal(x_nc,
-                                                         self._forces_at):
-            self._move(atoms)
-            self._f_nc = self._mirror.get_forces()
-            self._forces_at = x_nc.copy()
-        return self._f_nc.copy()
-
-    def get_potential_energy(self, atoms, force_consistent=False):
-        x_nc = atoms.positions
-        if self._energy_at is None or not np.array_equal(x_nc,
-                                                         self._energy_at):
-            self._move(atoms)
-            self._energy = self._mirror.get_potential_energy()
-            self._energy_at = x_nc.copy()
-        return self._energy
 
 
 def argon_lj():
@@ -241,12 +196,9 @@ def make_dynamics(method, atoms, dt, **kwargs):
 
 def measure(system, template, method, k, observe=True, samples=None,
             **kwargs):
-    """Run ``method`` with ``k`` steps per sampling interval.
-
-    The sampling observer times itself; its wall and CPU time are
-    subtracted from the run's, since for the 'position' scheme each energy
-    sample costs a force call that an unobserved run would not make.
-    """
+    """Run ``method`` with ``k`` steps per sampling interval; the sampling
+    observer's own time is subtracted (a 'position' sample costs a force
+    call an unobserved run would not make)."""
     atoms = template.copy()
     atoms.calc = system.calc()
     dt_fs = system.interval_fs / k
@@ -357,11 +309,8 @@ def sweep(system, template, method, settings):
 
 
 def time_to_target(points, key='wall_s'):
-    """Time to reach TARGET, interpolated log-log at the first crossing.
-
-    Returns ``(seconds, how)``: how is 'interpolated', 'at most' (the
-    coarsest step already reached it) or 'not reached'.
-    """
+    """``(seconds, how)`` to reach TARGET, log-log interpolated at the
+    first crossing: 'interpolated', 'at most' or 'not reached'."""
     valid = [p for p in points if p['max_error'] is not None]
     for i, p in enumerate(valid):
         if p['max_error'] <= TARGET:
@@ -397,12 +346,9 @@ def summarise(sweeps):
 # -- checks ------------------------------------------------------------------
 
 def sampling_check(system, template, settings):
-    """Subtracted sampling time against runs with no observer at all.
-
-    Taken where sampling is dearest in the sweeps: the 'position' scheme
-    at order 4 with the energy sampled after every step, one extra force
-    call per 5.  The run is lengthened to about ``check_seconds``.
-    """
+    """Subtracted sampling time against runs with no observer, where
+    sampling is dearest: 'position' order 4, sampled every step, runs of
+    about ``check_seconds``."""
     method = Method('position 4', 'position', 4)
     probe = measure(system, template, method, 1, samples=4)
     per_sample = max(probe['wall_s'] + probe['sampling_wall_s'], 1e-6) / 4
@@ -425,13 +371,9 @@ def sampling_check(system, template, settings):
 
 
 def quantum_check(system, template, sweeps, factor=2.0**-10):
-    """The error floor set by the guarded mode's momentum quantum.
-
-    Reruns the most accurate point of the highest-order kick-drift-kick
-    sweep, the one whose truncation error is most likely below the floor,
-    with a momentum quantum ``factor`` times the default (more clean
-    recomputations, still exactly reversible).
-    """
+    """The error floor of the guarded mode's momentum quantum: the most
+    accurate point of the highest-order velocity sweep run again with the
+    quantum ``factor`` times the default."""
     candidates = [s for s in sweeps if s['scheme'] == 'velocity']
     s = max(candidates, key=lambda s: s['order'])
     valid = [p for p in s['points'] if p['max_error'] is not None]
@@ -452,15 +394,9 @@ def quantum_check(system, template, sweeps, factor=2.0**-10):
 
 
 def cache_check(system, template, raw_calc, settings, calls=40, blocks=5):
-    """What a repeated force request costs with the bare asap3 potential.
-
-    Microseconds per ``get_forces`` call at unchanged positions against a
-    call after moving one atom by 1e-9 Å (a real computation, never a
-    neighbour-list rebuild): the fastest of ``blocks`` blocks of ``calls``
-    calls, as a time slice lost to other load would swamp a block.  Where
-    the system's calculator is a ResultCache, also VelocityVerlet's time
-    per step with and without it, unobserved runs interleaved.
-    """
+    """Microseconds per ``get_forces`` of the bare asap3 potential at
+    unchanged positions and after a 1e-9 Å move (the fastest of ``blocks``
+    blocks); with a ResultCache, VelocityVerlet's step with and without."""
     atoms = template.copy()
     atoms.calc = raw_calc()
     atoms.get_forces()
@@ -510,12 +446,8 @@ def cache_check(system, template, raw_calc, settings, calls=40, blocks=5):
 
 
 def emt_cutoff(template):
-    """Where asap3's EMT truncates its cutoff function, for ``template``.
-
-    ASE's EMT with ``asap_cutoff=True`` reproduces asap3's neighbour-list
-    cutoff, and exposes it: the logistic function's value there and the
-    gap to the 4th-neighbour shell of the lattice.
-    """
+    """Where asap3's EMT truncates its cutoff function (ASE's EMT with
+    ``asap_cutoff=True`` exposes it), its value there, the 4th shell."""
     from ase.calculators.emt import EMT
     atoms = template.copy()
     calc = EMT(asap_cutoff=True)

@@ -59,9 +59,10 @@ def jackknife_compressibility(volume, kT, blocks=JACKKNIFE_BLOCKS):
     v = v[:length * blocks]
     kappa = float(v.var() / (kT * v.mean()))
     parts = v.reshape(blocks, length)
-    leave_one_out = np.array([
-        (lambda rest: rest.var() / (kT * rest.mean()))(
-            np.delete(parts, k, axis=0).ravel()) for k in range(blocks)])
+    leave_one_out = np.empty(blocks)
+    for k in range(blocks):
+        rest = np.delete(parts, k, axis=0).ravel()
+        leave_one_out[k] = rest.var() / (kT * rest.mean())
     error = math.sqrt((blocks - 1) / blocks
                       * ((leave_one_out - leave_one_out.mean())**2).sum())
     # (V - <V>)**2 follows the piston's energy, whose correlations outlast

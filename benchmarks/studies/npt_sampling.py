@@ -146,12 +146,12 @@ def exact_state(dyn):
 
 def compare(start, end):
     """``{what: array_equal}`` of two exact_state's."""
-    verdict = {f'variable {name}': bool(np.array_equal(start['engine'][name],
-                                                       end['engine'].get(name)))
-               for name in start['engine']}
+    equal = {f'variable {name}': bool(np.array_equal(
+        start['engine'][name], end['engine'].get(name)))
+        for name in start['engine']}
     for key in ('positions', 'momenta', 'cell'):
-        verdict[key] = bool(np.array_equal(start[key], end[key]))
-    return verdict
+        equal[key] = bool(np.array_equal(start[key], end[key]))
+    return equal
 
 
 def buffers(dyn):
@@ -192,12 +192,12 @@ def run_one(case, name, lengths, repeat=None, round_trip=False):
             tic = time.perf_counter()
             dyn.run(lengths.total)
             back = time.perf_counter() - tic
-            verdict = compare(start, exact_state(dyn))
-            verdict['buffers empty'] = all(b.is_empty() for b in buffers(dyn))
+            equal = compare(start, exact_state(dyn))
+            equal['buffers empty'] = all(b.is_empty() for b in buffers(dyn))
             record['round_trip'] = {
                 'steps_each_way': lengths.total, 'moved': moved,
-                'cell_moved': cell_moved, 'equal': verdict,
-                'exact': all(verdict.values()),
+                'cell_moved': cell_moved, 'equal': equal,
+                'exact': all(equal.values()),
                 'buffer_bits_at_turn': bits_at_turn,
                 'buffer_bits_after': buffer_bits(dyn),
                 'back_seconds': back}

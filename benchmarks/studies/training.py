@@ -23,7 +23,6 @@ import json
 import statistics
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -134,12 +133,8 @@ class Window:
         atoms = self.atoms0.copy()
         atoms.calc = LennardJones(epsilon=epsilon, sigma=sigma, rc=FIXED_RC)
         dyn = ReversibleVerlet(atoms, fit.TIMESTEP)
-        x_start, p_start = atoms.positions.copy(), atoms.get_momenta()
-        self.start = x_start, p_start
-        observed = [(x_start, p_start)]
-        for _ in range(self.steps // EVERY):
-            dyn.run(EVERY)
-            observed.append((atoms.positions.copy(), atoms.get_momenta()))
+        observed = states(dyn, self.steps)
+        x_start, p_start = self.start = observed[0]
         values, (w_b, miss_k, v0_nc, m_n1, x0_nc) = self.losses(observed)
         names = ('epsilon', 'sigma')
         grads = {}
@@ -174,17 +169,14 @@ class Window:
         atoms.positions[:] = self.start[0]
         atoms.set_momenta(self.start[1])
         atoms.calc = LennardJones(epsilon=epsilon, sigma=sigma, rc=FIXED_RC)
-        dyn = VelocityVerlet(atoms, self.fit.TIMESTEP)
-        observed = [(atoms.positions.copy(), atoms.get_momenta())]
-        for _ in range(self.steps // EVERY):
-            dyn.run(EVERY)
-            observed.append((atoms.positions.copy(), atoms.get_momenta()))
-        return self.losses(observed)[0]
+        return self.losses(states(VelocityVerlet(atoms, self.fit.TIMESTEP),
+                                  self.steps))[0]
 
 
 def reference_targets(fit, atoms, steps, windows=4):
     """The reference's g(r) and VACF, averaged over float NVE windows
     started ``steps`` NVT steps apart."""
+    from ase.md.verlet import VelocityVerlet
     from ase_reversible import LennardJones, ReversibleLangevin
     from ase_reversible.core.record import INFO_KEY
     atoms = atoms.copy()
@@ -193,7 +185,9 @@ def reference_targets(fit, atoms, steps, windows=4):
     m_n1 = atoms.get_masses()[:, None]
     rdf_sum = vacf_sum = 0
     for k in range(windows):
-        observed = _float_window(fit, atoms, steps)
+        b = atoms.copy()
+        b.calc = atoms.calc
+        observed = states(VelocityVerlet(b, fit.TIMESTEP), steps)
         rdf_sum = rdf_sum + sum(rdf.values(x) for x, _ in observed) \
             / len(observed)
         v0_nc = observed[0][1] / m_n1
@@ -205,15 +199,13 @@ def reference_targets(fit, atoms, steps, windows=4):
     return rdf_sum / windows, vacf_sum / windows
 
 
-def _float_window(fit, atoms, steps):
-    from ase.md.verlet import VelocityVerlet
-    b = atoms.copy()
-    b.calc = atoms.calc
-    dyn = VelocityVerlet(b, fit.TIMESTEP)
-    observed = [(b.positions.copy(), b.get_momenta())]
+def states(dyn, steps):
+    """[(x, p)] of ``dyn``'s atoms now and every EVERY of ``steps`` steps."""
+    atoms = dyn.atoms
+    observed = [(atoms.positions.copy(), atoms.get_momenta())]
     for _ in range(steps // EVERY):
         dyn.run(EVERY)
-        observed.append((b.positions.copy(), b.get_momenta()))
+        observed.append((atoms.positions.copy(), atoms.get_momenta()))
     return observed
 
 
@@ -260,7 +252,7 @@ def memory_worker(kind, steps):
     atoms = equilibrated_liquid(fit, 0)
     rdf = fit.SmoothRDF(atoms, fit.QUICK.r_max)
     target_b = rdf.values(atoms.positions)
-    rss_before = maxresident_bytes()
+    rss_before = max_rss_bytes()
     rss_now = resident_bytes()
     t0 = time.perf_counter()
     result = {'kind': kind, 'steps': steps, 'atoms': len(atoms)}
@@ -286,7 +278,7 @@ def memory_worker(kind, steps):
     result.update(rss_before_bytes=rss_now, rss_peak_bytes=sampler.peak)
     result.update(seconds=time.perf_counter() - t0,
                   max_rss_before_bytes=rss_before,
-                  max_rss_bytes=maxresident_bytes())
+                  max_rss_bytes=max_rss_bytes())
     print(json.dumps(result), flush=True)
 
 
@@ -339,12 +331,7 @@ def measure_memory(quick):
     jobs = [(kind, n) for kind, steps in MEMORY_STEPS[quick].items()
             for n in steps]
     jobs.sort(key=lambda job: -job[1])
-    script = Path(__file__).resolve()
-    with ThreadPoolExecutor(2) as pool:
-        futures = {job: pool.submit(common.run_worker, script,
-                                    ['--memory-worker', *job])
-                   for job in jobs}
-        raw = {job: f.result() for job, f in futures.items()}
+    raw = dict(zip(jobs, common.run_workers(Path(__file__), jobs)))
     points = {kind: [raw[kind, n] for n in steps]
               for kind, steps in MEMORY_STEPS[quick].items()}
     autograd = points['autograd']
