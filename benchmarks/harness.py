@@ -301,13 +301,40 @@ def canonical_statistics(sampler, first, dof, kT, edges, timestep):
     }
 
 
-def potential_difference(a, b):
-    """Two ``canonical_statistics``' mean potential energies apart: the
-    difference and its combined standard error (eV)."""
-    a, b = a['potential_energy'], b['potential_energy']
-    return {'potential_difference_eV': a['mean'] - b['mean'],
-            'potential_difference_standard_error_eV':
-                math.hypot(a['standard_error'], b['standard_error'])}
+def against_reference(system, first, ours, reference, make, steps):
+    """``ours``, a (name, KineticSampler) pair, against ASE's thermostat
+    ``make(atoms, system)`` sampled ``steps`` steps from the same atoms:
+    both ``canonical_statistics`` from step ``first`` on (the reference's
+    with its 'seconds') and the potential energies' difference."""
+    dyn = make(system.atoms(), system)
+    theirs = KineticSampler(dyn, steps)
+    dyn.attach(theirs, interval=1)
+    tic = time.perf_counter()
+    dyn.run(steps)
+    seconds = time.perf_counter() - tic
+    n_atoms = len(theirs.atoms)
+    dof = 3 * n_atoms - 3
+    kT = units.kB * system.temperature_K
+    edges = histogram_edges(dof, kT)
+    h = system.timestep_fs * units.fs
+    sampled = {name: canonical_statistics(sampler, first, dof, kT, edges, h)
+               for name, sampler in (ours, (reference, theirs))}
+    sampled[reference]['seconds'] = seconds
+    a, b = sampled[ours[0]], sampled[reference]
+    print(f"  {system.label:9s} N={n_atoms}  T_kin "
+          f"{a['temperature_K']['mean']:.2f} / {b['temperature_K']['mean']:.2f}"
+          f" K  KS p {a['ks']['p_value']:.2g} / {b['ks']['p_value']:.2g}",
+          flush=True)
+    return {'system': system.label, 'calculator': system.calculator,
+            'n_atoms': n_atoms, 'dof': dof,
+            'temperature_K': system.temperature_K,
+            'timestep_fs': system.timestep_fs, 'kT_eV': kT,
+            'histogram_edges_eV': edges.tolist(), 'sampling': sampled,
+            'potential_difference_eV':
+                a['potential_energy']['mean'] - b['potential_energy']['mean'],
+            'potential_difference_standard_error_eV': math.hypot(
+                a['potential_energy']['standard_error'],
+                b['potential_energy']['standard_error'])}
 
 
 def warning_lines(caught):

@@ -28,12 +28,11 @@ from pathlib import Path
 import numpy as np
 from ase import units
 from harness import (BLOCKS, FORCE_EVERY, TRAJECTORY_BYTES_PER_COORDINATE,
-                     WINDOW_C, KineticSampler, NoseSampler, Settings,
-                     buffer_sizes, canonical_statistics, histogram_edges,
-                     max_rss_bytes, nose_statistics, potential_difference,
-                     resident_bytes, speed_case, there_and_back)
+                     WINDOW_C, NoseSampler, against_reference, buffer_sizes,
+                     max_rss_bytes, nose_statistics, resident_bytes,
+                     speed_case, there_and_back)
 from systems import (FRICTION_PER_FS, NOSE_SYSTEMS, SEED, START_FACTOR,
-                     TDAMP_STEPS, THERMOSTATS, ase_langevin,
+                     TDAMP_STEPS, THERMOSTAT_SPEED, THERMOSTATS, ase_langevin,
                      reversible_langevin, reversible_nose)
 
 from ase_reversible.md.nose import ENERGY_CHECK_INTERVAL
@@ -67,10 +66,6 @@ FULL = Lengths(equilibration=2000, round_trip=100_000,
                memory_steps=(1000, 10_000, 100_000), profile_steps=4096)
 QUICK = Lengths(equilibration=200, round_trip=1000, memory_steps=(100, 1000),
                 profile_steps=1024)
-SPEED_FULL = Settings(rounds=9, block_seconds=0.5, min_steps=2,
-                      max_steps=2000, warmup_steps=5)
-SPEED_QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=2,
-                       max_steps=200, warmup_steps=2)
 #: Copper, asap3 EMT: 1000 and 4000 atoms.
 SPEED_CASES = ((SYSTEMS[1], (5, 5, 10)), (SYSTEMS[1], (10, 10, 10)))
 SPEED_CONTESTANTS = ('reversible_nose', 'ase_nose_hoover_chain',
@@ -94,22 +89,10 @@ def sampling_system(system, lengths):
         'time_after_fs': dyn.get_time() / units.fs,
         **{k: trip[k] for k in ('real_time_forward_fs', 'forward_seconds',
                                 'back_seconds', 'warnings')}}
-    reference = ase_langevin(system.atoms(), system)
-    theirs = KineticSampler(reference, lengths.round_trip)
-    reference.attach(theirs, interval=1)
-    tic = time.perf_counter()
-    reference.run(lengths.round_trip)
-    ase_seconds = time.perf_counter() - tic
-    n_atoms = len(atoms)
-    dof = 3 * n_atoms - 3
-    kT = units.kB * system.temperature_K
-    edges = histogram_edges(dof, kT)
     first = lengths.equilibration + 1
-    h = system.timestep_fs * units.fs
-    sampled = {name: canonical_statistics(s, first, dof, kT, edges, h)
-               for name, s in (('reversible_nose', ours),
-                               ('ase_langevin', theirs))}
-    sampled['ase_langevin']['seconds'] = ase_seconds
+    result = against_reference(system, first, ('reversible_nose', ours),
+                               'ase_langevin', ase_langevin,
+                               lengths.round_trip)
     thermostat = {'degrees_of_freedom': dyn.degrees_of_freedom,
                   'tdamp_fs': dyn.tdamp / units.fs,
                   **nose_statistics(ours, first, system.timestep_fs)}
@@ -118,23 +101,12 @@ def sampling_system(system, lengths):
     # at the step's end are then cooler by (h omega)**2 / 4, h = dt / s.
     thermostat['harmonic_kinetic_offset_percent'] = (
         -100 * thermostat['real_timestep_fs']['rms']**2
-        * sampled['reversible_nose']['mean_omega_squared_per_fs2'] / 4)
-    s = thermostat['s']
-    print(f'  {system.label:7s} N={n_atoms}  T_kin '
-          f"{sampled['reversible_nose']['temperature_K']['mean']:.2f} K  s "
-          f"{s['mean']:.3f} [{s['min']:.3f}, {s['max']:.3f}]  exact "
-          f"{all(round_trip['counts_equal'].values())}", flush=True)
-    return {'system': system.label, 'calculator': system.calculator,
-            'n_atoms': n_atoms, 'dof': dof,
-            'temperature_K': system.temperature_K,
+        * result['sampling']['reversible_nose']['mean_omega_squared_per_fs2']
+        / 4)
+    return {**result,
             'start_temperature_K': START_FACTOR * system.temperature_K,
-            'timestep_fs': system.timestep_fs, 'kT_eV': kT,
             'equilibration_steps': lengths.equilibration,
-            'histogram_edges_eV': edges.tolist(), 'sampling': sampled,
-            'thermostat': thermostat,
-            **potential_difference(sampled['reversible_nose'],
-                                   sampled['ase_langevin']),
-            'round_trip': round_trip}
+            'thermostat': thermostat, 'round_trip': round_trip}
 
 
 # -- memory: one fresh process per point --------------------------------------
@@ -309,7 +281,7 @@ def cost_case(system, repeat, settings):
 
 def run(quick):
     lengths = QUICK if quick else FULL
-    speed = SPEED_QUICK if quick else SPEED_FULL
+    speed = THERMOSTAT_SPEED[quick]
     # The machine is shared: the load around each part goes with it.
     load = {'start': os.getloadavg()}
     systems_ = [sampling_system(s, lengths) for s in SYSTEMS]

@@ -22,6 +22,7 @@ from ase.md.langevin import Langevin
 from ase.md.nose_hoover_chain import IsotropicMTKNPT, NoseHooverChainNVT
 from ase.md.velocitydistribution import Stationary
 from ase.md.verlet import VelocityVerlet
+from harness import Settings
 
 import ase_reversible
 from ase_reversible import ReversibleLangevin, ReversibleNose, ReversibleVerlet
@@ -200,6 +201,12 @@ THERMOSTAT_SYSTEMS = (
     ThermostatSystem('Cu fcc', 'asap3 EMT', copper_bulk, (4, 4, 4), 600.0,
                      5.0),
 )
+#: Interleaved cost rounds of the thermostats, by quick.
+THERMOSTAT_SPEED = {
+    False: Settings(rounds=9, block_seconds=0.5, min_steps=2, max_steps=2000,
+                    warmup_steps=5),
+    True: Settings(rounds=3, block_seconds=0.05, min_steps=2, max_steps=200,
+                   warmup_steps=2)}
 #: Friction of every Langevin run, 1 / fs, and the seed of its noise.
 FRICTION_PER_FS = 0.01
 SEED = 7

@@ -15,7 +15,6 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
 import math
 import os
-import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -23,11 +22,11 @@ from ase import units
 from ase.constraints import FixCom
 from ase.md.bussi import Bussi
 from harness import (BLOCKS, FORCE_EVERY, TRAJECTORY_BYTES_PER_COORDINATE,
-                     WINDOW_C, KineticSampler, Settings, buffer_sizes,
-                     canonical_statistics, histogram_edges,
-                     potential_difference, speed_case, there_and_back)
-from systems import (FRICTION_PER_FS, SEED, THERMOSTAT_SYSTEMS, THERMOSTATS,
-                     ThermostatSystem, ase_langevin, reversible_langevin)
+                     WINDOW_C, KineticSampler, against_reference,
+                     buffer_sizes, speed_case, there_and_back)
+from systems import (FRICTION_PER_FS, SEED, THERMOSTAT_SPEED,
+                     THERMOSTAT_SYSTEMS, THERMOSTATS, ThermostatSystem,
+                     ase_langevin, reversible_langevin)
 
 from ase_reversible import ReversibleBussi
 from ase_reversible.app.systems import argon_bulk
@@ -53,10 +52,6 @@ QUICK = Lengths(equilibration=200, round_trip=1000, checkpoints=(100, 1000))
 #: Steps the memory is extrapolated to.
 EXTRAPOLATE_TO = 1_000_000
 
-SPEED_FULL = Settings(rounds=9, block_seconds=0.5, min_steps=2,
-                      max_steps=2000, warmup_steps=5)
-SPEED_QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=2,
-                       max_steps=200, warmup_steps=2)
 SYSTEMS = THERMOSTAT_SYSTEMS
 #: (system, repeat) of the cost cases: Cu 500 and 4000, Ar 500 atoms.
 SPEED_CASES = ((SYSTEMS[1], (5, 5, 5)), (SYSTEMS[1], (10, 10, 10)),
@@ -80,39 +75,6 @@ def ase_bussi(atoms, system):
 
 INTEGRATORS = {**THERMOSTATS, 'reversible_bussi': reversible_bussi,
                'ase_bussi': ase_bussi}
-
-
-def run_reference(system, make, steps):
-    """ASE's thermostat ``make`` sampled ``steps`` steps; its sampler and
-    seconds."""
-    dyn = make(system.atoms(), system)
-    sampler = KineticSampler(dyn, steps)
-    dyn.attach(sampler, interval=1)
-    tic = time.perf_counter()
-    dyn.run(steps)
-    return sampler, time.perf_counter() - tic
-
-
-def sampled(system, first, ours, theirs):
-    """Both samplers' statistics and what the two share."""
-    n_atoms = len(ours[1].atoms)
-    dof = 3 * n_atoms - 3
-    kT = units.kB * system.temperature_K
-    edges = histogram_edges(dof, kT)
-    h = system.timestep_fs * units.fs
-    stats_ = {name: canonical_statistics(sampler, first, dof, kT, edges, h)
-              for name, sampler in (ours, theirs)}
-    a, b = stats_[ours[0]], stats_[theirs[0]]
-    t = [s['temperature_K']['mean'] for s in (a, b)]
-    print(f'  {system.label:9s} N={n_atoms}  T_kin {t[0]:.2f} / {t[1]:.2f} K'
-          f"  KS p {a['ks']['p_value']:.2g} / {b['ks']['p_value']:.2g}",
-          flush=True)
-    return {'system': system.label, 'calculator': system.calculator,
-            'n_atoms': n_atoms, 'dof': dof,
-            'temperature_K': system.temperature_K,
-            'timestep_fs': system.timestep_fs, 'kT_eV': kT,
-            'histogram_edges_eV': edges.tolist(), 'sampling': stats_,
-            **potential_difference(a, b)}
 
 
 def extrapolated(checkpoints, steps=EXTRAPOLATE_TO):
@@ -149,12 +111,9 @@ def sampling_system(system, lengths):
         **{k: trip[k] for k in ('forward_seconds', 'back_seconds',
                                 'warnings')}}
     n = friction_ratio(math.exp(-FRICTION_PER_FS * system.timestep_fs))
-    theirs, ase_seconds = run_reference(system, ase_langevin,
-                                        lengths.round_trip)
-    result = sampled(system, lengths.equilibration + 1,
-                     ('reversible_langevin', sampler),
-                     ('ase_langevin', theirs))
-    result['sampling']['ase_langevin']['seconds'] = ase_seconds
+    result = against_reference(
+        system, lengths.equilibration + 1, ('reversible_langevin', sampler),
+        'ase_langevin', ase_langevin, lengths.round_trip)
     return {**result, 'equilibration_steps': lengths.equilibration,
             'round_trip': round_trip,
             'buffer': {'ratio_numerator': n, 'ratio': n / 2**DIGIT_BITS,
@@ -223,10 +182,9 @@ def bussi_system(system, lengths):
         lengths.steps, lengths.checkpoints, bussi_buffer,
         snapshot=lambda dyn: dyn.state)
     (buffer,) = dyn.rescale_step.buffers.values()
-    theirs, ase_seconds = run_reference(system, ase_bussi, lengths.steps)
-    result = sampled(system, lengths.equilibration + 1,
-                     ('reversible_bussi', ours), ('ase_bussi', theirs))
-    result['sampling']['ase_bussi']['seconds'] = ase_seconds
+    result = against_reference(
+        system, lengths.equilibration + 1, ('reversible_bussi', ours),
+        'ase_bussi', ase_bussi, lengths.steps)
     return {**result, 'taut_fs': TAUT_FS,
             'equilibration_steps': lengths.equilibration,
             'round_trip': {
@@ -240,7 +198,7 @@ def bussi_system(system, lengths):
 
 def run_bussi(quick):
     lengths = BUSSI_QUICK if quick else BUSSI_FULL
-    speed = SPEED_QUICK if quick else SPEED_FULL
+    speed = THERMOSTAT_SPEED[quick]
     cases = BUSSI_SPEED_CASES[:1] if quick else BUSSI_SPEED_CASES
     return {'lengths': asdict(lengths), 'taut_fs': TAUT_FS,
             'systems': [bussi_system(s, lengths) for s in BUSSI_SYSTEMS],
@@ -250,7 +208,7 @@ def run_bussi(quick):
 
 def run(quick):
     lengths = QUICK if quick else FULL
-    speed = SPEED_QUICK if quick else SPEED_FULL
+    speed = THERMOSTAT_SPEED[quick]
     # The machine is shared: the load around each part goes with it.
     load = {'start': os.getloadavg()}
     systems_ = [sampling_system(s, lengths) for s in SYSTEMS]

@@ -21,10 +21,10 @@ import numpy as np
 from ase import units
 from ase.build import bulk
 from ase.md.langevin import Langevin
-from harness import (NoseSampler, Settings, canonical_statistics,
+from harness import (NoseSampler, canonical_statistics,
                      histogram_edges, nose_statistics, speed_case)
 from systems import (CALCULATORS, NOSE_SYSTEMS, SEED, TDAMP_STEPS,
-                     THERMOSTAT_SYSTEMS, THERMOSTATS, tdamp)
+                     THERMOSTAT_SPEED, THERMOSTAT_SYSTEMS, THERMOSTATS, tdamp)
 
 from ase_reversible import ReversibleNose
 from ase_reversible.app.systems import copper_bulk, thermalize
@@ -46,10 +46,6 @@ class Lengths:
 
 FULL = Lengths(equilibration=2000, sampled=60_000)
 QUICK = Lengths(equilibration=200, sampled=1000)
-SPEED_FULL = Settings(rounds=9, block_seconds=0.5, min_steps=2,
-                      max_steps=2000, warmup_steps=5)
-SPEED_QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=2,
-                       max_steps=200, warmup_steps=2)
 SPEED_CONTESTANTS = ('reversible_nose', 'reversible_nose_tchain3',
                      'ase_nose_hoover_chain', 'velocity_verlet')
 
@@ -199,7 +195,7 @@ def run(quick, scheme='velocity'):
     cases = [chain_case(system, tchain, scheme, lengths)
              for system in SYSTEMS for tchain in CHAIN_LENGTHS]
     cost = speed_case(NOSE_SYSTEMS[1], (5, 5, 10),
-                      SPEED_QUICK if quick else SPEED_FULL,
+                      THERMOSTAT_SPEED[quick],
                       SPEED_CONTESTANTS, THERMOSTATS, 'ase_nose_hoover_chain')
     return {'lengths': asdict(lengths), 'tdamp_steps': TDAMP_STEPS,
             'ks_level': KS_LEVEL, 'chain_stiffness': CHAIN_STIFFNESS,
