@@ -378,7 +378,8 @@ def measure_cost_case(case, settings):
         counted.append(counted_round(dyn, atoms, case, steps, grad_x,
                                      grad_p))
         exact.append(back_at_start())
-    forward_wall, backward_wall, forward_cpu, backward_cpu = [], [], [], []
+    samples = {'forward_wall': [], 'backward_wall': [], 'forward_cpu': [],
+               'backward_cpu': []}
     for _ in range(settings.rounds):
         w0, c0 = time.perf_counter(), time.process_time()
         dyn.run(steps)
@@ -386,10 +387,13 @@ def measure_cost_case(case, settings):
         dyn.backpropagate(steps, grad_x, grad_p, hvp=case.hvp)
         w2, c2 = time.perf_counter(), time.process_time()
         exact.append(back_at_start())
-        forward_wall.append((w1 - w0) / steps)
-        backward_wall.append((w2 - w1) / steps)
-        forward_cpu.append((c1 - c0) / steps)
-        backward_cpu.append((c2 - c1) / steps)
+        for key, seconds in (('forward_wall', w1 - w0),
+                             ('backward_wall', w2 - w1),
+                             ('forward_cpu', c1 - c0),
+                             ('backward_cpu', c2 - c1)):
+            samples[key].append(seconds / steps)
+    forward_wall, backward_wall = (samples['forward_wall'],
+                                   samples['backward_wall'])
     fwd = statistics.median(forward_wall)
     bwd = statistics.median(backward_wall)
 
@@ -408,21 +412,14 @@ def measure_cost_case(case, settings):
         'hvp_class': counted[0]['hvp_class'],
         'force_purity': dyn.force_purity.mode,
         'per_step': {
-            'forward_force_calls': total('forward', 'force_calls') / covered,
-            'forward_energy_only_calls':
-                total('forward', 'energy_only_calls') / covered,
-            'forward_clean_recomputations':
-                total('forward', 'clean_recomputations') / covered,
-            'backward_force_calls_retrace':
-                total('backward', 'force_calls_retrace') / covered,
-            'backward_force_calls_in_products':
-                total('backward', 'force_calls_in_products') / covered,
-            'backward_products': total('backward', 'products') / covered,
-            'backward_energy_only_calls':
-                total('backward', 'energy_only_calls') / covered,
-            'backward_clean_recomputations':
-                total('backward', 'clean_recomputations') / covered,
-        },
+            f'{direction}_{key}': total(direction, key) / covered
+            for direction, keys in (
+                ('forward', ('force_calls', 'energy_only_calls',
+                             'clean_recomputations')),
+                ('backward', ('force_calls_retrace', 'force_calls_in_products',
+                              'products', 'energy_only_calls',
+                              'clean_recomputations')))
+            for key in keys},
         'products_per_block': [r['backward']['products'] for r in counted],
         'products_reported_per_block':
             [r['backward']['products_reported'] for r in counted],
@@ -438,11 +435,9 @@ def measure_cost_case(case, settings):
         'backward_over_forward': bwd / fwd,
         'spread': max((max(v) - min(v)) / statistics.median(v)
                       for v in (forward_wall, backward_wall)),
-        'wall_over_cpu': max(fwd / statistics.median(forward_cpu),
-                             bwd / statistics.median(backward_cpu)),
-        'samples': {'forward_wall': forward_wall,
-                    'backward_wall': backward_wall,
-                    'forward_cpu': forward_cpu, 'backward_cpu': backward_cpu},
+        'wall_over_cpu': max(fwd / statistics.median(samples['forward_cpu']),
+                             bwd / statistics.median(samples['backward_cpu'])),
+        'samples': samples,
     }
 
 
