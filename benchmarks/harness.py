@@ -223,6 +223,13 @@ def lag1(x):
     return float((x[1:] @ x[:-1]) / (x @ x))
 
 
+@dataclass(frozen=True)
+class StudyLengths:
+    """Steps of a sampled run: ``equilibration`` steps, then ``sampled``."""
+    equilibration: int
+    sampled: int
+
+
 class KineticSampler:
     """Observer: the internal kinetic energy (centre of mass's removed), the
     potential energy after every step and sum F**2 / m every

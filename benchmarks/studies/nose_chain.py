@@ -15,13 +15,13 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
 import copy
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 
 import numpy as np
 from ase import units
 from ase.build import bulk
 from ase.md.langevin import Langevin
-from harness import (NoseSampler, canonical_statistics,
+from harness import (NoseSampler, StudyLengths, canonical_statistics,
                      histogram_edges, nose_statistics, speed_case)
 from systems import (CALCULATORS, NOSE_SYSTEMS, SEED, TDAMP_STEPS,
                      THERMOSTAT_SPEED, THERMOSTAT_SYSTEMS, THERMOSTATS, tdamp)
@@ -38,14 +38,8 @@ AR_LIQUID_MELT_STEPS = 2000
 CHAIN_LENGTHS = (1, 2, 3)
 
 
-@dataclass(frozen=True)
-class Lengths:
-    equilibration: int
-    sampled: int
-
-
-FULL = Lengths(equilibration=2000, sampled=60_000)
-QUICK = Lengths(equilibration=200, sampled=1000)
+FULL = StudyLengths(equilibration=2000, sampled=60_000)
+QUICK = StudyLengths(equilibration=200, sampled=1000)
 SPEED_CONTESTANTS = ('reversible_nose', 'reversible_nose_tchain3',
                      'ase_nose_hoover_chain', 'velocity_verlet')
 

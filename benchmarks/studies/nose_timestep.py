@@ -14,7 +14,7 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 
 import numpy as np
 from ase import units
@@ -22,7 +22,7 @@ from ase.build import bulk
 from ase.md.nose_hoover_chain import NoseHooverChainNVT
 from ase.md.velocitydistribution import (MaxwellBoltzmannDistribution,
                                          Stationary)
-from harness import BLOCKS, block_mean
+from harness import BLOCKS, StudyLengths, block_mean
 from systems import CALCULATORS
 
 from ase_reversible import ReversibleNose
@@ -35,14 +35,8 @@ SAMPLE_EVERY = 5
 KINDS = ('velocity', 'position', 'velocity-tchain3', 'ase_nose_hoover_chain')
 
 
-@dataclass(frozen=True)
-class Lengths:
-    equilibration: int
-    sampled: int
-
-
-FULL = Lengths(equilibration=5000, sampled=40_000)
-QUICK = Lengths(equilibration=200, sampled=1000)
+FULL = StudyLengths(equilibration=5000, sampled=40_000)
+QUICK = StudyLengths(equilibration=200, sampled=1000)
 
 
 def gold_256():
