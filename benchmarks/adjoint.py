@@ -1,48 +1,16 @@
 """The reversible adjoint: its memory against the number of steps, and the
 cost of a gradient in force evaluations and time.
 
-A section of ``run_all.py``::
-
     python benchmarks/run_all.py --only adjoint           # ~4 minutes
     python benchmarks/run_all.py --quick --only adjoint   # ~10 s
 
-Memory.  Each point is a fresh Python process (``--memory-worker``), so
-the peaks of different points cannot mix.  The process builds a small
-argon cluster (Ar13 icosahedron, this package's LennardJones, 5 fs), kept
-cold so that it stays near its minimum and the gradient does not grow
-exponentially over 10^5 steps (a warm cluster is chaotic), and without net
-momentum so that it stays in its cell (see argon_cluster), constructs a
-``ReversibleVerlet``, and only then starts ``tracemalloc``, so the traced
-peak covers the run and whatever the gradient computation keeps, not the
-imports.  Two kinds of worker:
-
-- ``reversible``: ``dyn.run(N)`` then ``dyn.backpropagate(N, ...)``, and
-  ``np.array_equal`` of the positions and momenta with the start.
-- ``stored``: a stored-trajectory adjoint, the usual alternative.  The same
-  integrator runs forward with an observer that appends copies of the
-  positions and momenta at every step to a list; the adjoint is then
-  integrated backwards over the stored positions with the calculator's
-  Hessian-vector product (:func:`stored_adjoint`).  Its gradient is
-  compared with the reversible one of the same N.
-
-Besides the traced peak each worker reports the process's peak resident
-set size (``ru_maxrss``) before the measured part and at its end, and
-tracemalloc's own memory (which the RSS includes).  The workers run two
-at a time (they time nothing that is compared).
-
-Cost.  In this process, for each case: a thermalised system, a
-``ReversibleVerlet`` with the case's scheme and order, warm-up steps
-(which also choose N, the steps per block); then rounds of ``run(N)``
-followed by ``backpropagate(N, ...)``, which puts the atoms back at the
-start of the round bit for bit (checked every round), so every round
-repeats exactly the same work, forward and backward interleaved.  The
-first rounds count: the calculator's ``get_forces`` and
-``get_potential_energy`` are wrapped on the instance to count (and time)
-the calls that compute (``calculation_required`` true), and the
-Hessian-vector products go through a counting, timing wrapper, so force
-calls made inside a finite-difference product are told apart from those of
-the retrace.  The other rounds are timed without any wrapper; times are
-medians over rounds.
+Memory: one fresh process per point (``--memory-worker``) on a cold Ar13
+cluster, tracemalloc started after the integrator is built: the
+reversible adjoint (``backpropagate``) against a stored-trajectory adjoint
+(``stored_adjoint``), whose gradients are compared.  Cost: rounds of
+``run(N)`` then ``backpropagate(N)``, which puts the atoms back bit for bit;
+the first rounds count the force calls and Hessian-vector products, the
+others are timed without wrappers.
 """
 
 from __future__ import annotations
@@ -51,18 +19,17 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
 import gc
 import json
-import resource
 import statistics
 import sys
 import time
 import tracemalloc
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 from ase import units
 from ase.md.velocitydistribution import Stationary
+from harness import choose_steps, max_rss_bytes
 
 from ase_reversible import (AnalyticHVP, FiniteDifferenceHVP, LennardJones,
                             ReversibleVerlet)
@@ -154,11 +121,6 @@ def loss_gradient(n_atoms):
     return rng.standard_normal((n_atoms, 3)), rng.standard_normal((n_atoms, 3))
 
 
-def _max_rss_bytes():
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return rss if sys.platform == 'darwin' else rss * 1024  # Linux: KiB
-
-
 # -- memory -------------------------------------------------------------------
 
 def stored_adjoint(atoms, frames, masses_n1, h, grad_x, grad_p):
@@ -203,7 +165,7 @@ def memory_worker(kind, steps):
     masses_n1 = atoms.get_masses()[:, None]
     grad_x, grad_p = loss_gradient(len(atoms))
     gc.collect()
-    rss_before = _max_rss_bytes()
+    rss_before = max_rss_bytes()
     tracemalloc.start()
     t0 = time.perf_counter()
     result = {'kind': kind, 'steps': steps, 'atoms': len(atoms)}
@@ -247,24 +209,18 @@ def memory_worker(kind, steps):
         forward_seconds=t1 - t0, gradient_seconds=t2 - t1)
     tracemalloc.stop()
     result.update(max_rss_before_bytes=rss_before,
-                  max_rss_bytes=_max_rss_bytes(),
+                  max_rss_bytes=max_rss_bytes(),
                   gradient_positions=gx_nc.tolist(),
                   gradient_momenta=gp_nc.tolist())
     print(json.dumps(result), flush=True)
-
-
-def _run_memory_worker(kind, steps):
-    return common.run_worker(Path(__file__).resolve(),
-                             ['--memory-worker', kind, steps])
 
 
 def measure_memory(quick):
     steps = MEMORY_STEPS[quick]
     jobs = sorted(((kind, n) for n in steps for kind in MEMORY_KINDS),
                   key=lambda job: -job[1])  # longest first
-    with ThreadPoolExecutor(MEMORY_PARALLEL) as pool:
-        futures = {job: pool.submit(_run_memory_worker, *job) for job in jobs}
-        raw = {job: f.result() for job, f in futures.items()}
+    raw = dict(zip(jobs, common.run_workers(Path(__file__), jobs,
+                                            MEMORY_PARALLEL)))
     points = []
     for n in steps:
         ours, stored = raw['reversible', n], raw['stored', n]
@@ -369,20 +325,6 @@ def build_cost_case(case):
     return atoms, dyn
 
 
-def choose_steps(dyn, settings):
-    """Steps per forward block of about ``block_seconds`` (warm-up too)."""
-    steps = 1
-    while True:
-        t0 = time.perf_counter()
-        dyn.run(steps)
-        elapsed = time.perf_counter() - t0
-        if elapsed > settings.block_seconds / 5 or steps >= settings.max_steps:
-            break
-        steps *= 2
-    wanted = round(settings.block_seconds * steps / elapsed)
-    return max(settings.min_steps, min(settings.max_steps, wanted))
-
-
 def counted_round(dyn, atoms, case, steps, grad_x, grad_p):
     """One run(steps) + backpropagate(steps) with every call counted."""
     counter = CallCounter(atoms.calc)
@@ -420,7 +362,8 @@ def counted_round(dyn, atoms, case, steps, grad_x, grad_p):
 def measure_cost_case(case, settings):
     atoms, dyn = build_cost_case(case)
     dyn.run(settings.warmup_steps)
-    steps = choose_steps(dyn, settings)
+    # A fifth of a block resolves the forward run well enough.
+    steps = choose_steps(dyn.run, settings, resolution=5)
     grad_x, grad_p = loss_gradient(len(atoms))
     x0_nc, p0_nc = atoms.get_positions(), atoms.get_momenta()
 
@@ -435,7 +378,8 @@ def measure_cost_case(case, settings):
         counted.append(counted_round(dyn, atoms, case, steps, grad_x,
                                      grad_p))
         exact.append(back_at_start())
-    forward_wall, backward_wall, forward_cpu, backward_cpu = [], [], [], []
+    samples = {'forward_wall': [], 'backward_wall': [], 'forward_cpu': [],
+               'backward_cpu': []}
     for _ in range(settings.rounds):
         w0, c0 = time.perf_counter(), time.process_time()
         dyn.run(steps)
@@ -443,10 +387,13 @@ def measure_cost_case(case, settings):
         dyn.backpropagate(steps, grad_x, grad_p, hvp=case.hvp)
         w2, c2 = time.perf_counter(), time.process_time()
         exact.append(back_at_start())
-        forward_wall.append((w1 - w0) / steps)
-        backward_wall.append((w2 - w1) / steps)
-        forward_cpu.append((c1 - c0) / steps)
-        backward_cpu.append((c2 - c1) / steps)
+        for key, seconds in (('forward_wall', w1 - w0),
+                             ('backward_wall', w2 - w1),
+                             ('forward_cpu', c1 - c0),
+                             ('backward_cpu', c2 - c1)):
+            samples[key].append(seconds / steps)
+    forward_wall, backward_wall = (samples['forward_wall'],
+                                   samples['backward_wall'])
     fwd = statistics.median(forward_wall)
     bwd = statistics.median(backward_wall)
 
@@ -465,21 +412,14 @@ def measure_cost_case(case, settings):
         'hvp_class': counted[0]['hvp_class'],
         'force_purity': dyn.force_purity.mode,
         'per_step': {
-            'forward_force_calls': total('forward', 'force_calls') / covered,
-            'forward_energy_only_calls':
-                total('forward', 'energy_only_calls') / covered,
-            'forward_clean_recomputations':
-                total('forward', 'clean_recomputations') / covered,
-            'backward_force_calls_retrace':
-                total('backward', 'force_calls_retrace') / covered,
-            'backward_force_calls_in_products':
-                total('backward', 'force_calls_in_products') / covered,
-            'backward_products': total('backward', 'products') / covered,
-            'backward_energy_only_calls':
-                total('backward', 'energy_only_calls') / covered,
-            'backward_clean_recomputations':
-                total('backward', 'clean_recomputations') / covered,
-        },
+            f'{direction}_{key}': total(direction, key) / covered
+            for direction, keys in (
+                ('forward', ('force_calls', 'energy_only_calls',
+                             'clean_recomputations')),
+                ('backward', ('force_calls_retrace', 'force_calls_in_products',
+                              'products', 'energy_only_calls',
+                              'clean_recomputations')))
+            for key in keys},
         'products_per_block': [r['backward']['products'] for r in counted],
         'products_reported_per_block':
             [r['backward']['products_reported'] for r in counted],
@@ -495,11 +435,9 @@ def measure_cost_case(case, settings):
         'backward_over_forward': bwd / fwd,
         'spread': max((max(v) - min(v)) / statistics.median(v)
                       for v in (forward_wall, backward_wall)),
-        'wall_over_cpu': max(fwd / statistics.median(forward_cpu),
-                             bwd / statistics.median(backward_cpu)),
-        'samples': {'forward_wall': forward_wall,
-                    'backward_wall': backward_wall,
-                    'forward_cpu': forward_cpu, 'backward_cpu': backward_cpu},
+        'wall_over_cpu': max(fwd / statistics.median(samples['forward_cpu']),
+                             bwd / statistics.median(samples['backward_cpu'])),
+        'samples': samples,
     }
 
 
@@ -531,9 +469,5 @@ def run(quick):
     return results
 
 
-if __name__ == '__main__':
-    if sys.argv[1:2] == ['--memory-worker']:
-        memory_worker(sys.argv[2], int(sys.argv[3]))
-    else:
-        import run_all
-        sys.exit(run_all.main(['--only', 'adjoint'] + sys.argv[1:]))
+if __name__ == '__main__' and sys.argv[1:2] == ['--memory-worker']:
+    memory_worker(sys.argv[2], int(sys.argv[3]))

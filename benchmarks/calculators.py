@@ -1,29 +1,13 @@
 """Which ASE calculators ReversibleVerlet runs exactly, and at what cost.
 
-A section of ``run_all.py``::
-
     python benchmarks/run_all.py --only calculators           # a few minutes
     python benchmarks/run_all.py --quick --only calculators   # < 1 minute
 
-For each calculator (a row is skipped, with the reason stored, where its
-package is not installed), on a small system of its own:
-
-1. ``force_purity='auto'``: the mode the integrator's constructor chooses on
-   a fresh calculator, or its refusal (``ImpureForcesError``), after which
-   the row runs with ``'guarded'``, the remedy the refusal names.  Asked
-   as well: the constructor on a calculator that has already computed the
-   energy (as a user's ``atoms.get_potential_energy()`` leaves it), and
-   ``check_calculator`` on another fresh calculator.
-2. Exactness: ``steps`` steps out, ``reverse()``, ``steps`` back, with the
-   mode of 1.; the integer state (``dyn.state``) and the atoms' positions
-   and momenta are compared with the start by ``np.array_equal``.
-3. Cost: ReversibleVerlet with that mode against ASE's VelocityVerlet, each
-   on its own copy of the atoms with its own fresh calculator, in blocks
-   of the same number of steps, interleaved with the order rotating from
-   round to round (as in step_cost.py); the ratio is that of the median
-   per-step times.  Then, on VelocityVerlet's atoms, what asking for the
-   forces again at unchanged positions costs, in force calls: VelocityVerlet
-   does so in every step, ReversibleVerlet does not.
+Per calculator (skipped, with the reason, where its package is missing):
+the mode ``force_purity='auto'`` chooses (or its refusal, after which the
+row runs 'guarded'), also after a first calculation and by
+``check_calculator``; ``steps`` out and back compared bit for bit; the
+cost per step against VelocityVerlet in interleaved rounds.
 """
 
 from __future__ import annotations
@@ -48,8 +32,8 @@ from ase import units
 from ase.build import molecule
 from ase.calculators.emt import EMT
 from ase.md.verlet import VelocityVerlet
-from step_cost import (FLOOR_NUDGE, Contestant, Settings, choose_steps,
-                       time_interleaved)
+from harness import (FLOOR_NUDGE, Contestant, Settings, choose_steps, medians,
+                     time_interleaved, warning_lines)
 
 from ase_reversible import (ImpureForcesError, ReversibleVerlet,
                             check_calculator)
@@ -391,18 +375,14 @@ def out_and_back(row, timestep, mode, steps):
                                         None),
         'max_observed_noise': getattr(purity, 'max_observed_noise', None),
         'grid': dyn.grid.todict(),
-        'warnings': sorted({f'{w.category.__name__}: {w.message}'
-                            for w in caught}),
+        'warnings': warning_lines(caught),
     }
 
 
 def repeated_call_cost(atoms, calls):
-    """Median time of ``get_forces()`` asked again at unchanged positions,
-    in units of a force call after a tiny move (no list rebuild).
-
-    VelocityVerlet asks again within every step (ASE's
-    _refresh_properties); near 0 is a cache hit, near 1 a recomputation.
-    """
+    """Median time of ``get_forces()`` asked again at unchanged positions
+    (as VelocityVerlet does every step), in force calls after a tiny move:
+    near 0 a cache hit, near 1 a recomputation."""
     x_nc = atoms.arrays['positions']
     again, moved = [], []
     for i in range(calls):
@@ -431,18 +411,17 @@ def step_cost(row, timestep, mode, settings):
                                                     force_purity=mode))]
     for c in contestants:
         c.runner.run(settings.warmup_steps)
-    steps = choose_steps(contestants[0], settings)
+    steps = choose_steps(contestants[0].runner.run, settings)
     load_before = os.getloadavg()[0]
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
-    median = {k: statistics.median(v) for k, v in wall.items()}
+    median = medians(wall)
     return {'steps_per_block': steps, 'rounds': settings.rounds,
             'load_average': [load_before, os.getloadavg()[0]],
             'repeated_call_in_force_calls': repeated_call_cost(
                 contestants[0].runner.atoms, 2 * settings.rounds + 1),
             'per_step_seconds': wall, 'per_step_cpu_seconds': cpu,
             'median_seconds': median,
-            'median_cpu_seconds': {k: statistics.median(v)
-                                   for k, v in cpu.items()},
+            'median_cpu_seconds': medians(cpu),
             'ratio': median['rv'] / median['vv']}
 
 
@@ -489,7 +468,3 @@ def run(quick):
                          'molecule_temperature_K': MOLECULE_TEMPERATURE_K},
             'rows': [measure(row, settings, quick) for row in ROWS]}
 
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'calculators'] + sys.argv[1:]))

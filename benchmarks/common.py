@@ -89,16 +89,31 @@ def machine_info() -> dict:
     }
 
 
+def run_workers(script, jobs, parallel=2) -> list:
+    """``run_worker(script, ['--memory-worker', *job])`` of each job, at most
+    ``parallel`` at a time (they time nothing that is compared); the
+    results in the order of ``jobs``."""
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(parallel) as pool:
+        return list(pool.map(
+            lambda job: run_worker(script, ['--memory-worker', *job]), jobs))
+
+
 def run_worker(script, args) -> dict:
     """Run ``python script *args`` in a fresh process (from the repository
-    root) and return the JSON object its last line of output holds, with
-    the process's wall time added as ``'process_seconds'``.  A process of
-    its own measures memory from a clean start."""
+    root, this directory importable) and return the JSON object its last
+    line of output holds, with the process's wall time added as
+    ``'process_seconds'``.  A process of its own measures memory from a
+    clean start."""
     import json
     import time
+    here = str(Path(__file__).resolve().parent)
+    path = os.pathsep.join(p for p in (here, os.environ.get('PYTHONPATH'))
+                           if p)
     started = time.perf_counter()
     proc = subprocess.run([sys.executable, str(script), *map(str, args)],
-                          capture_output=True, text=True, cwd=ROOT)
+                          capture_output=True, text=True, cwd=ROOT,
+                          env={**os.environ, 'PYTHONPATH': path})
     if proc.returncode != 0:
         raise RuntimeError(f'worker {Path(script).name} {args} failed:\n'
                            + proc.stderr[-3000:])

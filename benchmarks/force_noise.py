@@ -1,11 +1,6 @@
-"""Force history noise of each calculator, and what a rebuild costs.
-
-For periodic systems of about 500 atoms with atoms on the cell faces:
-forces computed by a fresh calculator against forces at the same positions
-from a calculator whose neighbour list was built elsewhere (0.25 Å away,
-then 0.05 Å away), over several trials; and the median time of a normal
-force call against one that first forces a neighbour-list rebuild (fresh
-calculator), measured interleaved.  Not in the default run::
+"""Force history noise of each calculator, and what a rebuild costs: forces
+of a fresh calculator against those of one whose neighbour list was built
+elsewhere, and a force call against one that rebuilds the list.
 
     python benchmarks/run_all.py --only force_noise
 """
@@ -14,7 +9,6 @@ from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
-import sys
 import time
 
 import numpy as np
@@ -86,8 +80,3 @@ def run(quick):
                      'force_call_seconds': plain,
                      'fresh_list_seconds': fresh})
     return {'trials': trials, 'rounds': rounds, 'rows': rows}
-
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'force_noise'] + sys.argv[1:]))

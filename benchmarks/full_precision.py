@@ -1,27 +1,8 @@
-"""What full precision under asap3 would take: the options, measured.
-
-Guarded rounding (force_purity='guarded') coarsens the momentum quantum so
-that clean recomputations stay near 1% of force calls.  This section
-measures, per asap3 system, the numbers that decide whether that price can
-be removed:
-
-* the history noise as a run meets it: every 10 steps of a
-  ReversibleVerlet run (5 fs, 'guarded'), the forces the calculator gave
-  at the present positions against those of a list built at exactly these
-  positions (``GuardedForces.clean_forces``); median and largest
-  difference;
-* the momentum quantum a pure calculator gets (``'trust'``) and the one
-  guarded rounding takes (``'auto'``), and the quantum that 1% of clean
-  recomputations would need with the measured largest noise in place of
-  the default bound;
-* at the pure calculator's quantum, with the measured largest noise as the
-  guard: the fraction of kick components inside the guard band, and the
-  chance that a step needs a clean value somewhere;
-* the cost of a clean recomputation in force calls (median of interleaved
-  rounds), which is the cost of a step that needs one, or of building the
-  list afresh every step.
-
-Not in the default run::
+"""What full precision under asap3 would take: per asap3 system, the
+history noise a 'guarded' run meets (forces against a list built at the
+same positions), the momentum quanta of 'trust', 'auto' and what 1% of
+clean recomputations would need, the share of kicks inside the guard band,
+and the cost of a clean recomputation in force calls.
 
     python benchmarks/run_all.py --only full_precision
 """
@@ -31,7 +12,6 @@ from __future__ import annotations
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
 import math
-import sys
 import time
 
 import numpy as np
@@ -142,8 +122,3 @@ def run(quick):
             'force_call_seconds': plain, 'clean_seconds': clean})
     return {'dt_fs': DT_FS, 'target_clean_rate': TARGET_CLEAN_RATE,
             'rows': rows}
-
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'full_precision'] + sys.argv[1:]))

@@ -1,26 +1,16 @@
 """Accuracy of the reversible adjoint's gradients.
 
-Two sources of error are measured separately:
-
-1. **Finite-difference Hessian-vector products** (for calculators without
-   exact ones): ``FiniteDifferenceHVP(step)`` against a reference, over a
-   sweep of steps.  The reference is exact for the package's LennardJones
-   (its analytic product) and a fourth-order stencil at 1e-5 Å for EMT
-   (its truncation, ~step**4, is far below the errors measured).
-2. **Whole-run gradients** from ``backpropagate`` against central finite
-   differences of the whole ReversibleVerlet run (fine quanta, fresh
-   integrator per run) along random directions, for runs of growing length.
-   The gradient's growth over the run (largest component of dL/d(x0, p0)
-   over that of dL/d(x_T, p_T)) shows how chaotic the run is; the finite
-   differences' own error grows with it (their truncation ~h**2 times the
-   curvature of the run map), so the smallest error over three h is given.
+1. ``FiniteDifferenceHVP(step)`` against the exact product (LennardJones)
+   or a fourth-order stencil (EMT), over a sweep of steps.
+2. ``backpropagate`` against central finite differences of whole
+   ReversibleVerlet runs (fine quanta) along random directions, for runs
+   of growing length, with the gradient's growth over the run.
 """
 
 from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
-import sys
 import time
 
 import asap3
@@ -173,8 +163,3 @@ def run(quick):
                          'position_quantum': FINE['position_quantum'],
                          'momentum_quantum': FINE['momentum_quantum'],
                          'stencil_step': STENCIL_STEP}}
-
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'gradient_accuracy'] + sys.argv[1:]))

@@ -1,44 +1,15 @@
 """ReversibleLammps, compiled and Python paths, against LAMMPS's own
-``fix nve``, on 1 and 2 MPI ranks.
-
-A section of ``run_all.py``::
+``fix nve`` (and ``reversible nvt`` against ``fix nvt``), on 1 and 2 MPI
+ranks.
 
     python benchmarks/run_all.py --only lammps_cost          # ~25 minutes
     python benchmarks/run_all.py --quick --only lammps_cost  # < 40 s
 
-Method.  Each case is one process per rank, ``mpiexec -n R python
-lammps_worker.py`` (the mpiexec of the pip ``mpich`` wheel, beside this
-Python).  The worker builds the same input once per integrator of
-``INTEGRATORS`` in that process: one LAMMPS instance under ``fix nve``, one
-under ``ReversibleLammps(path='compiled')`` (``fix reversible/nve``), one
-under ``ReversibleLammps(path='python')``, all at a time step of 2^-9 ps.
-After one warm-up block each (the crystal starts on its perfect lattice,
-where the pair loop is faster than in the thermalised solid), they run
-blocks of the same number of steps, ``run M`` against ``rev.run(M)``,
-rotating which goes first.  Each block's wall time is taken between two
-MPI barriers, so it is the slowest rank's; its CPU time is
-``time.process_time()`` of each rank around the run, the largest over the
-ranks: on a machine shared with other work CPU time is the robust number,
-and the load average before and after each case is stored with it.
-Per-step times are medians over the blocks; ratios are ratios of those
-medians.  Each block's LAMMPS log is read back for LAMMPS's own loop time
-(the steps without the setup that starts every ``run``), its timer
-breakdown (average over ranks) and the neighbour-list builds.
-
-Then blocks of one step on each instance: (median block of M - median
-block of 1) / (M - 1) is what a step of a long run costs, without the
-setup that starts every run (and the exact side's checks around it),
-which blocks of M steps pay once.  Then, on each instance, a ``run 0`` (the setup a clean recomputation pays:
-atom sort, neighbour lists, forces) is timed a few times, and one MPI
-maximum from Python, ``rev.world.max(0.0)``, in blocks of a thousand
-calls.
-
-Cases (fcc unit cells, 4 atoms each): argon (LJ) and copper (EAM) at
-32,000 and 108,000 atoms on 1 and 2 ranks (strong scaling); weak scaling
-of argon at 54,000 atoms per rank (30x30x15 cells per rank, stacked along
-z); argon at 4,000 to 256,000 atoms on one rank.  A case serving two of
-these is run once.  Every case also runs ``reversible nvt`` against LAMMPS's ``fix nvt``
-(same target temperature and damping time): five instances per process.
+Each case is ``mpiexec -n R python lammps_worker.py``: one LAMMPS instance
+per integrator in one process, blocks of the same steps in rotating order,
+wall time between MPI barriers and the ranks' largest CPU time, LAMMPS's
+own log read back; then single-step blocks, ``run 0`` setups and the MPI
+maximum from Python.  Per-step times are medians over blocks.
 """
 
 from __future__ import annotations
@@ -195,8 +166,3 @@ def run(quick):
             'goal_ratios': {'compiled': GOAL_RATIO,
                             'exact_nvt': GOAL_NVT_RATIO},
             'cases': cases}
-
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'lammps_cost'] + sys.argv[1:]))

@@ -1,18 +1,11 @@
 """One case of benchmarks/lammps_cost.py, on every rank of ``mpiexec``.
 
-``mpiexec -n R python lammps_worker.py CASE_JSON LOG_DIR``: builds the same
-system in one LAMMPS instance per integrator of ``INTEGRATORS`` named in
-the case, all in this process, runs them in rotating blocks of the same
-number of steps, then times a ``run 0`` setup on each and the exact
-integrator's MPI maximum.  Rank 0 prints one JSON line.
-
-CASE_JSON holds ``system`` ('argon' or 'copper'), ``cells`` (fcc unit
-cells along x, y, z), ``integrators`` (names in ``INTEGRATORS``),
-``steps`` (per block), ``warmup_steps``, ``rounds``, ``setups`` and
-``reduce_blocks``/``reduce_calls``.  LOG_DIR receives a LAMMPS log per
-block (``log FILE`` around each run), read back for LAMMPS's loop time,
-its timer breakdown and the neighbour-list builds; the instances are
-started with ``-screen none -log none``.
+``mpiexec -n R python lammps_worker.py CASE_JSON LOG_DIR``: one LAMMPS
+instance per integrator of ``INTEGRATORS`` named in the case, rotating
+blocks of the same steps, then a timed ``run 0`` setup on each and the
+exact integrator's MPI maximum; rank 0 prints one JSON line.  LOG_DIR
+receives a LAMMPS log per block, read back for the loop time, the timer
+breakdown and the neighbour-list builds.
 """
 
 from __future__ import annotations

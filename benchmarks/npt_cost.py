@@ -1,25 +1,12 @@
 """Cost per step of ReversibleIsotropicNPT against ASE's IsotropicMTKNPT,
 and where the extra time goes.
 
-A section of ``run_all.py``::
-
     python benchmarks/run_all.py --only npt_cost           # ~10 minutes
     python benchmarks/run_all.py --quick --only npt_cost   # < 60 s
 
-Cases: periodic fcc copper (asap3 EMT, 300 K, 5 fs, 0 GPa) of 256, 500
-and 2048 atoms, and argon at the liquid's density (asap3 LennardJones with
-npt_sampling.py's parameters, 100 K, 10 fs, 50 bar) of 256 and 864 atoms;
-tdamp = 100 dt, pdamp = 1000 dt as in npt_sampling.py.  Each integrator
-runs on its own copy of the same atoms with its own calculator; after a
-warm-up, blocks of the same number of steps (sized so that ASE's block
-takes ``block_seconds``) alternate between them, the order rotated each
-round, with ``step_cost.time_interleaved``; the ratio is of the medians.
-
-Then one case is profiled with ``cProfile`` (``PROFILE_STEPS`` steps of
-each integrator, after the timing): the functions with the largest own
-time (``tottime``) and the largest cumulative time, each as a share of the
-run, are stored so that the extra time of the exact integrator can be
-traced to its source.
+The cases of npt_sampling (``systems.NPT_CASES``) at several sizes, timed
+in interleaved rounds; then one case profiled with ``cProfile``: the
+functions with the largest own and cumulative time, as shares of the run.
 """
 
 from __future__ import annotations
@@ -29,14 +16,15 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 import cProfile
 import os
 import pstats
-import statistics
-import sys
 from dataclasses import asdict
 
-from npt_sampling import CASES, INTEGRATORS, reversible_class
-from step_cost import Contestant, Settings, choose_steps, time_interleaved
+from harness import (Contestant, Settings, choose_steps, medians, per_step,
+                     time_interleaved)
+from systems import NPT_CASES as CASES
+from systems import NPT_INTEGRATORS as INTEGRATORS
+from systems import npt_reversible_class
 
-#: (case of npt_sampling.CASES, repeat) of the cost measurement.
+#: (case of systems.NPT_CASES, repeat) of the cost measurement.
 COST_CASES = ((CASES[0], (4, 4, 4)), (CASES[0], (5, 5, 5)),
               (CASES[0], (8, 8, 8)), (CASES[2], (4, 4, 4)),
               (CASES[2], (6, 6, 6)))
@@ -55,7 +43,7 @@ PROFILE_TOP = 15
 
 
 def contestant_names():
-    return (('reversible_npt', 'ase_npt') if reversible_class()
+    return (('reversible_npt', 'ase_npt') if npt_reversible_class()
             else ('ase_npt',))
 
 
@@ -67,19 +55,15 @@ def cost_case(case, repeat, settings, names):
         contestants.append(Contestant(name, INTEGRATORS[name](atoms, case)))
     for c in contestants:
         c.runner.run(settings.warmup_steps)
-    steps = choose_steps(contestants[-1], settings)
+    steps = choose_steps(contestants[-1].runner.run, settings)
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
-    median = {k: statistics.median(v) for k, v in wall.items()}
-    median_cpu = {k: statistics.median(v) for k, v in cpu.items()}
+    median, median_cpu = medians(wall), medians(cpu)
     result = {
         'label': case.label, 'calculator': label,
         'n_atoms': len(contestants[0].runner.atoms),
         'timestep_fs': case.timestep_fs,
         'steps_per_block': steps, 'rounds': settings.rounds,
-        'per_step_seconds': wall, 'per_step_cpu_seconds': cpu,
-        'median_seconds': median, 'median_cpu_seconds': median_cpu,
-        'spread': {k: (max(v) - min(v)) / statistics.median(v)
-                   for k, v in wall.items()},
+        **per_step(wall, cpu),
     }
     if 'reversible_npt' in median:
         result['ratio'] = median['reversible_npt'] / median['ase_npt']
@@ -147,7 +131,3 @@ def run(quick):
                         'n_atoms': costs[cases.index((case, repeat))][
                             'n_atoms'], 'runs': profiled}}
 
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'npt_cost'] + sys.argv[1:]))

@@ -1,36 +1,22 @@
 """What the portable arithmetic costs: the package's calculators and the
 kinetic energy with the kernels before and after.
 
-A section of ``run_all.py``::
-
     python benchmarks/run_all.py --only portable           # a few minutes
     python benchmarks/run_all.py --quick --only portable   # < 1 minute
 
-The package's calculators now compute with products, ``sqrt`` and
-fixed-order sums only, the same bits on every CPU
-(``ase_reversible/core/portable.py``).  Their kernels before that change
-(numpy powers such as ``(sigma / r)**6``, ``einsum`` row sums, a BLAS
-``@`` for image shifts) are kept here, as subclasses that put back only
-the old arithmetic, so both run in one process on the same atoms:
-
-1. Force call: ``get_forces`` at positions alternating between two sets
-   (so no cache answers), old and new in interleaved blocks, the order
-   rotating from round to round; the median per-call time of each.
-2. Step: ``ReversibleVerlet`` steps with each calculator, ten per ``run``
-   call, interleaved the same way.  The integrator is today's in both: only the calculator
-   differs.
-3. ``momentum_square`` (``sum p**2 / m``, which Nosé's thermostat kick
-   and the energy check read): the BLAS dot it was against the ``np.sum``
-   it is.
-
-Timings are per call, medians over rounds; the load average is stored
-beside them.
+The old kernels (numpy powers such as ``(sigma / r)**6``, ``einsum`` row
+sums) are put back into the package's own calculators by swapping the
+module's portable kernels while an old calculator computes, so old and new
+run in one process on the same atoms, in interleaved blocks: the force
+call, ReversibleVerlet steps, and ``momentum_square`` (the BLAS dot it was
+against the ``np.sum`` it is).  Medians over rounds, per call.
 """
 
 from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
+import contextlib
 import os
 import statistics
 import time
@@ -43,8 +29,8 @@ from ase.cluster import Icosahedron
 from ase_reversible import (LennardJones, PendulumChain, ReversibleVerlet,
                             SoftenedGravity)
 from ase_reversible.app.systems import AR_EPSILON, AR_SIGMA, thermalize
-from ase_reversible.calculators import make_chain, make_ring
-from ase_reversible.calculators import chain as chain_module
+from ase_reversible.calculators import (chain, gravity, lennardjones,
+                                        make_chain, make_ring)
 
 FULL = {'rounds': 9, 'block_seconds': 0.2,
         'lj_shells': (3, 4, 5, 6), 'ring_sizes': (32, 128, 512),
@@ -56,90 +42,59 @@ QUICK = {'rounds': 3, 'block_seconds': 0.03,
 
 # -- the kernels as they were ----------------------------------------------
 
-class OldLennardJones(LennardJones):
-    """The package's LennardJones with its arithmetic before portability."""
+def einsum_rowsquare(a_pc):
+    return np.einsum('pc,pc->p', a_pc, a_pc)
 
-    def _pair_terms(self, r_p, second):
-        epsilon, sigma = self.parameters['epsilon'], self.parameters['sigma']
-        s6_p = (sigma / r_p)**6
-        s12_p = s6_p * s6_p
-        phi_p = 4 * epsilon * (s12_p - s6_p)
-        dphi_p = 4 * epsilon * (-12 * s12_p + 6 * s6_p) / r_p
-        switch_p, dswitch_p, d2switch_p = self._switch(r_p)
-        u_p = phi_p * switch_p
-        du_p = dphi_p * switch_p + phi_p * dswitch_p
-        if not second:
-            return u_p, du_p, None
-        d2phi_p = 4 * epsilon * (156 * s12_p - 42 * s6_p) / r_p**2
-        return u_p, du_p, (d2phi_p * switch_p + 2 * dphi_p * dswitch_p
-                           + phi_p * d2switch_p)
+
+def numpy_powers(s_p):
+    s6_p = s_p**6
+    return s6_p, s6_p * s6_p
+
+
+@contextlib.contextmanager
+def old_kernels(module, **kernels):
+    """``module``'s functions named in ``kernels`` replaced while inside."""
+    saved = {name: getattr(module, name) for name in kernels}
+    for name, kernel in kernels.items():
+        setattr(module, name, kernel)
+    try:
+        yield
+    finally:
+        for name, kernel in saved.items():
+            setattr(module, name, kernel)
+
+
+class OldLennardJones(LennardJones):
+    """The package's LennardJones with numpy powers and einsum row sums."""
+
+    def calculate(self, *args, **kwargs):
+        with old_kernels(lennardjones, rowsquare=einsum_rowsquare,
+                         _powers=numpy_powers):
+            super().calculate(*args, **kwargs)
 
     def _switch(self, r_p):
         ro, rc = self.cutoffs
         width = rc - ro
         t_p = np.clip((r_p - ro) / width, 0.0, 1.0)
-        switch_p = 1 - t_p**3 * (10 - 15 * t_p + 6 * t_p**2)
-        dswitch_p = -30 * t_p**2 * (1 - t_p)**2 / width
-        d2switch_p = -60 * t_p * (1 - t_p) * (1 - 2 * t_p) / width**2
-        return switch_p, dswitch_p, d2switch_p
-
-    def _pair_geometry(self, atoms):
-        x_nc = atoms.positions
-        key = x_nc.tobytes()
-        if self._pairs is not None and self._pairs[0] == key:
-            return self._pairs[1:]
-        i_p, j_p, shift_pc = self._candidates(atoms)
-        d_pc = x_nc[j_p] - x_nc[i_p] + shift_pc
-        r_p = np.sqrt(np.einsum('pc,pc->p', d_pc, d_pc))
-        inside_p = r_p < self.cutoffs[1]
-        geometry = (i_p[inside_p], j_p[inside_p], d_pc[inside_p],
-                    r_p[inside_p])
-        self._pairs = (key,) + geometry
-        return geometry
+        return (1 - t_p**3 * (10 - 15 * t_p + 6 * t_p**2),
+                -30 * t_p**2 * (1 - t_p)**2 / width,
+                -60 * t_p * (1 - t_p) * (1 - 2 * t_p) / width**2)
 
 
 class OldSoftenedGravity(SoftenedGravity):
     """SoftenedGravity with its ``einsum`` row sums."""
 
-    def _pair_terms(self, atoms):
-        n = len(atoms)
-        if self._pairs[0] != n:
-            self._pairs = (n, *np.triu_indices(n, k=1))
-        _, i_p, j_p = self._pairs
-        x_nc = atoms.positions
-        m_n = atoms.get_masses()
-        d_pc = x_nc[j_p] - x_nc[i_p]
-        eps = self.parameters['softening']
-        s_p = np.einsum('pc,pc->p', d_pc, d_pc) + eps * eps
-        gmm_p = self.parameters['G'] * m_n[i_p] * m_n[j_p]
-        return i_p, j_p, d_pc, s_p, gmm_p
+    def calculate(self, *args, **kwargs):
+        with old_kernels(gravity, rowsquare=einsum_rowsquare):
+            super().calculate(*args, **kwargs)
 
 
 class OldPendulumChain(PendulumChain):
-    """PendulumChain with its ``einsum`` link lengths and ``**2``."""
+    """PendulumChain with its ``einsum`` link lengths."""
 
-    def calculate(self, atoms=None, properties=('energy',),
-                  system_changes=()):
-        super(PendulumChain, self).calculate(atoms, properties,
-                                             system_changes)
-        atoms = self.atoms
-        k = self.parameters['stiffness']
-        g = self.parameters['gravity']
-        x_nc = atoms.positions
-        m_n = atoms.get_masses()
-        d_lc = x_nc[1:] - x_nc[:-1]
-        r_l = np.sqrt(np.einsum('lc,lc->l', d_lc, d_lc))
-        stretch_l = r_l - self.parameters['rest_length']
-        u_l = 0.5 * k * stretch_l**2
-        t_lc = chain_module._tension(k * stretch_l, r_l, d_lc)
-        f_nc = chain_module._onto_atoms(t_lc, len(atoms))
-        f_nc[:, 2] -= m_n * g
-        height_n = m_n * g * x_nc[:, 2]
-        energies_n = height_n.copy()
-        energies_n[:-1] += 0.5 * u_l
-        energies_n[1:] += 0.5 * u_l
-        self.store_results(float(np.sum(u_l) + np.sum(height_n)),
-                           energies_n, f_nc)
+    def calculate(self, *args, **kwargs):
+        with old_kernels(chain, rowsquare=einsum_rowsquare):
+            super().calculate(*args, **kwargs)
 
 
 # -- systems ------------------------------------------------------------------

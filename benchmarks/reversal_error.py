@@ -1,38 +1,18 @@
 """Reversal error against the number of steps, and a 10^6-step round trip.
 
-System: the Ar147 icosahedron at 120 K with asap3's LennardJones and a 5 fs
-time step, the case of the VelocityVerlet measurement this section repeats,
-but in a periodic box (see make_cluster) so that the 10^6-step run stays
-affordable after atoms evaporate.
-Both integrators start from the same state: the one ReversibleVerlet's
-constructor put on its grid.
-
-VelocityVerlet.  One forward run visits N = 125, 250, ..., doubling.  At
-each N a copy of the atoms, with a fresh asap3 calculator, runs N steps with
-the time step negated, and its distance from the start is measured.  The
-forward run keeps its own calculator and is never disturbed, so it is the
-trajectory of one uninterrupted run; the backward leg starts with a
-neighbour list built at the turning point, where an uninterrupted round trip
-would carry the list of the last forward steps.  Both are honest
-VelocityVerlet runs; they differ by force noise in the last bits, which is
-the kind of error the curve measures anyway.  This costs N per point instead
-of a whole new round trip.  The forward run then goes on to the final
-length, for its energy only.
-
-ReversibleVerlet.  One integrator, through the public API only.  At each N
-of the same grid it reverses, runs N steps, is compared bitwise with the
-start, reverses again and runs N steps forward, where it must meet the state
-saved at N bit for bit; then it goes on.  After the grid it runs on to the
-final length (10^6 steps in the full mode) and back.  The total energy is
-read every few steps on the forward run only: the velocity scheme leaves
-it cached after each step, so reading it costs nothing.
+Ar147 at 120 K (asap3 LennardJones, 5 fs) in a periodic box, both
+integrators from the state ReversibleVerlet put on its grid.
+VelocityVerlet: one forward run; at each N of the grid a copy runs N steps
+back and its distance from the start is measured.  ReversibleVerlet: at
+each N it reverses, runs back, is compared bit for bit with the start, and
+returns to N, where it must meet the saved state; then the final length
+out and back, the energy read on the way out.
 """
 
 from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
-import sys
 import time
 
 import numpy as np
@@ -245,8 +225,3 @@ def run(quick: bool):
         'energy': energy,
     }
     return results
-
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'reversal_error'] + sys.argv[1:]))

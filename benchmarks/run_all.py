@@ -5,14 +5,17 @@ Usage (from the repository root)::
     python benchmarks/run_all.py                    # the default sections, ~75 min
     python benchmarks/run_all.py --quick            # small cases, a few minutes
     python benchmarks/run_all.py --only step_cost   # one section (any of SECTIONS)
+    python benchmarks/run_all.py --only nose_chain  # a study (STUDIES)
     python benchmarks/render.py                     # only render the stored results
 
-Each section is a script of this directory with ``run(quick) -> dict``: it
-measures and returns JSON-ready results, nothing else.  They are stored per
-section in ``<out>/benchmarks/<name>.json`` with the command, date and
-machine; then ``render.py`` rebuilds ``<out>/benchmarks.md`` and every plot
-from all stored sections, so ``--only`` refreshes one section and keeps the
-others.
+Each section is a script of this directory, or of ``studies/`` for those
+that take long, with ``run(quick) -> dict``: it measures and returns
+JSON-ready results, nothing else.  They are stored per section in
+``<out>/benchmarks/<name>.json`` with the command, date and machine; then
+``render.py`` rebuilds ``<out>/benchmarks.md`` and every plot from all
+stored sections, so ``--only`` refreshes one section and keeps the others.
+A study (``STUDIES``) is stored inside its section's results, with its own
+command, date and commit, and a run of the section keeps it.
 """
 
 from __future__ import annotations
@@ -30,6 +33,8 @@ from pathlib import Path
 
 import render
 
+sys.path.insert(1, str(Path(__file__).resolve().parent / 'studies'))
+
 SECTIONS = render.SECTIONS
 #: Measured by a plain run.  force_noise and long_reversal are diagnostics
 #: kept out of it (long_reversal takes about an hour with ASE's
@@ -40,8 +45,14 @@ SECTIONS = render.SECTIONS
 DEFAULT_SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
                     'reversal_error', 'stress', 'gradient_accuracy',
                     'adjoint', 'thermostat', 'nose', 'npt_cost',
-                    'lammps_cost',
-                    'portable')
+                    'lammps_cost', 'portable')
+#: Study -> (module, its function of ``quick``, section, key of the
+#: section's results it is stored as, and the key of its record there: None
+#: for beside the results, with the commit and the load before and after).
+STUDIES = {'nose_timestep': ('nose_timestep', 'run', 'nose', 'timestep', None),
+           'nose_chain': ('nose_chain', 'run', 'nose', 'chain', None),
+           'training_memory': ('training', 'measure_memory', 'training',
+                               'memory', 'measured')}
 
 
 def measure(name, quick, only, machine) -> dict:
@@ -65,12 +76,48 @@ def measure(name, quick, only, machine) -> dict:
     return stored
 
 
+def stored_section(section, stored_dir):
+    """The stored JSON of ``section``: that in ``stored_dir``, else that
+    committed in docs/benchmarks/, else None."""
+    for directory in (stored_dir, common.DOCS / 'benchmarks'):
+        path = directory / f'{section}.json'
+        if path.exists():
+            return json.loads(path.read_text())
+    return None
+
+
+def measure_study(name, quick, stored_dir, machine) -> tuple:
+    """Run one study; its section's name and stored JSON with the study's
+    results (and how they were made) in place."""
+    module, function, section, key, record_key = STUDIES[name]
+    stored = stored_section(section, stored_dir)
+    print(f'{name}:', flush=True)
+    started, load = time.perf_counter(), os.getloadavg()
+    results = getattr(importlib.import_module(module), function)(quick)
+    record = {'command': f'python benchmarks/run_all.py --only {name}'
+                         + (' --quick' if quick else ''),
+              'date': datetime.now().astimezone().isoformat(
+                  timespec='seconds')}
+    if record_key is None:
+        record.update(git_commit=machine['git_commit'],
+                      wall_seconds=time.perf_counter() - started,
+                      load_average={'start': load, 'end': os.getloadavg()})
+        results.update(record)
+    else:
+        results[record_key] = {**record,
+                               'wall_seconds': time.perf_counter() - started,
+                               'load_average': os.getloadavg()}
+    stored['results'][key] = results
+    return section, stored
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--quick', action='store_true',
                         help='small cases and few repeats')
-    parser.add_argument('--only', nargs='+', choices=SECTIONS,
-                        help='run these sections, keep the others stored')
+    parser.add_argument('--only', nargs='+', choices=SECTIONS + tuple(STUDIES),
+                        help='run these sections or studies, keep the others '
+                             'stored')
     parser.add_argument('--out', type=Path, default=common.DOCS,
                         help='directory of benchmarks.md (default: docs/)')
     args = parser.parse_args(argv)
@@ -80,7 +127,16 @@ def main(argv=None):
     # commit checked out now is the code every section measures.
     machine = common.machine_info()
     for name in args.only or DEFAULT_SECTIONS:
-        stored = measure(name, args.quick, bool(args.only), machine)
+        if name in STUDIES:
+            name, stored = measure_study(name, args.quick, stored_dir,
+                                         machine)
+        else:
+            before = stored_section(name, stored_dir) or {'results': {}}
+            stored = measure(name, args.quick, bool(args.only), machine)
+            # A section's run keeps the studies stored inside it.
+            for _, _, section, key, _ in STUDIES.values():
+                if section == name and key in before['results']:
+                    stored['results'].setdefault(key, before['results'][key])
         (stored_dir / f'{name}.json').write_text(json.dumps(stored, indent=1)
                                                  + '\n')
     print(f'Wrote {render.render(args.out)}')

@@ -1,14 +1,10 @@
 """Before and after: per-step cost of the package at two or more commits.
 
-Each commit's ``ase_reversible`` is exported with ``git archive`` into a
-temporary directory and imported by a worker process of its own (this
-script with ``--worker``, the export first on its PYTHONPATH).  Every
-worker gets the same thermalised atoms and calculator, pickled by this
-process; the parent then asks the workers for blocks of steps in rounds,
-rotating their order, and compares medians, so the commits are timed side
-by side under the same machine load.  The commits are the steps of the work
-that made the per-step path cheaper (listed in ``COMMITS``); a commit
-missing from the clone (a shallow clone) is reported as skipped.
+Each commit of ``COMMITS`` is exported with ``git archive`` and imported by
+a worker process of its own (this script with ``--worker``); the workers
+get the same pickled atoms and calculator and run blocks of steps in
+rotating rounds, so the commits are timed side by side.  A commit missing
+from the clone is reported as skipped.
 """
 
 from __future__ import annotations
@@ -184,9 +180,5 @@ def run(quick):
     return results
 
 
-if __name__ == '__main__':
-    if sys.argv[1:2] == ['--worker']:
-        worker(*sys.argv[2:5])
-    else:
-        import run_all
-        sys.exit(run_all.main(['--only', 'savings'] + sys.argv[1:]))
+if __name__ == '__main__' and sys.argv[1:2] == ['--worker']:
+    worker(*sys.argv[2:5])

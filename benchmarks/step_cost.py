@@ -1,70 +1,18 @@
 """Cost per MD step of ReversibleVerlet against ASE's VelocityVerlet.
 
-A section of ``run_all.py``::
-
     python benchmarks/run_all.py --only step_cost           # ~8-12 minutes
     python benchmarks/run_all.py --quick --only step_cost   # < 40 s
 
-Method.  For each calculator and system size, every contestant gets its own
-copy of the same thermalised atoms with its own fresh calculator.  After a
-short warm-up, the contestants run blocks of the same number of steps in
-rounds; the order rotates from round to round, so slow drifts of the
-machine (clock boosts, other load) hit all contestants alike.  A
-contestant's per-step time is the median over rounds of block time / steps;
-ratios are ratios of these medians.
-
-Two floors stand for "the force call alone".  The nudge floor moves one atom
-by a tiny amount, so the calculator redoes the whole calculation but never
-rebuilds its neighbour list: it understates what MD costs the calculator.
-The replay floor sets the positions of a recorded VelocityVerlet trajectory
-of the same system frame by frame and asks for the forces, so it pays for
-the neighbour-list updates and rebuilds that real MD causes, and nothing
-else: time beyond it is the integrator's own.
-
-The control for the method.  'vv_twin' is a second VelocityVerlet, on its
-own copy of the atoms with its own calculator, in the same rounds: it does
-exactly what 'vv' does, so its ratio to 'vv' is how far two identical
-contestants come apart in this measurement (their arrays and the
-calculator's memory sit in different places), the resolution of every
-other ratio of the case.
-
-How many contestants share the rounds matters for large systems: each
-block runs with caches the other contestants' blocks have filled, and
-ReversibleVerlet keeps more arrays than VelocityVerlet.  asap3 EMT at 4000
-atoms, 21 rounds: Reversible velocity came to x1.23 of VelocityVerlet with
-six contestants in the rounds and x1.03 with three (the nudge floor,
-VelocityVerlet, Reversible velocity).  So for asap3 EMT from 1000 atoms
-up the ratio is measured again in rounds of only those three ('pairs'),
-closer to a user's single run; both are reported.
-
-The control for the per-step checks.  Before every step that code outside
-it may have preceded -- with observers attached, or driven by a caller of
-``irun`` -- ReversibleVerlet asks its ``SystemWatch``
-(ase_reversible/md/watch.py) what changed since the last step (calculator,
-its parameters, constraints, cell, pbc, numbers, masses); a plain ``run()``
-asks once, at its start.  The contestant 'rv_observed' is 'rv_velocity'
-with an observer that does nothing, so the checks run before every step;
-'rv_unwatched' is 'rv_observed' with the instance's ``_watch`` replaced by
-a stub whose ``changes()`` returns no change: the same steps without the
-checks, for this benchmark only (it would miss a real change).  Both run in
-the same rounds; their difference is the checks' cost in the step loop.
-Since that is near the noise of a step, ``changes()`` is also timed
-directly on the 'rv_observed' contestant after the rounds: each call inside
-the steps of one more block (the cost a step pays: the force call leaves
-the caches cold), and in a tight loop (warm caches: the lower bound).
-
-The integrators' own overhead.  Below a thousand atoms a force call is
-cheap and the integrator's Python-level work per step shows.  To measure
-that work alone, the overhead cases run every contestant with
-``systems.CachedForces``, a calculator whose force call costs a few
-microseconds (zero forces returned for any positions, behind a cache as
-cheap to check as asap3's), on free argon icosahedra (13 to 561 atoms) and
-periodic fcc argon (1000, 4000).  The floor is the nudge floor with that
-calculator; a contestant's overhead is its median step time minus the
-floor's, in the same interleaved rounds.  VelocityVerlet's overhead
-includes the two extra, cached ``get_forces`` calls of its step and of
-ASE's loop; ReversibleVerlet's includes its per-step checks, the restart
-record and the energy check.
+Every contestant runs its own copy of the same atoms with its own
+calculator, in interleaved rounds.  The contestants: two floors for the
+force call alone ('force': one atom nudged, never a list rebuild;
+'replay': a recorded VelocityVerlet trajectory's force calls), 'vv' and its
+twin 'vv_twin' (the resolution of the measurement), ReversibleVerlet's
+schemes, 'rv_trust' (no purity handling), and 'rv_observed' /
+'rv_unwatched' (the per-step checks of ``SystemWatch`` with an observer
+attached, and the same steps without them).  The overhead cases use
+``systems.CachedForces``, whose force call costs microseconds; 'pairs'
+times asap3 EMT again with only three contestants in the rounds.
 """
 
 from __future__ import annotations
@@ -73,7 +21,6 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
 import io
 import statistics
-import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from typing import Callable
@@ -86,16 +33,14 @@ from ase import units
 from ase.calculators.emt import EMT
 from ase.md.logger import MDLogger
 from ase.md.verlet import VelocityVerlet
+from harness import (FLOOR_NUDGE, Contestant, Settings, choose_steps, medians,
+                     per_step, time_cached_queries, time_interleaved)
 
 from ase_reversible import ReversibleVerlet
 from ase_reversible.app import systems as app_systems
 
 TIMESTEP_FS = 5.0
 TIMESTEP = TIMESTEP_FS * units.fs
-#: Move of one coordinate (Å) that makes the calculator recompute: far below
-#: any neighbour-list skin, so the nudge floor never includes a rebuild.
-FLOOR_NUDGE = 1e-6
-
 AR_TEMPERATURE_K, CU_TEMPERATURE_K = 60.0, 300.0
 
 #: Repeats of the 4-atom cubic fcc cell: 144, 1000, 4000 and 32000 atoms.
@@ -103,15 +48,6 @@ REPEATS = ((3, 3, 4), (5, 5, 10), (10, 10, 10), (20, 20, 20))
 
 #: The per-step checks in a tight loop: median over blocks of calls.
 WATCH_CALLS, WATCH_BLOCKS = 200, 15
-
-
-@dataclass(frozen=True)
-class Settings:
-    rounds: int
-    block_seconds: float  # target wall time of one VelocityVerlet block
-    min_steps: int        # per block, however slow the case
-    max_steps: int
-    warmup_steps: int
 
 
 # Blocks of the slowest cases (ASE calculators at 4000 atoms) take
@@ -357,20 +293,6 @@ PAIR_CALCULATOR, PAIR_MIN_ATOMS = 'asap3 EMT', 1000
 PAIR_ROUNDS, PAIR_ROUNDS_QUICK = 21, 3
 
 
-@dataclass
-class Contestant:
-    name: str
-    runner: object  # anything with run(steps)
-
-    @property
-    def purity(self):
-        """The ReversibleVerlet force provider, or None."""
-        return getattr(self.runner, 'force_purity', None)
-
-    def clean_recomputations(self):
-        return getattr(self.purity, 'clean_recomputations', None)
-
-
 def make_contestants(template, case, names, with_logger=False):
     """Each contestant on its own copy of the same atoms and calculator."""
     contestants = []
@@ -382,72 +304,6 @@ def make_contestants(template, case, names, with_logger=False):
             runner.attach(MDLogger(runner, atoms, io.StringIO()), interval=1)
         contestants.append(Contestant(name, runner))
     return contestants
-
-
-# -- timing ----------------------------------------------------------------
-
-def choose_steps(reference, settings):
-    """Steps per block so that the reference takes ~block_seconds."""
-    steps = 1
-    # Double until the sample is long enough for perf_counter to resolve it.
-    while True:
-        t0 = time.perf_counter()
-        reference.runner.run(steps)
-        elapsed = time.perf_counter() - t0
-        if (elapsed > settings.block_seconds / 10
-                or steps >= settings.max_steps):
-            break
-        steps *= 2
-    wanted = round(settings.block_seconds * steps / elapsed)
-    return max(settings.min_steps, min(settings.max_steps, wanted))
-
-
-def time_interleaved(contestants, steps, rounds):
-    """Per-step times, order rotated each round.
-
-    Returns ``(wall, cpu)``, each ``{name: [one value per round]}``.  Wall
-    time (perf_counter) is the measurement; the process's CPU time is kept
-    beside it because on a shared machine the difference shows how much
-    other processes held the CPU.
-    """
-    wall = {c.name: [] for c in contestants}
-    cpu = {c.name: [] for c in contestants}
-    for r in range(rounds):
-        shift = r % len(contestants)
-        for c in contestants[shift:] + contestants[:shift]:
-            w0, c0 = time.perf_counter(), time.process_time()
-            c.runner.run(steps)
-            wall[c.name].append((time.perf_counter() - w0) / steps)
-            cpu[c.name].append((time.process_time() - c0) / steps)
-    return wall, cpu
-
-
-def time_cached_queries(atoms, calls, rounds=3):
-    """Cost of asking the calculator again at unchanged positions.
-
-    VelocityVerlet asks for the forces again at the start of each step and
-    after it (ASE's _refresh_properties), and a logger asks for the energy
-    after the forces; both are free only if the calculator returns cached
-    results.  Returns median per-call seconds of ``get_forces()`` repeated,
-    and of ``get_potential_energy()`` right after a force calculation.
-    """
-    forces_again, energy_after = [], []
-    x_nc = atoms.arrays['positions']
-    for _ in range(rounds):
-        atoms.get_forces(md=True)
-        t0 = time.perf_counter()
-        for _ in range(calls):
-            atoms.get_forces(md=True)
-        forces_again.append((time.perf_counter() - t0) / calls)
-        elapsed = 0.0
-        for i in range(calls):
-            x_nc[0, 0] += FLOOR_NUDGE if i % 2 == 0 else -FLOOR_NUDGE
-            atoms.get_forces(md=True)
-            t0 = time.perf_counter()
-            atoms.get_potential_energy()
-            elapsed += time.perf_counter() - t0
-        energy_after.append(elapsed / calls)
-    return statistics.median(forces_again), statistics.median(energy_after)
 
 
 def time_watch(dyn, steps, calls=WATCH_CALLS, blocks=WATCH_BLOCKS):
@@ -471,12 +327,9 @@ def time_watch(dyn, steps, calls=WATCH_CALLS, blocks=WATCH_BLOCKS):
 
 
 def time_energy_check(dyn, steps):
-    """The energy check's cost (``InvariantCheck.check``: its trigger and,
-    when due, the energy measurement) in the steps of a run of ``steps``
-    steps, after the rounds, so its reference is long set.  Returns the
-    result's entries: seconds per step (all calls, measurements included),
-    the median call (the trigger path almost every step takes), the
-    measurements made and the steps."""
+    """The energy check's cost (``InvariantCheck.check``, measurements
+    included) per step of a run of ``steps`` steps, its median call, and
+    the measurements made."""
     engine = dyn.engine
     invariant = engine.invariant
     measured = invariant.measurements
@@ -492,10 +345,6 @@ def time_energy_check(dyn, steps):
             'energy_check_steps': steps}
 
 
-def _medians(samples):
-    return {k: statistics.median(v) for k, v in samples.items()}
-
-
 def benchmark(case, names, settings, with_logger=False):
     """Time one case; returns a JSON-ready dict of raw and median results."""
     template = case.build()
@@ -504,7 +353,7 @@ def benchmark(case, names, settings, with_logger=False):
         if not isinstance(c.runner, ReplayFloor):
             c.runner.run(settings.warmup_steps)
     by_name = {c.name: c for c in contestants}
-    steps = choose_steps(by_name['vv'], settings)
+    steps = choose_steps(by_name['vv'].runner.run, settings)
     if 'replay' in by_name:
         replay = by_name['replay'].runner
         replay.record(template, case.calculator.make_calc,
@@ -532,12 +381,7 @@ def benchmark(case, names, settings, with_logger=False):
         'system': case.calculator.system,
         'n_atoms': len(template), 'with_logger': with_logger,
         'steps_per_block': steps, 'rounds': settings.rounds,
-        'per_step_seconds': wall,
-        'per_step_cpu_seconds': cpu,
-        'median_seconds': _medians(wall),
-        'median_cpu_seconds': _medians(cpu),
-        'spread': {k: (max(v) - min(v)) / statistics.median(v)
-                   for k, v in wall.items()},
+        **per_step(wall, cpu),
         'clean_recomputations': clean,
         'get_forces_again_seconds': forces_again,
         'energy_after_forces_seconds': energy_after,
@@ -568,25 +412,20 @@ def overhead(n_atoms, system, settings):
     for c in contestants:
         c.runner.run(settings.warmup_steps)
     by_name = {c.name: c for c in contestants}
-    steps = choose_steps(by_name['vv'], settings)
+    steps = choose_steps(by_name['vv'].runner.run, settings)
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
-    med, med_cpu = _medians(wall), _medians(cpu)
+    med, med_cpu = medians(wall), medians(cpu)
     check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
         **check,
         'system': system, 'n_atoms': n_atoms,
         'steps_per_block': steps, 'rounds': settings.rounds,
-        'per_step_seconds': wall,
-        'per_step_cpu_seconds': cpu,
-        'median_seconds': med,
-        'median_cpu_seconds': med_cpu,
+        **per_step(wall, cpu),
         'overhead_seconds': {k: v - med['force'] for k, v in med.items()
                              if k != 'force'},
         'overhead_cpu_seconds': {k: v - med_cpu['force']
                                  for k, v in med_cpu.items()
                                  if k != 'force'},
-        'spread': {k: (max(v) - min(v)) / statistics.median(v)
-                   for k, v in wall.items()},
         'force_purity': {c.name: c.purity.todict() for c in contestants
                          if c.purity is not None},
     }
@@ -634,7 +473,3 @@ def run(quick):
         'pair_rounds': pair_settings.rounds,
     }
 
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'step_cost'] + sys.argv[1:]))

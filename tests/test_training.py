@@ -55,7 +55,7 @@ def test_one_epoch_returns_exactly_and_its_gradient_is_right(fit_rdf):
     """A tiny epoch of the LJ student: back at the start bit for bit, and
     dL/dε through the whole pipeline (forward, mean g(r), loss, one retrace
     with loss=) against central differences of the same pipeline (the
-    comparison with float runs is benchmarks/training.py's)."""
+    comparison with float runs is benchmarks/studies/training.py's)."""
     size = fit_rdf.Size(repeat=2, r_max=5.2, equilibrate=0, target_steps=0,
                         epochs=1, steps=40, every=10, window=10,
                         learning_rate=0.01, mlp_cutoff=8.5,

@@ -1,7 +1,9 @@
 """LAMMPS's own inputs, run exactly: the verdict for each, on 1 and 2 ranks.
 
-``python benchmarks/lammps_bench.py [--ranks 1 2] [--only lj eam ...]
-[--paths compiled python] [--nve]``
+The inputs and their edits for tests/test_lammps.py, and a command::
+
+    python tests/lammps_inputs.py [--ranks 1 2] [--only lj eam ...]
+        [--paths compiled python] [--nve]
 
 Each input is changed as a user would: its ``fix nve`` becomes
 ``reversible nve`` (with ``path P`` for each of ``--paths``: the compiled

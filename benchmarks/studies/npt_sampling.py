@@ -1,45 +1,14 @@
-"""ReversibleIsotropicNPT against ASE's IsotropicMTKNPT: volume, compressibility
-and temperature sampled, and the reversible run taken back to its start.
+"""ReversibleIsotropicNPT against ASE's IsotropicMTKNPT: volume,
+compressibility and temperature sampled, and the reversible run taken back
+to its start.
 
-A section of ``run_all.py``, kept out of its default run (the full run takes
-a long time: a 10^5-step round trip per case)::
-
-    python benchmarks/run_all.py --only npt_sampling           # the full run
+    python benchmarks/run_all.py --only npt_sampling           # hours
     python benchmarks/run_all.py --quick --only npt_sampling   # < 60 s
 
-Cases (``CASES``): periodic fcc copper, 256 atoms, asap3 EMT (ASE's EMT
-where asap3 is missing), 300 K, 5 fs, at 0 and 1 GPa; and liquid argon,
-256 atoms, Lennard-Jones with sigma 3.405 Å, epsilon 0.0103 eV, cut off at
-3 sigma (asap3's LennardJones, energy shifted to zero at the cut-off; ASE's
-LennardJones where asap3 is missing), 100 K, 10 fs, 50 bar.
-
-Why that argon is a liquid: in Lennard-Jones units 100 K is T* = kT /
-epsilon = 0.84, between the triple point (T* ~ 0.69) and the critical
-point (T* ~ 1.3), and 50 bar is P* = P sigma^3 / epsilon = 0.12, above the
-vapour pressure at that temperature (P* ~ 0.01) and far below the melting
-pressure (P* ~ 1): the liquid is the stable phase.  The atoms start on the
-fcc sites of a cubic box at the liquid's density (rho* = 0.73, lattice 6.0 Å,
-far too dilute for the crystal) and melt in the equilibration; each run
-records its density and its mean squared displacement at half and at the
-end of the sampling, which keeps growing in a liquid and not in a solid.
-
-Both integrators run from the same atoms with the same temperature,
-pressure, time step, ``tdamp = 100 dt`` and ``pdamp = 1000 dt``.  After
-``equilibration`` steps every step is a sample of the volume V and the
-kinetic temperature.  Means and their standard errors come from ``BLOCKS``
-block averages; the isothermal compressibility kappa_T = var(V) / (kT <V>)
-gets its error by the jackknife over the same blocks (leave one block
-out).  The integrated autocorrelation time of V, ``g = 1 + 2 sum rho(t)``
-summed up to the first lag ``m >= 5 g(m)``, is stored with the block length
-to show that blocks are longer than the correlations.  The difference of
-the two integrators' numbers is given in units of its combined error,
-``(a - b) / sqrt(se_a**2 + se_b**2)``.
-
-ReversibleIsotropicNPT's sampling run is the first half of a round trip:
-after it, ``reverse()`` and as many steps back without observers, then
-every exact variable of its engine, the positions, momenta and cell, and
-its information buffer are compared with their state right after the
-constructor with ``np.array_equal``.
+Copper (256 atoms, asap3 EMT, 300 K, 0 and 1 GPa) and liquid argon (256
+atoms, Lennard-Jones cut at 3 sigma, 100 K, 50 bar: T* = 0.84 and P* =
+0.12, started on fcc sites at the liquid's density rho* = 0.73), both
+integrators with tdamp = 100 dt and pdamp = 1000 dt from the same atoms.
 """
 
 from __future__ import annotations
@@ -48,123 +17,23 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
 import math
 import os
-import sys
 import time
 import warnings
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from ase import units
-from ase.build import bulk
-from ase.md.nose_hoover_chain import IsotropicMTKNPT
-from ase.md.velocitydistribution import Stationary
-from thermostat import block_mean, integrated_time
+from harness import WINDOW_C, block_mean, integrated_time, warning_lines
+from systems import (NPT_AR_CUTOFF, NPT_AR_EPSILON, NPT_AR_REDUCED_DENSITY,
+                     NPT_AR_SIGMA, NPT_CASES, NPT_INTEGRATORS, NPT_SEED,
+                     PDAMP_NPT_STEPS, TDAMP_NPT_STEPS, npt_reversible_class)
 
-import ase_reversible
-from ase_reversible.app.systems import thermalize
-
-#: Argon's Lennard-Jones parameters of this benchmark (eV, Å) and cut-off.
-AR_EPSILON, AR_SIGMA = 0.0103, 3.405
-AR_CUTOFF = 3 * AR_SIGMA
-#: Reduced density of the argon start, rho sigma**3.
-AR_REDUCED_DENSITY = 0.73
-#: Seed of the momenta and of the reversible thermostat's noise.
-SEED = 7
-#: Blocks of the block averages and of the jackknife: few and long, as
-#: the piston's energy, which sets var(V), decorrelates over thousands of
-#: steps (in ASE's runs of Cu 256 its mean over 5,000-step windows ranged
-#: from 30 to 1,500 K).
+#: Blocks of the jackknife: few and long, as the piston's energy, which
+#: sets var(V), decorrelates over thousands of steps (in ASE's runs of Cu
+#: 256 its mean over 5,000-step windows ranged from 30 to 1,500 K).
 BLOCKS = 10
-#: Sokal's window of the autocorrelation time, as in thermostat.py.
-WINDOW_C = 5.0
 #: The goal judged on the page: mean temperature within this of the target.
 TEMPERATURE_GOAL_PERCENT = 1.0
-#: The thermostat's and barostat's times in time steps.
-TDAMP_STEPS, PDAMP_STEPS = 100, 1000
-
-
-def copper(repeat):
-    """Periodic fcc copper at ase.build's lattice constant, no momenta."""
-    return bulk('Cu', 'fcc', cubic=True) * repeat
-
-
-def argon(repeat):
-    """Argon on fcc sites at the liquid's reduced density (see top)."""
-    lattice = (4 / (AR_REDUCED_DENSITY / AR_SIGMA**3)) ** (1 / 3)
-    return bulk('Ar', 'fcc', a=lattice, cubic=True) * repeat
-
-
-def emt():
-    try:
-        import asap3
-    except ImportError:
-        from ase.calculators.emt import EMT
-        return 'ASE EMT', EMT()
-    return 'asap3 EMT', asap3.EMT()
-
-
-def argon_lj():
-    try:
-        import asap3
-    except ImportError:
-        from ase.calculators.lj import LennardJones
-        return 'ASE LJ', LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON,
-                                      rc=AR_CUTOFF, smooth=False)
-    return 'asap3 LJ', asap3.LennardJones([18], [AR_EPSILON], [AR_SIGMA],
-                                          rCut=AR_CUTOFF, modified=True)
-
-
-BUILDERS = {'copper': (copper, emt), 'argon': (argon, argon_lj)}
-
-
-@dataclass(frozen=True)
-class Case:
-    label: str
-    system: str  # key of BUILDERS
-    repeat: tuple
-    temperature_K: float
-    timestep_fs: float
-    pressure_GPa: float
-    round_trip: bool = True  # the reversible run goes back too
-    #: force_noise of ReversibleIsotropicNPT, eV/Å (None: its default).
-    force_noise: float = None
-
-    @property
-    def timestep(self):
-        return self.timestep_fs * units.fs
-
-    @property
-    def pressure_au(self):
-        return self.pressure_GPa * units.GPa
-
-    def atoms(self, repeat=None):
-        """The start both integrators share, with a fresh calculator."""
-        build, calculator = BUILDERS[self.system]
-        atoms = thermalize(build(repeat or self.repeat), self.temperature_K,
-                           SEED)
-        # ASE's chain thermostat scales every momentum by one factor, so a
-        # net momentum at the start stays: in a 40,000-step run of Cu 256
-        # without this, the centre of mass drifted 140 Å.
-        Stationary(atoms)
-        name, atoms.calc = calculator()
-        return name, atoms
-
-
-CASES = (
-    Case('Cu fcc, 0 GPa', 'copper', (4, 4, 4), 300.0, 5.0, 0.0),
-    Case('Cu fcc, 1 GPa', 'copper', (4, 4, 4), 300.0, 5.0, 1.0,
-         round_trip=False),
-    # asap3's LennardJones in a moving cell: the spot check saw forces
-    # 1.85e-15 eV/Å off a fresh neighbour list's in a 600-step run, over
-    # the default guard, and asked for force_noise=3e-14; in the 10^5-step
-    # run with that, it saw 2.76e-14 eV/Å, more than half the bound, and
-    # advised 3.4e-13, which is given.
-    Case('Ar liquid, 50 bar', 'argon', (4, 4, 4), 100.0, 10.0, 50e-4,
-         force_noise=3.4e-13),
-    # Half the time step: what of a difference at 5 fs is time-step error.
-    Case('Cu fcc, 0 GPa, 2.5 fs', 'copper', (4, 4, 4), 300.0, 2.5, 0.0,
-         round_trip=False),
-)
 
 
 @dataclass(frozen=True)
@@ -177,29 +46,6 @@ FULL = Lengths(equilibration=10_000, total=100_000)
 #: The same atoms, few steps (asap3 needs the argon box wider than twice
 #: the cut-off: 256 atoms are the fewest at this density).
 QUICK = Lengths(equilibration=100, total=600)
-
-
-# -- the integrators ---------------------------------------------------------
-
-def reversible_class():
-    """ReversibleIsotropicNPT, or None where this checkout lacks it."""
-    return getattr(ase_reversible, 'ReversibleIsotropicNPT', None)
-
-
-def reversible_npt(atoms, case):
-    h = case.timestep
-    return reversible_class()(atoms, h, case.temperature_K, case.pressure_au,
-                              TDAMP_STEPS * h, PDAMP_STEPS * h, seed=SEED,
-                              force_noise=case.force_noise)
-
-
-def ase_npt(atoms, case):
-    h = case.timestep
-    return IsotropicMTKNPT(atoms, h, case.temperature_K, case.pressure_au,
-                           TDAMP_STEPS * h, PDAMP_STEPS * h)
-
-
-INTEGRATORS = {'reversible_npt': reversible_npt, 'ase_npt': ase_npt}
 
 
 # -- sampling ----------------------------------------------------------------
@@ -300,12 +146,12 @@ def exact_state(dyn):
 
 def compare(start, end):
     """``{what: array_equal}`` of two exact_state's."""
-    verdict = {f'variable {name}': bool(np.array_equal(start['engine'][name],
-                                                       end['engine'].get(name)))
-               for name in start['engine']}
+    equal = {f'variable {name}': bool(np.array_equal(
+        start['engine'][name], end['engine'].get(name)))
+        for name in start['engine']}
     for key in ('positions', 'momenta', 'cell'):
-        verdict[key] = bool(np.array_equal(start[key], end[key]))
-    return verdict
+        equal[key] = bool(np.array_equal(start[key], end[key]))
+    return equal
 
 
 def buffers(dyn):
@@ -325,7 +171,7 @@ def run_one(case, name, lengths, repeat=None, round_trip=False):
     label, atoms = case.atoms(repeat)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
-        dyn = INTEGRATORS[name](atoms, case)
+        dyn = NPT_INTEGRATORS[name](atoms, case)
         start = exact_state(dyn) if round_trip else None
         half = lengths.equilibration + (lengths.total
                                         - lengths.equilibration) // 2
@@ -346,17 +192,16 @@ def run_one(case, name, lengths, repeat=None, round_trip=False):
             tic = time.perf_counter()
             dyn.run(lengths.total)
             back = time.perf_counter() - tic
-            verdict = compare(start, exact_state(dyn))
-            verdict['buffers empty'] = all(b.is_empty() for b in buffers(dyn))
+            equal = compare(start, exact_state(dyn))
+            equal['buffers empty'] = all(b.is_empty() for b in buffers(dyn))
             record['round_trip'] = {
                 'steps_each_way': lengths.total, 'moved': moved,
-                'cell_moved': cell_moved, 'equal': verdict,
-                'exact': all(verdict.values()),
+                'cell_moved': cell_moved, 'equal': equal,
+                'exact': all(equal.values()),
                 'buffer_bits_at_turn': bits_at_turn,
                 'buffer_bits_after': buffer_bits(dyn),
                 'back_seconds': back}
-    record['warnings'] = sorted({f'{w.category.__name__}: {w.message}'
-                                 for w in caught})
+    record['warnings'] = warning_lines(caught)
     return sampler, record
 
 
@@ -394,7 +239,7 @@ def compared(ours, theirs):
 def sampling_case(case, lengths, repeat=None, names=None):
     """Both integrators on one case; the reversible one only where this
     checkout has it (the record says so otherwise)."""
-    names = names or (('reversible_npt', 'ase_npt') if reversible_class()
+    names = names or (('reversible_npt', 'ase_npt') if npt_reversible_class()
                       else ('ase_npt',))
     first = lengths.equilibration + 1
     runs, samplers = {}, {}
@@ -426,26 +271,22 @@ def sampling_case(case, lengths, repeat=None, names=None):
     return result
 
 
-def run(quick, cases=CASES):
+def run(quick, cases=NPT_CASES):
     lengths = QUICK if quick else FULL
     load = {'start': os.getloadavg()}
     results = [sampling_case(c, lengths) for c in cases]
     load['end'] = os.getloadavg()
     return {'load_average': load,
-            'settings': {'seed': SEED, 'blocks': BLOCKS, 'window_c': WINDOW_C,
-                         'tdamp_steps': TDAMP_STEPS,
-                         'pdamp_steps': PDAMP_STEPS,
+            'settings': {'seed': NPT_SEED, 'blocks': BLOCKS, 'window_c': WINDOW_C,
+                         'tdamp_steps': TDAMP_NPT_STEPS,
+                         'pdamp_steps': PDAMP_NPT_STEPS,
                          'temperature_goal_percent': TEMPERATURE_GOAL_PERCENT,
-                         'argon': {'epsilon_eV': AR_EPSILON,
-                                   'sigma_A': AR_SIGMA,
-                                   'cutoff_A': AR_CUTOFF,
+                         'argon': {'epsilon_eV': NPT_AR_EPSILON,
+                                   'sigma_A': NPT_AR_SIGMA,
+                                   'cutoff_A': NPT_AR_CUTOFF,
                                    'start_reduced_density':
-                                       AR_REDUCED_DENSITY},
+                                       NPT_AR_REDUCED_DENSITY},
                          **{f'lengths_{k}': v
                             for k, v in asdict(lengths).items()}},
             'cases': results}
 
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'npt_sampling'] + sys.argv[1:]))

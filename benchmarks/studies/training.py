@@ -1,47 +1,17 @@
 """Training through exact retraces (examples/fit_rdf.py): are the gradients
 right, what memory do they take, what do they cost.
 
-A section of ``run_all.py``::
-
     python benchmarks/run_all.py --only training           # ~25 minutes (loaded)
     python benchmarks/run_all.py --quick --only training   # ~1 minute
+    python benchmarks/run_all.py --only training_memory    # the memory alone
 
-Gradients.  Liquid argon (32 atoms at 94.4 K and 1.374 g/cm³, equilibrated
-by ``ReversibleLangevin`` with the reference Lennard-Jones), then an NVE
-window from that state: ``ReversibleVerlet`` with a Lennard-Jones student
-(σ = 3.6 Å, the cut-off given, 8.5 Å, so that σ does not move it).  Three
-losses of the window, each through the example's own functions:
-
-- ``rdf``: the example's loss on the mean smoothed g(r) of the states
-  every ``EVERY`` steps, dL/dx of each state by torch autograd, handed to
-  ONE ``backpropagate(..., loss=, every=)``;
-- ``vacf``: the velocity autocorrelation ``C(t_k) = <v_i(0) . v_i(t_k)>``
-  at the same states against the reference's, squared misses summed: its
-  dL/dp at each state through ``loss=``;
-- ``msd``: the mean squared displacement at the end of the window (the
-  diffusion coefficient times 6 T), through ``grad_positions``.
-
-dL/dε and dL/dσ from the retrace are compared with central differences of
-float runs: ASE's ``VelocityVerlet`` from the same start (the state the
-reversible integrator snapped to its grid), the same calculator class with
-ε ± h or σ ± h, the same loss.  The retrace differentiates the float-valued
-scheme along the exact path, so the two agree to the finite differences'
-own error.
-
-Memory.  Each point is a fresh process (``--memory-worker``) reporting its
-peak resident set size (``ru_maxrss``) before and after the measured part:
-
-- ``reversible``: the example's epoch at N steps on 32 atoms (LJ student,
-  ``ReversibleLangevin``, g(r) every 100 steps, window 100, dL/dε, dL/dσ);
-- ``autograd``: plain PyTorch autograd through N velocity-Verlet steps of
-  the same potential written in torch (all pairs by minimum image, the
-  same switched Lennard-Jones with rc = 5.5 Å, so no neighbour list), the
-  same g(r) loss, ``backward()`` at the end.  It keeps every step's graph;
-  measured at small N and extrapolated linearly.
-
-Time.  In this process, rounds of one epoch (forward with g(r) observed,
-then the retrace with ``loss=``), forward and gradient timed in each round
-and the atoms checked bit for bit back at the start; medians over rounds.
+Gradients: dL/dε and dL/dσ of three losses of an NVE window of liquid argon
+(g(r) through ``loss=``, the velocity autocorrelation through ``loss=``,
+the mean squared displacement through ``grad_positions``) against central
+differences of float runs.  Memory: one fresh process per point
+(``--memory-worker``), the example's epoch against plain PyTorch autograd
+through velocity Verlet.  Time: rounds of one epoch, forward and gradient,
+the atoms checked bit for bit back at the start.
 """
 
 from __future__ import annotations
@@ -50,16 +20,14 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
 import importlib.util
 import json
-import resource
 import statistics
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from harness import max_rss_bytes, resident_bytes
 
-ROOT = Path(__file__).resolve().parent.parent
 STUDENT_SIGMA, FIXED_RC = 3.6, 8.5
 EVERY = 20
 GRADIENT_STEPS = {False: 200, True: 100}
@@ -79,24 +47,11 @@ def example():
     if 'fit_rdf' in sys.modules:
         return sys.modules['fit_rdf']
     spec = importlib.util.spec_from_file_location(
-        'fit_rdf', ROOT / 'examples' / 'fit_rdf.py')
+        'fit_rdf', common.ROOT / 'examples' / 'fit_rdf.py')
     module = importlib.util.module_from_spec(spec)
     sys.modules['fit_rdf'] = module
     spec.loader.exec_module(module)
     return module
-
-
-def _max_rss_bytes():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-
-
-def _rss_bytes():
-    """The resident set size now (Linux; None elsewhere)."""
-    try:
-        with open('/proc/self/statm') as f:
-            return int(f.read().split()[1]) * resource.getpagesize()
-    except OSError:
-        return None
 
 
 class RssSampler:
@@ -106,13 +61,13 @@ class RssSampler:
 
     def __init__(self, interval=0.01):
         import threading
-        self.interval, self.peak = interval, _rss_bytes()
+        self.interval, self.peak = interval, resident_bytes()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._sample, daemon=True)
 
     def _sample(self):
         while not self._stop.wait(self.interval):
-            now = _rss_bytes()
+            now = resident_bytes()
             if now is not None and (self.peak is None or now > self.peak):
                 self.peak = now
 
@@ -178,12 +133,8 @@ class Window:
         atoms = self.atoms0.copy()
         atoms.calc = LennardJones(epsilon=epsilon, sigma=sigma, rc=FIXED_RC)
         dyn = ReversibleVerlet(atoms, fit.TIMESTEP)
-        x_start, p_start = atoms.positions.copy(), atoms.get_momenta()
-        self.start = x_start, p_start
-        observed = [(x_start, p_start)]
-        for _ in range(self.steps // EVERY):
-            dyn.run(EVERY)
-            observed.append((atoms.positions.copy(), atoms.get_momenta()))
+        observed = states(dyn, self.steps)
+        x_start, p_start = self.start = observed[0]
         values, (w_b, miss_k, v0_nc, m_n1, x0_nc) = self.losses(observed)
         names = ('epsilon', 'sigma')
         grads = {}
@@ -218,17 +169,14 @@ class Window:
         atoms.positions[:] = self.start[0]
         atoms.set_momenta(self.start[1])
         atoms.calc = LennardJones(epsilon=epsilon, sigma=sigma, rc=FIXED_RC)
-        dyn = VelocityVerlet(atoms, self.fit.TIMESTEP)
-        observed = [(atoms.positions.copy(), atoms.get_momenta())]
-        for _ in range(self.steps // EVERY):
-            dyn.run(EVERY)
-            observed.append((atoms.positions.copy(), atoms.get_momenta()))
-        return self.losses(observed)[0]
+        return self.losses(states(VelocityVerlet(atoms, self.fit.TIMESTEP),
+                                  self.steps))[0]
 
 
 def reference_targets(fit, atoms, steps, windows=4):
     """The reference's g(r) and VACF, averaged over float NVE windows
     started ``steps`` NVT steps apart."""
+    from ase.md.verlet import VelocityVerlet
     from ase_reversible import LennardJones, ReversibleLangevin
     from ase_reversible.core.record import INFO_KEY
     atoms = atoms.copy()
@@ -237,7 +185,9 @@ def reference_targets(fit, atoms, steps, windows=4):
     m_n1 = atoms.get_masses()[:, None]
     rdf_sum = vacf_sum = 0
     for k in range(windows):
-        observed = _float_window(fit, atoms, steps)
+        b = atoms.copy()
+        b.calc = atoms.calc
+        observed = states(VelocityVerlet(b, fit.TIMESTEP), steps)
         rdf_sum = rdf_sum + sum(rdf.values(x) for x, _ in observed) \
             / len(observed)
         v0_nc = observed[0][1] / m_n1
@@ -249,15 +199,13 @@ def reference_targets(fit, atoms, steps, windows=4):
     return rdf_sum / windows, vacf_sum / windows
 
 
-def _float_window(fit, atoms, steps):
-    from ase.md.verlet import VelocityVerlet
-    b = atoms.copy()
-    b.calc = atoms.calc
-    dyn = VelocityVerlet(b, fit.TIMESTEP)
-    observed = [(b.positions.copy(), b.get_momenta())]
+def states(dyn, steps):
+    """[(x, p)] of ``dyn``'s atoms now and every EVERY of ``steps`` steps."""
+    atoms = dyn.atoms
+    observed = [(atoms.positions.copy(), atoms.get_momenta())]
     for _ in range(steps // EVERY):
         dyn.run(EVERY)
-        observed.append((b.positions.copy(), b.get_momenta()))
+        observed.append((atoms.positions.copy(), atoms.get_momenta()))
     return observed
 
 
@@ -304,8 +252,8 @@ def memory_worker(kind, steps):
     atoms = equilibrated_liquid(fit, 0)
     rdf = fit.SmoothRDF(atoms, fit.QUICK.r_max)
     target_b = rdf.values(atoms.positions)
-    rss_before = _max_rss_bytes()
-    rss_now = _rss_bytes()
+    rss_before = max_rss_bytes()
+    rss_now = resident_bytes()
     t0 = time.perf_counter()
     result = {'kind': kind, 'steps': steps, 'atoms': len(atoms)}
     sampler = RssSampler().__enter__()
@@ -330,7 +278,7 @@ def memory_worker(kind, steps):
     result.update(rss_before_bytes=rss_now, rss_peak_bytes=sampler.peak)
     result.update(seconds=time.perf_counter() - t0,
                   max_rss_before_bytes=rss_before,
-                  max_rss_bytes=_max_rss_bytes())
+                  max_rss_bytes=max_rss_bytes())
     print(json.dumps(result), flush=True)
 
 
@@ -383,12 +331,7 @@ def measure_memory(quick):
     jobs = [(kind, n) for kind, steps in MEMORY_STEPS[quick].items()
             for n in steps]
     jobs.sort(key=lambda job: -job[1])
-    script = Path(__file__).resolve()
-    with ThreadPoolExecutor(2) as pool:
-        futures = {job: pool.submit(common.run_worker, script,
-                                    ['--memory-worker', *job])
-                   for job in jobs}
-        raw = {job: f.result() for job, f in futures.items()}
+    raw = dict(zip(jobs, common.run_workers(Path(__file__), jobs)))
     points = {kind: [raw[kind, n] for n in steps]
               for kind, steps in MEMORY_STEPS[quick].items()}
     autograd = points['autograd']
@@ -483,29 +426,5 @@ def run(quick=False):
             'load_average_at_end': os.getloadavg()}
 
 
-def remeasure_memory():
-    """Measure the memory points again into the stored results, saying
-    when and how (the other parts of the section keep theirs)."""
-    import os
-    from datetime import datetime
-    path = ROOT / 'docs' / 'benchmarks' / 'training.json'
-    stored = json.loads(path.read_text())
-    started = time.perf_counter()
-    memory = measure_memory(False)
-    memory['measured'] = {
-        'command': 'python benchmarks/training.py --memory-only',
-        'date': datetime.now().astimezone().isoformat(timespec='seconds'),
-        'wall_seconds': time.perf_counter() - started,
-        'load_average': os.getloadavg()}
-    stored['results']['memory'] = memory
-    path.write_text(json.dumps(stored, indent=1) + '\n')
-
-
-if __name__ == '__main__':
-    if sys.argv[1:2] == ['--memory-worker']:
-        memory_worker(sys.argv[2], int(sys.argv[3]))
-    elif sys.argv[1:2] == ['--memory-only']:
-        remeasure_memory()
-    else:
-        import run_all
-        sys.exit(run_all.main(['--only', 'training'] + sys.argv[1:]))
+if __name__ == '__main__' and sys.argv[1:2] == ['--memory-worker']:
+    memory_worker(sys.argv[2], int(sys.argv[3]))

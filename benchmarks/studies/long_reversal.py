@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
-import sys
 import time
 
 import numpy as np
@@ -46,8 +45,3 @@ def run(quick):
     return {'atoms': len(argon_cluster(SHELLS, TEMPERATURE_K)),
             'temperature_K': TEMPERATURE_K, 'timestep_fs': TIMESTEP_FS,
             'runs': [round_trip(scheme, steps) for scheme in SCHEMES]}
-
-
-if __name__ == '__main__':
-    import run_all
-    sys.exit(run_all.main(['--only', 'long_reversal'] + sys.argv[1:]))

@@ -1,0 +1,196 @@
+"""Nosé-Hoover chains of ReversibleNose: stability, sampling, cost.
+
+    python benchmarks/run_all.py --only nose_chain   # ~13 minutes
+
+First, from the tests' round-trip systems (Cu 108, Ar 256) at tdamp 10 to
+100 steps, whether a chain of 3 runs 3,000 steps where the single
+thermostat does; then the sampling of copper and liquid argon with tchain
+1, 2 and 3, a round trip for tchain 3, and the cost per step.  Stored as
+``results['chain']`` of the nose section.
+"""
+
+from __future__ import annotations
+
+import common  # noqa: F401  (first: pins BLAS threads before numpy)
+
+import copy
+import time
+from dataclasses import asdict, replace
+
+import numpy as np
+from ase import units
+from ase.build import bulk
+from ase.md.langevin import Langevin
+from harness import (NoseSampler, StudyLengths, canonical_statistics,
+                     histogram_edges, nose_statistics, speed_case)
+from systems import (CALCULATORS, NOSE_SYSTEMS, SEED, TDAMP_STEPS,
+                     THERMOSTAT_SPEED, THERMOSTAT_SYSTEMS, THERMOSTATS, tdamp)
+
+from ase_reversible import ReversibleNose
+from ase_reversible.app.systems import copper_bulk, thermalize
+from ase_reversible.md.nose.thermostat import CHAIN_STIFFNESS
+
+KS_LEVEL = 0.01
+#: Liquid argon: fcc at rho sigma**3 = 0.84 (sigma 3.405 Å), 120 K (kT /
+#: epsilon = 1.0), melted by ASE's Langevin before the thermostat starts.
+AR_LIQUID_LATTICE = 5.73
+AR_LIQUID_MELT_STEPS = 2000
+CHAIN_LENGTHS = (1, 2, 3)
+
+
+FULL = StudyLengths(equilibration=2000, sampled=60_000)
+QUICK = StudyLengths(equilibration=200, sampled=1000)
+SPEED_CONTESTANTS = ('reversible_nose', 'reversible_nose_tchain3',
+                     'ase_nose_hoover_chain', 'velocity_verlet')
+
+
+def liquid_argon(repeat, temperature_K):
+    atoms = bulk('Ar', 'fcc', a=AR_LIQUID_LATTICE, cubic=True) * repeat
+    thermalize(atoms, temperature_K, seed=SEED)
+    atoms.calc = CALCULATORS['asap3 LJ']()
+    Langevin(atoms, 10 * units.fs, temperature_K=temperature_K,
+             friction=0.01 / units.fs,
+             rng=np.random.default_rng(SEED)).run(AR_LIQUID_MELT_STEPS)
+    atoms.calc = None
+    return atoms
+
+
+SYSTEMS = (
+    NOSE_SYSTEMS[1],
+    replace(THERMOSTAT_SYSTEMS[0], label='Ar liquid', build=liquid_argon,
+            temperature_K=120.0, timestep_fs=10.0),
+)
+#: The stability check: the systems of the tests' round trips, tdamp in
+#: steps, and steps run from the start.
+STABILITY_SYSTEMS = (
+    replace(THERMOSTAT_SYSTEMS[1], repeat=(3, 3, 3), build=copper_bulk),
+    THERMOSTAT_SYSTEMS[0],
+)
+STABILITY_TDAMP_STEPS = (10, 20, 40, 100)
+STABILITY_STEPS = 3000
+
+
+class ChainSampler(NoseSampler):
+    """NoseSampler, plus the range of every ``s_j`` and the internal
+    kinetic energy of the momenta half kicked, ``(p' + h F / 2) / s_1``
+    (what the velocity scheme's thermostat reads)."""
+
+    def __init__(self, dyn, steps):
+        super().__init__(dyn, steps)
+        self.low = np.full(dyn.tchain, np.inf)
+        self.high = np.zeros(dyn.tchain)
+        self.half_kinetic = np.full(steps + 1, np.nan)
+        self.m_n1 = self.atoms.get_masses()[:, None]
+
+    def __call__(self):
+        super().__call__()
+        s_j = self.dyn.thermostat_positions
+        np.minimum(self.low, s_j, out=self.low)
+        np.maximum(self.high, s_j, out=self.high)
+        p_nc = self.atoms.get_momenta() + (0.5 * self.dyn.dt / s_j[0]) * \
+            self.atoms.get_forces()
+        p_c = p_nc.sum(axis=0)
+        self.half_kinetic[self.dyn.nsteps] = 0.5 * (
+            float((p_nc * p_nc / self.m_n1).sum())
+            - float(p_c @ p_c) / self.total_mass)
+
+
+def chain_case(system, tchain, scheme, lengths):
+    atoms = system.atoms()
+    n_atoms = len(atoms)
+    dof = 3 * n_atoms - 3
+    kT = units.kB * system.temperature_K
+    h = system.timestep_fs * units.fs
+    dyn = ReversibleNose(atoms, h, system.temperature_K, tdamp(system),
+                         tchain=tchain, scheme=scheme)
+    steps = lengths.equilibration + lengths.sampled
+    start = dyn.counts
+    x0_nc = atoms.get_positions()
+    sampler = ChainSampler(dyn, steps)
+    dyn.attach(sampler, interval=1)
+    result = {'system': system.label, 'n_atoms': n_atoms, 'tchain': tchain,
+              'scheme': scheme, 'timestep_fs': system.timestep_fs,
+              'temperature_K': system.temperature_K}
+    tic = time.perf_counter()
+    try:
+        dyn.run(steps)
+    except Exception as error:  # what it raised is the result
+        result['failure'] = f'{type(error).__name__} at step {dyn.nsteps}'
+    s_range = [[float(a), float(b)] for a, b in zip(sampler.low,
+                                                    sampler.high)]
+    if 'failure' in result:
+        print(f"  {system.label} tchain {tchain}: {result['failure']}",
+              flush=True)
+        return {**result, 's_range': s_range}
+    seconds = time.perf_counter() - tic
+    first = lengths.equilibration + 1
+    edges = histogram_edges(dof, kT)
+    displacement = atoms.get_positions() - x0_nc
+    thermostat = nose_statistics(sampler, first, system.timestep_fs)
+    del thermostat['s_trace']
+    half = copy.copy(sampler)
+    half.kinetic = sampler.half_kinetic
+    half_stats = canonical_statistics(half, first, dof, kT, edges, h)
+    result.update({
+        'sampling': canonical_statistics(sampler, first, dof, kT, edges, h),
+        'thermostat': thermostat, 's_range': s_range,
+        'mean_square_displacement_A2': float(
+            np.mean(np.sum(displacement**2, axis=1))),
+        'seconds': seconds,
+        'half_kicked': {'temperature_K': half_stats['temperature_K'],
+                        'ks': half_stats['ks']}})
+    if tchain == max(CHAIN_LENGTHS):
+        dyn.observers.clear()
+        dyn.reverse()
+        dyn.run(steps)
+        result['round_trip_equal'] = {
+            name: bool(np.array_equal(dyn.counts[name], start[name]))
+            for name in start}
+    print(f"  {system.label} tchain {tchain} {scheme}: KS p "
+          f"{result['sampling']['ks']['p_value']:.3g}", flush=True)
+    return result
+
+
+def stability_case(system, tchain, tdamp_steps, steps):
+    """From the lattice with momenta at the system's temperature, the
+    thermostat at 0.6 times that (what equipartition leaves, about): does
+    the run last ``steps`` steps, and how far does the extended energy
+    move (kT)?"""
+    atoms = system.atoms()
+    h = system.timestep_fs * units.fs
+    temperature_K = 0.6 * atoms.get_temperature()
+    dyn = ReversibleNose(atoms, h, temperature_K, tdamp_steps * h,
+                         tchain=tchain, energy_check=0)
+    kT = units.kB * temperature_K
+    e0 = dyn.get_conserved_energy()
+    largest = [0.0]
+
+    def watch():
+        largest[0] = max(largest[0], abs(dyn.get_conserved_energy() - e0))
+    dyn.attach(watch, interval=5)
+    try:
+        dyn.run(steps)
+        failure = None
+    except Exception as error:  # what it raised is the result
+        failure = f'{type(error).__name__} at step {dyn.nsteps}'
+    return {'system': system.label, 'n_atoms': len(atoms),
+            'timestep_fs': system.timestep_fs, 'tchain': tchain,
+            'tdamp_steps': tdamp_steps, 'steps': steps,
+            'failure': failure, 'largest_change_kT': largest[0] / kT}
+
+
+def run(quick, scheme='velocity'):
+    lengths = QUICK if quick else FULL
+    steps = 300 if quick else STABILITY_STEPS
+    stability = [stability_case(system, tchain, tdamp_steps, steps)
+                 for system in STABILITY_SYSTEMS
+                 for tdamp_steps in STABILITY_TDAMP_STEPS
+                 for tchain in (1, 3)]
+    cases = [chain_case(system, tchain, scheme, lengths)
+             for system in SYSTEMS for tchain in CHAIN_LENGTHS]
+    cost = speed_case(NOSE_SYSTEMS[1], (5, 5, 10),
+                      THERMOSTAT_SPEED[quick],
+                      SPEED_CONTESTANTS, THERMOSTATS, 'ase_nose_hoover_chain')
+    return {'lengths': asdict(lengths), 'tdamp_steps': TDAMP_STEPS,
+            'ks_level': KS_LEVEL, 'chain_stiffness': CHAIN_STIFFNESS,
+            'stability': stability, 'cases': cases, 'speed': cost}
