@@ -31,7 +31,7 @@ from .hamiltonian import Hamiltonian
 from .machine import SECTION as MACHINE
 from .restart import RestartRecord
 from .state import FixedPointState
-from .watch import AnchorMoves
+from .watch import AnchorMoves, SystemWatch
 
 
 class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
@@ -45,19 +45,27 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
 
     engine = None
 
-    def _attach(self, system, engine, purity_choice, time0):
-        """Take the declared system and engine (before ASE's constructor)."""
+    def _open(self, system, engine, record, purity_choice, timestep,
+              **ase_arguments):
+        """The end of every dynamics' constructor: take the declared
+        ``system`` and ``engine``, run ASE's constructor with
+        ``ase_arguments`` (``trajectory``, ``logfile``, ...), then watch
+        the atoms, show the exact state and check that a resumed frame's
+        forces are those of its ``record``.  ``purity_choice``:
+        ``(force_purity, force_noise)`` as the user passed them."""
         self.system, self.engine = system, engine
-        self._purity_choice = purity_choice  # (mode, force_noise)
-        self._time0 = time0
+        self._purity_choice = purity_choice
+        # The clock goes on from the record's time, less the steps the
+        # engine already counts (a buffered dynamics resumes its step).
+        self._time0 = record['time'] - engine.elapsed() if record else 0.0
         # Fixed for the integrator's life; the record needs them every step.
         self._write_record = RecordWriter(
             {name: v.quantum for name, v in engine.variables.items()})
-
-    def _start(self, watch):
-        """After ASE's constructor: watch the atoms, show the exact state,
-        and check that a resumed frame's forces are those of its record."""
-        self._watch = watch
+        # Before ASE's constructor: older ASE writes todict() into a
+        # trajectory's header as soon as it is attached.
+        MolecularDynamics.__init__(self, system.atoms, timestep,
+                                   **ase_arguments)
+        self._watch = SystemWatch(self.atoms)
         self.masses = self.system.m_n1
         self._show_anchor()
         self._forces_match_record = self._check_machine(

@@ -61,7 +61,6 @@ from .buffered import BufferedDynamics, BufferedMomentumStep, resume_point
 from .checks import (check_energy_watch, check_timestep,
                      refuse_plane_and_line_constraints)
 from .hamiltonian import largest_kick
-from .watch import SystemWatch
 
 DRIFT, KICK, RESCALE = 'drift', 'kick', 'rescale'
 
@@ -380,11 +379,9 @@ class ReversibleBussi(BufferedDynamics):
         self.rescale_step = self.buffered_step = rescale
         self._resume(engine, step, buffer, {},
                      lambda saved: rescale.load(saved, timestep))
-        time0 = record['time'] - engine.elapsed() if record else 0.0
-        self._attach(system, engine, (force_purity, force_noise), time0)
-        super().__init__(atoms, timestep, trajectory=trajectory,
-                         logfile=logfile, loginterval=loginterval, **kwargs)
-        self._start(SystemWatch(atoms))
+        self._open(system, engine, record, (force_purity, force_noise),
+                   timestep, trajectory=trajectory, logfile=logfile,
+                   loginterval=loginterval, **kwargs)
 
     # -- what the rescaling reads ------------------------------------------
 

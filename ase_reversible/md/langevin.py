@@ -46,7 +46,6 @@ from .checks import (check_energy_watch, check_temperature_K,
                      check_timestep, checked_friction,
                      refuse_plane_and_line_constraints)
 from .hamiltonian import largest_kick
-from .watch import SystemWatch
 
 DRIFT, KICK, FRICTION = 'drift', 'kick', 'friction'
 
@@ -367,11 +366,9 @@ class ReversibleLangevin(BufferedDynamics):
                      {'temperature_K': self._temperature_K,
                       'friction': self._friction}, friction_step.load,
                      settings_optional=True)
-        time0 = record['time'] - engine.elapsed() if record else 0.0
-        self._attach(system, engine, (force_purity, force_noise), time0)
-        super().__init__(atoms, timestep, trajectory=trajectory,
-                         logfile=logfile, loginterval=loginterval, **kwargs)
-        self._start(SystemWatch(atoms))
+        self._open(system, engine, record, (force_purity, force_noise),
+                   timestep, trajectory=trajectory, logfile=logfile,
+                   loginterval=loginterval, **kwargs)
 
     # -- what the friction step reads ------------------------------------
 

@@ -14,7 +14,6 @@ from ..core.engine import Engine, InvariantCheck
 from .base import ReversibleDynamics
 from .checks import check_energy_watch, check_timestep, fixed
 from .hamiltonian import explain_energy_drift, largest_kick
-from .watch import SystemWatch
 
 DRIFT, KICK = 'drift', 'kick'
 
@@ -166,13 +165,9 @@ class ReversibleVerlet(ReversibleDynamics):
                         tuple((substep[k], c) for k, c in SCHEMES[scheme]),
                         composition, timestep, invariant=invariant)
         self._scheme = scheme
-        # Before the base class: older ASE writes todict() into a
-        # trajectory's header as soon as it is attached.
-        self._attach(system, engine, (force_purity, force_noise),
-                     record['time'] if record else 0.0)
-        super().__init__(atoms, timestep, trajectory=trajectory,
-                         logfile=logfile, loginterval=loginterval, **kwargs)
-        self._start(SystemWatch(atoms))
+        self._open(system, engine, record, (force_purity, force_noise),
+                   timestep, trajectory=trajectory, logfile=logfile,
+                   loginterval=loginterval, **kwargs)
 
     def _explain_drift(self, number, drift, tolerance):
         return explain_energy_drift(number, drift, tolerance, self.dt)

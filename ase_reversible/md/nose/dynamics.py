@@ -19,7 +19,6 @@ from ..base import ReversibleDynamics
 from ..checks import check_energy_watch, check_timestep, fixed
 from ..constraints import no_projection
 from ..hamiltonian import largest_kick
-from ..watch import SystemWatch
 from .system import (CLOCK, DRIFT, KICK, PI, PI_KICK, S, SCHEME_DEFAULT,
                      SCHEMES, TICK, NoseHamiltonian, ThermostatDrift,
                      ThermostatKick, Tick, chain_names, link, step_scheme)
@@ -239,11 +238,9 @@ class ReversibleNose(ReversibleDynamics):
                         composition, timestep,
                         invariant=invariant)
         self._scheme = scheme
-        self._attach(system, engine, (force_purity, force_noise),
-                     record['time'] if record else 0.0)
-        super().__init__(atoms, timestep, trajectory=trajectory,
-                         logfile=logfile, loginterval=loginterval, **kwargs)
-        self._start(SystemWatch(atoms))
+        self._open(system, engine, record, (force_purity, force_noise),
+                   timestep, trajectory=trajectory, logfile=logfile,
+                   loginterval=loginterval, **kwargs)
 
     # -- construction -------------------------------------------------------
 

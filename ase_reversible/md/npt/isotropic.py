@@ -21,7 +21,6 @@ from ..checks import (check_energy_watch, check_timestep, checked_friction,
 from ..hamiltonian import largest_kick
 from ..langevin import FrictionSettings
 from ..machine import describe, digest, platform
-from ..watch import SystemWatch
 from .friction import PistonFriction, ScaledFriction
 from .system import (DRIFT, FRICTION, KICK, KINETIC, LAMBDA, LAMBDA_QUANTUM,
                      P_LAMBDA, PISTON, RECOVERABLE, VIRIAL, KineticKick,
@@ -247,12 +246,10 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         self.friction_step = self.buffered_step = friction_step
         self._resume(engine, step, buffer, _settings(system),
                      friction_step.load)
-        time0 = record['time'] - engine.elapsed() if record else 0.0
-        self._attach(system, engine, (force_purity, force_noise), time0)
         system.show_cell()
-        super().__init__(atoms, timestep, trajectory=trajectory,
-                         logfile=logfile, loginterval=loginterval, **kwargs)
-        self._start(SystemWatch(atoms))
+        self._open(system, engine, record, (force_purity, force_noise),
+                   timestep, trajectory=trajectory, logfile=logfile,
+                   loginterval=loginterval, **kwargs)
 
     # -- construction -------------------------------------------------------
 
