@@ -77,18 +77,38 @@ class Hamiltonian:
         """Write the exact positions into the atoms' own array."""
         self.x.write_floats(self.atoms.arrays['positions'])
 
+    #: Whether the atoms show the momentum counts' exact image itself (a
+    #: subclass that shows a function of it overrides :meth:`shown_momenta`
+    #: and sets this False).
+    shows_counts = True
+
     def show_momenta(self):
-        """Write the exact momenta into the atoms (creating the array)."""
+        """Write the momenta the atoms show into them (creating the
+        array)."""
         momenta = self.atoms.arrays.get('momenta')
         if momenta is None:
-            self.atoms.set_momenta(self.p.floats, apply_constraint=False)
+            self.atoms.set_momenta(self.shown_momenta(),
+                                   apply_constraint=False)
+        elif self.shows_counts:
+            self.p.write_floats(momenta)  # one pass, not two
         else:
-            self.p.write_floats(momenta)
+            np.copyto(momenta, self.shown_momenta())
 
     def shown_momenta(self):
         """The momenta the atoms show, ``[n_atoms, 3]`` (not to be
         modified): the exact image of the momentum counts."""
         return self.p.floats
+
+    def divided_momenta(self, divisor):
+        """``p / v``, ``[n_atoms, 3]``, for the exact scalar variable
+        ``divisor`` (Nosé's ``s``, the barostat's ``lambda``): computed
+        once per value of both, into ``self._shown_nc``."""
+        key = (self.p.label, divisor.label)
+        if self._shown_key != key:
+            np.divide(self.p.floats, float(divisor.floats[0]),
+                      out=self._shown_nc)
+            self._shown_key = key
+        return self._shown_nc
 
     def show(self):
         """Write positions and momenta."""

@@ -151,20 +151,10 @@ class NoseHamiltonian(Hamiltonian):
         """``s``, its exact float image."""
         return float(self.s.floats[0])
 
-    def shown_momenta(self):
-        key = (self.p.label, self.s.label)
-        if self._shown_key != key:
-            np.divide(self.p.floats, self.s_value(), out=self._shown_nc)
-            self._shown_key = key
-        return self._shown_nc
+    shows_counts = False
 
-    def show_momenta(self):
-        momenta = self.atoms.arrays.get('momenta')
-        if momenta is None:
-            self.atoms.set_momenta(self.shown_momenta(),
-                                   apply_constraint=False)
-        else:
-            np.copyto(momenta, self.shown_momenta())
+    def shown_momenta(self):
+        return self.divided_momenta(self.s)
 
     def virtual_counts(self, momenta_nc, s_value):
         """The virtual momentum counts ``rint(p s / q_p)`` of real momenta

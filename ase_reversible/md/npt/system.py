@@ -126,20 +126,10 @@ class NPTHamiltonian(Hamiltonian):
         #: the one this dynamics set, not the user's.
         self.shown_cell_bytes = cell.tobytes()
 
-    def shown_momenta(self):
-        key = (self.p.label, self.lam.label)
-        if self._shown_key != key:
-            np.divide(self.p.floats, self.lam_value(), out=self._shown_nc)
-            self._shown_key = key
-        return self._shown_nc
+    shows_counts = False
 
-    def show_momenta(self):
-        momenta = self.atoms.arrays.get('momenta')
-        if momenta is None:
-            self.atoms.set_momenta(self.shown_momenta(),
-                                   apply_constraint=False)
-        else:
-            np.copyto(momenta, self.shown_momenta())
+    def shown_momenta(self):
+        return self.divided_momenta(self.lam)
 
     def show(self):
         self.show_cell()
