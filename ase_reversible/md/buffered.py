@@ -128,11 +128,26 @@ class BufferedStep:
 class BufferedMomentumStep(BufferedStep, SubStep):
     """A sub-step on the atoms' momentum counts (``system.p``, ``[n_atoms,
     3]``) through buffers: :class:`BufferedStep`'s rollback comes before
-    :class:`~ase_reversible.core.plans.SubStep`'s."""
+    :class:`~ase_reversible.core.plans.SubStep`'s.
 
-    def __init__(self, system):
+    Parameters
+    ----------
+    system : Hamiltonian
+        Its ``'momentum'`` variable is updated.
+    settings : callable
+        ``settings()`` -> the dynamics' settings (a NamedTuple), read when
+        the step is prepared.
+    step_of : callable
+        ``step_of() -> int``: the index of the step being taken (the one
+        before it when going forward, after it when going back), so that
+        both ways draw the same noise.
+    """
+
+    def __init__(self, system, settings, step_of):
         super().__init__()
         self.system = system
+        self.settings = settings
+        self.step_of = step_of
         self.shape = system.p.ints.shape
         self._ones_n = np.ones(self.shape[0], dtype=np.int64)
 

@@ -128,17 +128,9 @@ def alpha_ratio(two_k, kT, c, r, s):
 
 
 class Rescale(BufferedMomentumStep):
-    """The rescaling of the momentum counts, exact (module docstring).
-
-    Parameters
-    ----------
-    system : Hamiltonian
-        Its ``'momentum'`` variable is updated.
-    settings : callable
-        ``settings() -> BussiSettings``, read when the step is prepared.
-    step_of : callable
-        ``step_of() -> int``: the index of the step being taken (the one
-        before it going forward), for the draws.
+    """The rescaling of the momentum counts, exact (module docstring);
+    parameters as :class:`~.buffered.BufferedMomentumStep`'s, ``settings()``
+    returning :class:`BussiSettings`.
 
     Attributes
     ----------
@@ -149,9 +141,7 @@ class Rescale(BufferedMomentumStep):
     """
 
     def __init__(self, system, settings, step_of):
-        super().__init__(system)
-        self.settings = settings
-        self.step_of = step_of
+        super().__init__(system, settings, step_of)
         self.size = math.prod(self.shape)
         self._draws = None
 

@@ -94,19 +94,9 @@ class FrictionPlan(NamedTuple):
 
 
 class Friction(BufferedMomentumStep):
-    """The O step on the momentum counts, exact (see the module docstring).
-
-    Parameters
-    ----------
-    system : Hamiltonian
-        Its ``'momentum'`` variable is updated.
-    settings : callable
-        ``settings() -> FrictionSettings``, read when the step is
-        prepared.
-    step_of : callable
-        ``step_of() -> int``: the index of the step being taken (the one
-        before it when going forward, after it when going back), so that
-        both ways draw the same noise.
+    """The O step on the momentum counts, exact (see the module docstring);
+    parameters as :class:`~.buffered.BufferedMomentumStep`'s, ``settings()``
+    returning :class:`FrictionSettings`.
 
     Attributes
     ----------
@@ -125,9 +115,7 @@ class Friction(BufferedMomentumStep):
     """
 
     def __init__(self, system, settings, step_of):
-        super().__init__(system)
-        self.settings = settings
-        self.step_of = step_of
+        super().__init__(system, settings, step_of)
         self.noise = StepNoise(math.prod(self.shape))
 
     def load(self, saved):
