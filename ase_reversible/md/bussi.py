@@ -128,16 +128,11 @@ def alpha_ratio(two_k, kT, c, r, s):
 
 
 class Rescale(BufferedMomentumStep):
-    """The rescaling of the momentum counts, exact (module docstring);
-    parameters as :class:`~.buffered.BufferedMomentumStep`'s, ``settings()``
-    returning :class:`BussiSettings`.
-
-    Attributes
-    ----------
-    heat : float
-        Kinetic energy the rescaling added since the anchor (eV).
-    buffers : dict of float to ScalingBuffer
-        One per size of time step used since the anchor.
+    """The rescaling of the momentum counts, exact (module docstring): a
+    :class:`~.buffered.BufferedMomentumStep` whose ``settings()`` returns
+    :class:`BussiSettings`, with a :class:`ScalingBuffer` per size of time
+    step used since the anchor; ``heat`` is the kinetic energy the
+    rescaling added since then (eV).
     """
 
     def __init__(self, system, settings, step_of):

@@ -94,17 +94,12 @@ class FrictionPlan(NamedTuple):
 
 
 class Friction(BufferedMomentumStep):
-    """The O step on the momentum counts, exact (see the module docstring);
-    parameters as :class:`~.buffered.BufferedMomentumStep`'s, ``settings()``
-    returning :class:`FrictionSettings`.
-
-    Attributes
-    ----------
-    heat : float
-        Kinetic energy the O steps added since the anchor (eV): the total
-        energy minus this is what the integrator conserves.
-    buffers : dict of int to InformationBuffer
-        One per friction ratio used since the anchor.
+    """The O step on the momentum counts, exact (see the module docstring):
+    a :class:`~.buffered.BufferedMomentumStep` whose ``settings()`` returns
+    :class:`FrictionSettings`, with an :class:`InformationBuffer` per
+    friction ratio used since the anchor; ``heat`` is the kinetic energy
+    the O steps added since then (eV): the total energy minus it is what
+    the integrator conserves.
 
     Under FixCom (``system.centre``) the total momentum stays exactly
     zero: the noise has its sum removed in proportion to mass, and the
