@@ -417,6 +417,32 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         return (cotangents['position'].copy(),
                 cotangents['momentum'].copy(), {})
 
+    #: The exact variables' labels where the last backpropagate ended (a
+    #: dynamics whose own variables carry gradient from one segment to the
+    #: next sets it in :meth:`_gradients_of`).
+    _retrace_end = None
+
+    def _retrace_key(self):
+        return tuple(v.label for v in self.system.variables.values())
+
+    def _carried(self, carry, carrier):
+        """The gradients on ``carrier``'s own variables (``'thermostat'``,
+        ``'barostat'``) that ``carry`` (Gradients, False or None) goes on
+        with, as a dict; refused where the state and ``carry`` disagree."""
+        here = self._retrace_key()
+        if carry is None and here == self._retrace_end:
+            raise ValueError(
+                'The atoms are where the last backpropagate ended. To go on '
+                'with a loss on several states, pass what it returned as '
+                f'carry= (the {carrier} carries part of the gradient from '
+                'one segment to the next); to start a new loss here, pass '
+                'carry=False.')
+        if carry and here != self._retrace_end:
+            raise ValueError(
+                'carry= goes on from where the last backpropagate ended, '
+                'but the state has changed since: pass carry=False or none.')
+        return carry.thermostat if carry else {}
+
     # -- construction -----------------------------------------------------
 
     def _admit(self, atoms, force_purity, force_noise):

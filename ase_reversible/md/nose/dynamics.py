@@ -190,9 +190,6 @@ class ReversibleNose(ReversibleDynamics):
     """
 
     record_sections = ('nose',)
-    #: The labels of the state the last backpropagate ended at.
-    _retrace_end = None
-
     def __init__(self, atoms, timestep, temperature_K, tdamp, *,
                  tchain=None, tloop=1, scheme=None,
                  trajectory=None, logfile=None, loginterval=1, order=2,
@@ -375,19 +372,7 @@ class ReversibleNose(ReversibleDynamics):
         # The user's gradients are on (x, p, s, pi) with p = p' / s; the
         # exact variables are (x, p', s, pi): dL/dp' = dL/dp / s and
         # dL/ds at fixed p' = dL/ds at fixed p - dL/dp . p / s.
-        here = self._retrace_key()
-        if carry is None and here == self._retrace_end:
-            raise ValueError(
-                'The atoms are where the last backpropagate ended. To go on '
-                'with a loss on several states, pass what it returned as '
-                'carry= (the thermostat carries part of the gradient from '
-                'one segment to the next); to start a new loss here, pass '
-                'carry=False.')
-        if carry and here != self._retrace_end:
-            raise ValueError(
-                'carry= goes on from where the last backpropagate ended, '
-                'but the state has changed since: pass carry=False or none.')
-        thermostat = carry.thermostat if carry else {}
+        thermostat = self._carried(carry, 'thermostat')
         added = self._loss_cotangents(ax_nc, ap_nc)
         cotangents = {'position': ax_nc, 'momentum': added['momentum'],
                       CLOCK: np.zeros(1)}
@@ -421,9 +406,6 @@ class ReversibleNose(ReversibleDynamics):
                 thermostat[key] = float(cotangents[name][0])
         thermostat['s'] = a_s
         return cotangents['position'].copy(), ap_nc, thermostat
-
-    def _retrace_key(self):
-        return tuple(v.label for v in self.system.variables.values())
 
     # -- the thermostat -----------------------------------------------------
 

@@ -473,9 +473,6 @@ class ReversibleIsotropicNPT(BufferedDynamics):
 
     # -- gradients ----------------------------------------------------------
 
-    #: The labels of the state the last backpropagate ended at.
-    _retrace_end = None
-
     def backpropagate(self, steps, grad_positions=None, grad_momenta=None,
                       *, hvp='auto', parameters=(), carry=None, loss=None,
                       every=1, window=None):
@@ -505,19 +502,7 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         # The user's gradients are on (x, p) at fixed (lambda, p_lambda);
         # the exact variables are (rho, pi, lambda, p_lambda) with x =
         # lambda rho and p = pi / lambda.
-        here = self._retrace_key()
-        if carry is None and here == self._retrace_end:
-            raise ValueError(
-                'The atoms are where the last backpropagate ended. To go on '
-                'with a loss on several states, pass what it returned as '
-                'carry= (the barostat carries part of the gradient from one '
-                'segment to the next); to start a new loss here, pass '
-                'carry=False.')
-        if carry and here != self._retrace_end:
-            raise ValueError(
-                'carry= goes on from where the last backpropagate ended, '
-                'but the state has changed since: pass carry=False or none.')
-        barostat = carry.thermostat if carry else {}
+        barostat = self._carried(carry, 'barostat')
         added = self._loss_cotangents(ax_nc, ap_nc)
         size = self.system.lam.ints.size
         return {'position': added['position'],
@@ -549,9 +534,6 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         self._retrace_end = self._retrace_key()
         return (a_rho / lam, a_pi * lam,
                 {'lambda': a_lam, 'p_lambda': float(cotangents[P_LAMBDA][0])})
-
-    def _retrace_key(self):
-        return tuple(v.label for v in self.system.variables.values())
 
     # -- the ensemble --------------------------------------------------------
 
