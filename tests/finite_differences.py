@@ -51,3 +51,30 @@ def complex_forces(x_nc, epsilon, sigma):
     g_nn = 4 * epsilon * (-12 * s6_nn**2 + 6 * s6_nn) / r2_nn
     np.fill_diagonal(g_nn, 0.0)
     return np.einsum('ij,ijc->ic', g_nn, d_nnc)
+
+
+def complex_step_errors(loss_imag, x0_nc, p0_nc, g, potential, h=1e-20):
+    """Relative errors of backpropagate's gradients ``g`` against
+    complex-step differentiation of a plain float run.
+
+    ``loss_imag(x_nc, p_nc)`` runs from that complex start and returns the
+    imaginary part of the loss; ``potential`` is the dict of the
+    parameters the run's forces read, each stepped by ``1j h`` in turn.
+    Two random directions (seed 7) of the start's positions, then of its
+    momenta, then each parameter: a list of relative errors.
+    """
+    rng = np.random.default_rng(7)
+    errors = []
+    for _ in range(2):
+        u_nc = rng.normal(size=x0_nc.shape)
+        for dx, dp, ours in ((u_nc, 0, g.positions), (0, u_nc, g.momenta)):
+            reference = loss_imag(x0_nc + 1j * h * dx,
+                                  p0_nc + 1j * h * dp) / h
+            errors.append(abs(np.vdot(ours, u_nc) - reference)
+                          / abs(reference))
+    for name, value in list(potential.items()):
+        potential[name] = value + 1j * h
+        reference = loss_imag(x0_nc, p0_nc) / h
+        potential[name] = value
+        errors.append(abs(g.parameters[name] - reference) / abs(reference))
+    return errors

@@ -291,7 +291,7 @@ def test_gradients_match_complex_step_through_a_float_nose_run():
     the adjoint of the atoms alone (the terms through s and pi left out)
     they were 0.018 to 0.17; without carrying the thermostat's cotangents
     from one segment to the next (carry=False), 0.020 to 0.36."""
-    from finite_differences import complex_forces
+    from finite_differences import complex_forces, complex_step_errors
     from test_adjoint import FINE, argon, random_loss
 
     steps, dt = 150, 5 * units.fs
@@ -341,26 +341,12 @@ def test_gradients_match_complex_step_through_a_float_nose_run():
             p_nc = p_nc + 0.5 * dt * forces(x_nc)
         return x_nc, p_nc / s, x_half_nc
 
-    def loss_imag(run_result):
-        x_nc, p_nc, x_half_nc = run_result
+    def loss_imag(x_nc, p_nc):
+        x_nc, p_nc, x_half_nc = run(x_nc, p_nc)
         return (np.vdot(a_nc, x_nc.imag) + np.vdot(b_nc, p_nc.imag)
                 + np.vdot(c_nc, x_half_nc.imag))
 
-    h = 1e-20
-    rng = np.random.default_rng(7)
-    errors = []
-    for _ in range(2):
-        u_nc = rng.normal(size=x0_nc.shape)
-        for dx, dp, ours in ((u_nc, 0, g.positions), (0, u_nc, g.momenta)):
-            reference = loss_imag(run(x0_nc + 1j * h * dx,
-                                      p0_nc + 1j * h * dp)) / h
-            errors.append(abs(np.vdot(ours, u_nc) - reference)
-                          / abs(reference))
-    for name, value in list(potential.items()):
-        potential[name] = value + 1j * h
-        reference = loss_imag(run(x0_nc, p0_nc)) / h
-        potential[name] = value
-        errors.append(abs(g.parameters[name] - reference) / abs(reference))
+    errors = complex_step_errors(loss_imag, x0_nc, p0_nc, g, potential)
     assert max(errors) < 1e-7, errors
 
 
