@@ -14,9 +14,9 @@ from ase.io import read
 from ase_reversible import (AnchorMovedWarning, ReversibleLangevin,
                             UnsupportedConstraintError)
 
-from conftest import (AR_EPSILON, AR_SIGMA, CALCULATORS, THERMOSTAT_CASES,
-                      argon_bulk)
-from exactness import assert_same_state, forward_and_back, snapshot
+from conftest import CALCULATORS, THERMOSTAT_CASES, argon_bulk
+from exactness import (assert_runs_back, assert_same_state, forward_and_back,
+                       snapshot)
 from thermostats import FRICTION, ar13, assert_buffers_empty, langevin
 from tiers import tiered
 
@@ -28,9 +28,7 @@ def test_round_trip_is_exact(case, fixcm):
     atoms = build()
     atoms.calc = CALCULATORS[calc]()
     dyn = langevin(atoms, dt_fs, fixcm=fixcm)
-    start, moved = forward_and_back(dyn, steps)
-    assert moved
-    assert_same_state(atoms, start)
+    assert_runs_back(dyn, steps)
     assert_buffers_empty(dyn)
     assert dyn.get_time() == 0.0
 
@@ -212,7 +210,8 @@ def test_gradients_match_complex_step_through_a_float_baoab_run():
     would be of order one."""
     from ase_reversible.core.infobuffer import friction_ratio
     from ase_reversible.core.noise import StepNoise, step_key
-    from finite_differences import complex_forces, complex_step_errors
+    from finite_differences import (argon_lj_forces, complex_step_errors,
+                                    float_kick_drift_run)
     from test_adjoint import FINE, argon, random_loss
 
     steps, dt, temperature = 150, 5 * units.fs, 60.0
@@ -227,12 +226,7 @@ def test_gradients_match_complex_step_through_a_float_baoab_run():
     assert np.array_equal(atoms.positions, x0_nc)
 
     m_n1 = atoms.get_masses()[:, None]
-    potential = {'epsilon': AR_EPSILON, 'sigma': AR_SIGMA}
-
-    def forces(x_nc):
-        return complex_forces(x_nc, potential['epsilon'],
-                              potential['sigma'])
-
+    potential, forces = argon_lj_forces()
     qp = dyn.grid.momentum_quantum
     ratio = friction_ratio(np.exp(-FRICTION * dt)) / 2**16
     sigma_nc = np.sqrt((1 - ratio**2) * m_n1 * units.kB * temperature) / qp \
@@ -241,17 +235,10 @@ def test_gradients_match_complex_step_through_a_float_baoab_run():
     noise = [np.rint(sigma_nc * draw.normals(key, k).reshape(-1, 3)) * qp
              for k in range(steps)]
 
-    def run(x_nc, p_nc):
-        for k in range(steps):
-            p_nc = p_nc + 0.5 * dt * forces(x_nc)
-            x_nc = x_nc + 0.5 * dt * p_nc / m_n1
-            p_nc = ratio * p_nc + noise[k]
-            x_nc = x_nc + 0.5 * dt * p_nc / m_n1
-            p_nc = p_nc + 0.5 * dt * forces(x_nc)
-        return x_nc, p_nc
-
     def loss_imag(x_nc, p_nc):
-        x_nc, p_nc = run(x_nc, p_nc)
+        x_nc, p_nc = float_kick_drift_run(
+            x_nc, p_nc, m_n1, dt, steps, forces,
+            lambda k, p_nc: ratio * p_nc + noise[k])
         return np.vdot(a_nc, x_nc.imag) + np.vdot(b_nc, p_nc.imag)
 
     errors = complex_step_errors(loss_imag, x0_nc, p0_nc, g, potential)
