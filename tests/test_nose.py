@@ -45,6 +45,14 @@ def assert_same_counts(a, b):
         assert np.array_equal(a[name], b[name]), name
 
 
+def assert_counts_run_back(dyn, steps):
+    """From here, ``steps`` out and back: every exact variable as it was."""
+    here = dyn.counts
+    dyn.run(steps)
+    dyn.reverse().run(steps)
+    assert_same_counts(dyn.counts, here)
+
+
 def assert_thermostat_moved(dyn, start):
     for name in ('position', 'momentum', 'thermostat_position',
                  'thermostat_momentum', 'time'):
@@ -155,10 +163,7 @@ def test_a_frame_with_edited_momenta_is_a_new_run_and_says_so(tmp_path):
     frame.set_momenta(frame.get_momenta() * 1.01)
     with pytest.warns(AnchorMovedWarning, match='new run'):
         resumed = nose(frame)
-    here = resumed.counts
-    resumed.run(30)
-    resumed.reverse().run(30)
-    assert_same_counts(resumed.counts, here)
+    assert_counts_run_back(resumed, 30)
 
 
 def test_momenta_edited_between_runs_are_taken_as_real_momenta():
@@ -174,10 +179,7 @@ def test_momenta_edited_between_runs_are_taken_as_real_momenta():
     assert np.allclose(atoms.get_momenta(), cooler, rtol=0,
                        atol=dyn.grid.momentum_quantum)
     assert dyn.thermostat_position == s
-    here = dyn.counts
-    dyn.run(30)
-    dyn.reverse().run(30)
-    assert_same_counts(dyn.counts, here)
+    assert_counts_run_back(dyn, 30)
 
 
 def test_a_new_temperature_moves_the_anchor_and_reversal_leads_there():

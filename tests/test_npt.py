@@ -52,6 +52,12 @@ def assert_back(dyn, state, seen, emptied=True):
         assert not dyn.friction_step.piston.active_buffers()
 
 
+def assert_same_counts(dyn, reference):
+    """``dyn`` holds the exact variables of ``reference``, bit for bit."""
+    for name, counts in reference.engine.snapshot().items():
+        assert np.array_equal(dyn.engine.snapshot()[name], counts), name
+
+
 def out_and_back(dyn, steps, full_cell=False):
     """Run out ``steps``, check the cell moved (its volume by 0.1% at
     least; with ``full_cell``, every entry of its deformation), run back,
@@ -181,8 +187,7 @@ def test_a_frame_and_its_buffer_resume_the_run_bit_for_bit(tmp_path):
     dyn.observers.clear()
     dyn.run(8)
     again.run(8)
-    for name, counts in dyn.engine.snapshot().items():
-        assert np.array_equal(again.engine.snapshot()[name], counts), name
+    assert_same_counts(again, dyn)
     # The resumed run goes back past the frame to the first run's start.
     again.reverse()
     again.run(18)
@@ -206,8 +211,7 @@ def test_a_frame_alone_resumes_the_exact_state(tmp_path):
     frame = read(path)
     frame.calc = EMT()
     again = npt(frame, seed=None)
-    for name, counts in dyn.engine.snapshot().items():
-        assert np.array_equal(again.engine.snapshot()[name], counts), name
+    assert_same_counts(again, dyn)
     assert_back(again, again.engine.snapshot(), shown(frame))
     out_and_back(again, 20)
     assert again.get_time() == dyn.get_time()
@@ -487,12 +491,10 @@ def test_full_cell_frame_and_buffer_resume_bit_for_bit(tmp_path):
     frame = read(tmp_path / 'frame.traj')
     frame.calc = EMT()
     again = full(frame, seed=None, buffer=tmp_path / 'buffer.npz')
-    for name, counts in dyn.engine.snapshot().items():
-        assert np.array_equal(again.engine.snapshot()[name], counts), name
+    assert_same_counts(again, dyn)
     dyn.run(6)
     again.run(6)
-    for name, counts in dyn.engine.snapshot().items():
-        assert np.array_equal(again.engine.snapshot()[name], counts), name
+    assert_same_counts(again, dyn)
     again.reverse()
     again.run(14)
     assert again.get_time() == 0.0
@@ -532,8 +534,7 @@ def test_a_frame_whose_stress_differs_here_is_warned_about(tmp_path):
     with pytest.warns(MachineChangedWarning, match='stress at this restart'):
         again = npt(frame, seed=None)
     assert again.forces_match_record is False
-    for name, counts in dyn.engine.snapshot().items():
-        assert np.array_equal(again.engine.snapshot()[name], counts), name
+    assert_same_counts(again, dyn)
 
 
 @SLOW

@@ -22,12 +22,19 @@ from thermostats import (FRICTION, TAUT, THERMOSTATS, ar13,
 NAMES = list(THERMOSTATS)
 
 
-@pytest.mark.parametrize('name', NAMES)
-def test_going_back_past_the_anchor_is_refused_at_a_valid_state(name):
+def started(name, steps):
+    """Ar13 under the thermostat ``name``, ``steps`` steps on from its
+    start: (atoms, the dynamics, the start's positions and momenta)."""
     atoms = ar13()
     dyn = thermostat(name, atoms)
     start = snapshot(atoms)
-    dyn.run(30)
+    dyn.run(steps)
+    return atoms, dyn, start
+
+
+@pytest.mark.parametrize('name', NAMES)
+def test_going_back_past_the_anchor_is_refused_at_a_valid_state(name):
+    atoms, dyn, start = started(name, 30)
     dyn.reverse().run(30)
     with pytest.raises(RetraceLimitError, match='run forward'):
         dyn.run(1)
@@ -83,10 +90,7 @@ def test_a_new_temperature_moves_the_anchor_and_reversal_leads_there(
 
 @pytest.mark.parametrize('name', NAMES)
 def test_a_changed_time_step_can_be_retraced_after_setting_it_back(name):
-    atoms = ar13()
-    dyn = thermostat(name, atoms)
-    start = snapshot(atoms)
-    dyn.run(30)
+    atoms, dyn, start = started(name, 30)
     with pytest.warns(AnchorMovedWarning):
         dyn.dt = 3 * units.fs
     dyn.run(20)
