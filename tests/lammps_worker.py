@@ -124,9 +124,15 @@ def session(job, system, steps, files, path, back_path, settings):
     first = 'half' if job.endswith('-read') else 'start'
     states = {first: rev.gather()}
 
+    # Every run out or back is tallied (see runs below).
+    def forward(steps):
+        rev.run(steps)
+        tally()
+
     def back(steps):
         lmp.command(f'timestep {-TIMESTEPS[system]!r}')
         rev.run(steps)
+        tally()
 
     ended_recomputed = []
     # Per run: (path, clean recomputations, sort retries), so that a test
@@ -147,45 +153,36 @@ def session(job, system, steps, files, path, back_path, settings):
         return None
 
     if job in ('reversal', 'frozen'):
-        rev.run(steps)
-        tally()
+        forward(steps)
         ended_recomputed.append(rev.last_recomputed_step == rev.step)
         states['out'] = rev.gather()
         rev.path = back_path
         back(steps)
-        tally()
         ended_recomputed.append(rev.last_recomputed_step == rev.step)
         states['back'] = rev.gather()
     elif job == 'restart-write':
         # Out and on in one process, writing a restart and a data file
         # half-way: the reference a restart must continue bit for bit.
-        rev.run(steps)
-        tally()
+        forward(steps)
         lmp.command(f'write_restart {files / "half.restart"}')
         lmp.command(f'write_data {files / "half.data"}')
         states['half'] = rev.gather()
-        rev.run(steps)
-        tally()
+        forward(steps)
         states['end'] = rev.gather()
     elif job.endswith('-read'):
-        rev.run(steps)
-        tally()
+        forward(steps)
         states['end'] = rev.gather()
         back(2 * steps)
-        tally()
         states['start'] = rev.gather()
     elif job == 'refused-timestep':
-        rev.run(steps)
-        tally()
+        forward(steps)
         lmp.command('timestep 0.0025')
         refused = refusal(10, ValueError, str)
         back(steps)
-        tally()
         states['back'] = rev.gather()
     elif job == 'overlap':
         # An atom dropped 0.05 Å from another: forces beyond any grid.
-        rev.run(steps)
-        tally()
+        forward(steps)
         lmp.command('create_atoms 1 single 0.05 0.0 0.0 units box')
         lmp.command('velocity all create 240 4928459 loop geom')
         rev.run(0)

@@ -393,10 +393,7 @@ def test_stored_results_attached_while_running_are_refused():
         calc = atoms.calc
         atoms.calc = SinglePointCalculator(atoms, energy=0.0,
                                            forces=np.zeros((len(atoms), 3)))
-
-        def undo():
-            atoms.calc = calc
-        return undo
+        return lambda: setattr(atoms, 'calc', calc)
     assert_refused_until_undone(atoms, change, RuntimeError,
                                 'SinglePointCalculator', tried=1)
 
