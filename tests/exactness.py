@@ -7,6 +7,7 @@ one ulp off is a failure.
 import warnings
 
 import numpy as np
+import pytest
 
 from ase_reversible import AnchorMovedWarning
 
@@ -79,3 +80,15 @@ def run_back(dyn, steps, reference):
         warnings.simplefilter('error', AnchorMovedWarning)
         dyn.run(steps)
     assert_same_state(dyn.atoms, reference)
+
+
+def run_until_refused(dyn, steps, error, match):
+    """Run ``steps``, which ``error`` (its message matching ``match``) must
+    stop; the failed step is rolled back: the atoms show the committed
+    state.  Returns the state the run started from (positions, momenta)
+    and the number of steps taken."""
+    start = snapshot(dyn.atoms)
+    with pytest.raises(error, match=match):
+        dyn.run(steps)
+    assert_atoms_show_committed_state(dyn)
+    return start, dyn.nsteps

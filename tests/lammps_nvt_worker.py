@@ -18,47 +18,19 @@ from ase_reversible.lammps import import_lammps
 from ase_reversible.lammps.nose import ReversibleLammpsNose
 from ase_reversible.lammps.nose import take_restart_state
 
+import lammps_systems
+from lammps_systems import fcc_box
+
 lammps = import_lammps()
 
 SYSTEMS = {
     # 256 atoms of a Lennard-Jones liquid in reduced units, heated from
     # T* = 1 towards the thermostat's 1.5.
-    'lj': """units lj
-boundary p p p
-lattice fcc 0.8442
-region box block 0 4 0 4 0 4
-create_box 1 box
-create_atoms 1 box
-mass 1 1.0
-pair_style lj/cut 2.5
-pair_coeff 1 1 1.0 1.0
-velocity all create 1.0 87287 loop geom mom yes""",
+    'lj': fcc_box('lj', 4, 1.0, 87287, mom=True),
     # A binary mixture: two masses, so two per-type sums.
-    'lj-binary': """units lj
-boundary p p p
-lattice fcc 0.8442
-region box block 0 4 0 4 0 4
-create_box 2 box
-create_atoms 1 box
-set type 1 type/fraction 2 0.2 12393
-mass 1 1.0
-mass 2 2.0
-pair_style lj/cut 2.5
-pair_coeff 1 1 1.0 1.0
-pair_coeff 2 2 1.0 0.9
-pair_coeff 1 2 1.2 0.95
-velocity all create 1.5 87287 loop geom mom yes""",
+    'lj-binary': fcc_box('lj-binary', 4, 1.5, 87287, mom=True),
     # 500 argon atoms (metal units) at 80 K, thermostat at 100 K.
-    'argon': """units metal
-boundary p p p
-lattice fcc 5.26
-region box block 0 5 0 5 0 5
-create_box 1 box
-create_atoms 1 box
-mass 1 39.948
-pair_style lj/cut 8.5
-pair_coeff 1 1 0.0104 3.40
-velocity all create 80 4928459 loop geom mom yes""",
+    'argon': fcc_box('argon', 5, 80, 4928459, mom=True),
 }
 
 TIMESTEPS = {'lj': 2.0**-8, 'lj-binary': 2.0**-8, 'argon': 2.0**-9}
@@ -67,19 +39,8 @@ THERMOSTATS = {'lj': (1.5, 0.5), 'lj-binary': (1.5, 0.5),
 
 
 def start(system, restart=None):
-    lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
-    lines = SYSTEMS[system].splitlines()
-    if restart:
-        lmp.command(lines[0])
-        lmp.command(f'read_restart {restart}')
-        for line in lines:
-            if line.split()[0] in ('mass', 'pair_style', 'pair_coeff'):
-                lmp.command(line)
-    else:
-        for line in lines:
-            lmp.command(line)
-    lmp.command(f'timestep {TIMESTEPS[system]!r}')
-    return lmp
+    return lammps_systems.start(lammps, SYSTEMS[system], TIMESTEPS[system],
+                                restart)
 
 
 def lammps_rank(lmp):
@@ -185,23 +146,15 @@ def main(job, out, **options):
         lmp.command(f'timestep {-dt!r}')
         rev.run(2 * steps)
         states['start'] = state(rev)
-    elif job == 'unstable':
-        # A thermostat far too stiff for the time step: s swings to zero.
+    elif job in ('unstable', 'blowup'):
+        # 'unstable': a thermostat far too stiff for the time step, s
+        # swings to zero (any error is reported to the test); 'blowup':
+        # only a FloatingPointError may stop the run.
+        expected = Exception if job == 'unstable' else FloatingPointError
         step = rev.step
         try:
             rev.run(steps)
-        except Exception as error:  # noqa: BLE001 - reported to the test
-            refused = f'{type(error).__name__}: {error}'
-        counters['stopped_at'] = rev.step - step
-        states['stopped'] = state(rev)
-        lmp.command(f'timestep {-dt!r}')
-        rev.run(rev.step - step)
-        states['back'] = state(rev)
-    elif job == 'blowup':
-        step = rev.step
-        try:
-            rev.run(steps)
-        except FloatingPointError as error:
+        except expected as error:  # noqa: BLE001 - reported to the test
             refused = f'{type(error).__name__}: {error}'
         counters['stopped_at'] = rev.step - step
         states['stopped'] = state(rev)

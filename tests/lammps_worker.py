@@ -19,6 +19,9 @@ import numpy as np
 
 from ase_reversible.lammps import ReversibleLammps, import_lammps
 
+import lammps_systems
+from lammps_systems import fcc_box
+
 lammps = import_lammps()
 
 DT = 0.001953125  # 2^-9 ps
@@ -26,27 +29,9 @@ DT = 0.001953125  # 2^-9 ps
 SYSTEMS = {
     # 864 atoms of argon at 240 K: atoms cross the periodic faces and the
     # boundary between two ranks within a few hundred steps.
-    'argon': """units metal
-boundary p p p
-lattice fcc 5.26
-region box block 0 6 0 6 0 6
-create_box 1 box
-create_atoms 1 box
-mass 1 39.948
-pair_style lj/cut 8.5
-pair_coeff 1 1 0.0104 3.40
-velocity all create 240 4928459 loop geom""",
+    'argon': fcc_box('argon', 6, 240, 4928459),
     # 500 atoms of copper at 1200 K under EAM (a many-body potential).
-    'copper': """units metal
-boundary p p p
-lattice fcc 3.615
-region box block 0 5 0 5 0 5
-create_box 1 box
-create_atoms 1 box
-mass 1 63.546
-pair_style eam
-pair_coeff * * {potential}
-velocity all create 1200 87287 loop geom""",
+    'copper': fcc_box('copper', 5, 1200, 87287),
     # 177 argon atoms of a ball in a shrink-wrapped box, at 60 K.
     'cluster': """units metal
 boundary s s s
@@ -60,43 +45,16 @@ pair_style lj/cut 8.5
 pair_coeff 1 1 0.0104 3.40
 velocity all create 60 4928459 loop geom""",
     # A binary Lennard-Jones mixture in reduced units, two masses.
-    'lj-binary': """units lj
-boundary p p p
-lattice fcc 0.8442
-region box block 0 5 0 5 0 5
-create_box 2 box
-create_atoms 1 box
-set type 1 type/fraction 2 0.2 12393
-mass 1 1.0
-mass 2 2.0
-pair_style lj/cut 2.5
-pair_coeff 1 1 1.0 1.0
-pair_coeff 2 2 1.0 0.9
-pair_coeff 1 2 1.2 0.95
-velocity all create 1.5 87287 loop geom""",
+    'lj-binary': fcc_box('lj-binary', 5, 1.5, 87287),
 }
 
 TIMESTEPS = {'argon': DT, 'copper': DT, 'cluster': DT, 'lj-binary': 2.0**-8}
 
 
 def start(system, restart=None, data=None):
-    lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
-    if restart or data:
-        lines = SYSTEMS[system].splitlines()
-        lmp.command('units lj' if system == 'lj-binary' else 'units metal')
-        if data:  # a data file's Pair Coeffs need the style first
-            lmp.command(next(line for line in lines
-                             if line.startswith('pair_style')))
-        lmp.command(f'read_restart {restart}' if restart
-                    else f'read_data {data}')
-        for line in lines:
-            if line.split()[0] in ('mass', 'pair_style', 'pair_coeff'):
-                lmp.command(line.format(potential=potential()))
-    else:
-        for line in SYSTEMS[system].splitlines():
-            lmp.command(line.format(potential=potential()))
-    lmp.command(f'timestep {TIMESTEPS[system]!r}')
-    return lmp
+    return lammps_systems.start(
+        lammps, SYSTEMS[system].format(potential=potential()),
+        TIMESTEPS[system], restart, data)
 
 
 def potential():
@@ -166,9 +124,15 @@ def session(job, system, steps, files, path, back_path, settings):
     first = 'half' if job.endswith('-read') else 'start'
     states = {first: rev.gather()}
 
+    # Every run out or back is tallied (see runs below).
+    def forward(steps):
+        rev.run(steps)
+        tally()
+
     def back(steps):
         lmp.command(f'timestep {-TIMESTEPS[system]!r}')
         rev.run(steps)
+        tally()
 
     ended_recomputed = []
     # Per run: (path, clean recomputations, sort retries), so that a test
@@ -180,58 +144,52 @@ def session(job, system, steps, files, path, back_path, settings):
         runs.append((rev.path, rev.clean_recomputations - done[0],
                      rev.sort_retries - done[1]))
 
+    def refusal(steps, error_type, message):
+        # What the test is told when error_type stops a run: message(error).
+        try:
+            rev.run(steps)
+        except error_type as error:
+            return message(error)
+        return None
+
     if job in ('reversal', 'frozen'):
-        rev.run(steps)
-        tally()
+        forward(steps)
         ended_recomputed.append(rev.last_recomputed_step == rev.step)
         states['out'] = rev.gather()
         rev.path = back_path
         back(steps)
-        tally()
         ended_recomputed.append(rev.last_recomputed_step == rev.step)
         states['back'] = rev.gather()
     elif job == 'restart-write':
         # Out and on in one process, writing a restart and a data file
         # half-way: the reference a restart must continue bit for bit.
-        rev.run(steps)
-        tally()
+        forward(steps)
         lmp.command(f'write_restart {files / "half.restart"}')
         lmp.command(f'write_data {files / "half.data"}')
         states['half'] = rev.gather()
-        rev.run(steps)
-        tally()
+        forward(steps)
         states['end'] = rev.gather()
     elif job.endswith('-read'):
-        rev.run(steps)
-        tally()
+        forward(steps)
         states['end'] = rev.gather()
         back(2 * steps)
-        tally()
         states['start'] = rev.gather()
     elif job == 'refused-timestep':
-        rev.run(steps)
-        tally()
+        forward(steps)
         lmp.command('timestep 0.0025')
-        try:
-            rev.run(10)
-        except ValueError as error:
-            refused = str(error)
+        refused = refusal(10, ValueError, str)
         back(steps)
-        tally()
         states['back'] = rev.gather()
     elif job == 'overlap':
         # An atom dropped 0.05 Å from another: forces beyond any grid.
-        rev.run(steps)
-        tally()
+        forward(steps)
         lmp.command('create_atoms 1 single 0.05 0.0 0.0 units box')
         lmp.command('velocity all create 240 4928459 loop geom')
         rev.run(0)
         states = {'before': rev.gather()}
         step = rev.step
-        try:
-            rev.run(10)
-        except FloatingPointError as error:
-            refused = f'{error} (step {step} -> {rev.step})'
+        refused = refusal(10, FloatingPointError,
+                          lambda error: f'{error} (step {step} -> {rev.step})')
         states['after'] = rev.gather()
     else:
         raise SystemExit(f'unknown job {job}')

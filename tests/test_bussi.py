@@ -8,50 +8,29 @@ somewhere, and that the buffer (states, stacks, ratios) is empty again.
 
 import json
 import math
-import warnings
 
 import numpy as np
 import pytest
 from ase import units
 from ase.constraints import FixAtoms, FixCartesian, FixCom, FixedLine
-from ase.io import Trajectory, read
 from ase.md.bussi import Bussi
 from hypothesis import assume, example, given, settings, strategies as st
 
-from ase_reversible import (AnchorMovedWarning, RetraceLimitError,
-                            ReversibleBussi, UnstableIntegrationError,
+from ase_reversible import (AnchorMovedWarning, ReversibleBussi,
+                            UnstableIntegrationError,
                             UnsupportedConstraintError)
 from ase_reversible.core.noise import BussiDraws, portable_log, step_key
 from ase_reversible.core.scaling import (N_MAX, N_MIN, RATIO_BITS,
                                          ScalingBuffer)
 
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, CALCULATORS,
-                      THERMOSTAT_CASES, argon_bulk, argon_cluster,
-                      copper_bulk)
-from exactness import assert_same_state, forward_and_back, snapshot
+                      THERMOSTAT_CASES, argon_bulk, copper_bulk)
+from exactness import assert_runs_back, assert_same_state, snapshot
 from machines import run_leg
+from thermostats import ar13, assert_buffers_empty, bussi
 from tiers import SLOW, tiered
 
-TAUT = 100 * units.fs
 D = 1 << RATIO_BITS
-
-
-def bussi(atoms, dt_fs=5, temperature_K=300, **kwargs):
-    kwargs.setdefault('seed', 1)
-    kwargs.setdefault('taut', TAUT)
-    return ReversibleBussi(atoms, dt_fs * units.fs,
-                           temperature_K=temperature_K, **kwargs)
-
-
-def ar13(temperature_K=60):
-    atoms = argon_cluster(2, temperature_K)
-    atoms.calc = CALCULATORS['ase-lj']()
-    return atoms
-
-
-def assert_buffers_empty(dyn):
-    buffers = dyn.rescale_step.buffers.values()
-    assert buffers and all(b.is_empty() for b in buffers)
 
 
 # -- the buffer ---------------------------------------------------------------
@@ -179,9 +158,7 @@ def test_round_trip_is_exact(case):
     atoms = build()
     atoms.calc = CALCULATORS[calc]()
     dyn = bussi(atoms, dt_fs)
-    start, moved = forward_and_back(dyn, steps)
-    assert moved
-    assert_same_state(atoms, start)
+    assert_runs_back(dyn, steps)
     assert_buffers_empty(dyn)
     assert dyn.get_time() == 0.0
 
@@ -216,9 +193,7 @@ def test_asap3_copper_heats_or_cools_and_comes_back(start_K, target_K, seed):
     atoms.calc = CALCULATORS['asap-emt']()
     dyn = bussi(atoms, temperature_K=target_K, seed=seed,
                 taut=50 * units.fs)
-    start, moved = forward_and_back(dyn, 1000)
-    assert moved
-    assert_same_state(atoms, start)
+    assert_runs_back(dyn, 1000)
     assert_buffers_empty(dyn)
 
 
@@ -254,74 +229,6 @@ def test_degrees_of_freedom_are_ases():
         dyn = bussi(atoms)
         assert dyn.rescale_step._draws.dof == 3 * len(atoms) - removed \
             == atoms.get_number_of_degrees_of_freedom()
-
-
-def test_going_back_past_the_anchor_is_refused_at_a_valid_state():
-    atoms = ar13()
-    dyn = bussi(atoms)
-    start = snapshot(atoms)
-    dyn.run(30)
-    dyn.reverse().run(30)
-    with pytest.raises(RetraceLimitError, match='run forward'):
-        dyn.run(1)
-    assert_same_state(atoms, start)
-    assert_buffers_empty(dyn)
-    dyn.reverse().run(30)
-    assert not np.array_equal(atoms.positions, start[0])
-
-
-def test_back_and_forth_is_one_trajectory():
-    straight = ar13()
-    bussi(straight).run(120)
-    wandering = ar13()
-    dyn = bussi(wandering)
-    dyn.run(80)
-    dyn.reverse().run(50)
-    dyn.reverse().run(90)
-    assert_same_state(wandering, snapshot(straight))
-
-
-def test_the_seed_decides_the_run():
-    runs = {}
-    for seed in (3, 3, 4):
-        atoms = ar13()
-        bussi(atoms, seed=seed).run(40)
-        runs.setdefault(seed, []).append(atoms.get_momenta())
-    assert np.array_equal(*runs[3])
-    assert not np.array_equal(runs[3][0], runs[4][0])
-
-
-def test_a_new_temperature_moves_the_anchor_and_reversal_leads_there():
-    atoms = ar13()
-    dyn = bussi(atoms)
-    dyn.run(30)
-    with pytest.warns(AnchorMovedWarning, match='temperature'):
-        dyn.set_temperature(500)
-    here = snapshot(atoms)
-    dyn.run(30)
-    dyn.reverse()
-    with warnings.catch_warnings():
-        warnings.simplefilter('error', AnchorMovedWarning)
-        dyn.run(30)
-    assert_same_state(atoms, here)
-    with pytest.raises(RetraceLimitError):
-        dyn.run(1)
-
-
-def test_a_changed_time_step_can_be_retraced_after_setting_it_back():
-    atoms = ar13()
-    dyn = bussi(atoms)
-    start = snapshot(atoms)
-    dyn.run(30)
-    with pytest.warns(AnchorMovedWarning):
-        dyn.dt = 3 * units.fs
-    dyn.run(20)
-    dyn.reverse().run(20)
-    with pytest.raises(RetraceLimitError):
-        dyn.run(1)  # the 3 fs steps are undone; the 5 fs ones need 5 fs
-    dyn.dt = -5 * units.fs
-    dyn.run(30)
-    assert_same_state(atoms, start)
 
 
 # -- the contract -------------------------------------------------------------
@@ -391,7 +298,8 @@ def test_gradients_match_complex_step_through_a_float_bussi_run():
     sigma.  Measured relative errors 4e-13 to 4e-12; without the slope's
     term (alpha a alone) 0.22 to 5.8."""
     import cmath
-    from finite_differences import complex_forces
+    from finite_differences import (argon_lj_forces, complex_step_errors,
+                                    float_kick_drift_run)
     from test_adjoint import FINE, argon, random_loss
     from ase_reversible.md.bussi import decay
 
@@ -409,60 +317,28 @@ def test_gradients_match_complex_step_through_a_float_bussi_run():
     assert np.array_equal(atoms.positions, x0_nc)
 
     m_n1 = atoms.get_masses()[:, None]
-    potential = {'epsilon': AR_EPSILON, 'sigma': AR_SIGMA}
+    potential, forces = argon_lj_forces()
     kT, c = units.kB * temperature, decay(dt, taut)
     draws, key = BussiDraws(3 * len(atoms)), step_key(2, dt)
     noise = [draws(key, k) for k in range(steps)]
-
-    def forces(x_nc):
-        return complex_forces(x_nc, potential['epsilon'],
-                              potential['sigma'])
 
     def alpha(two_k, r, s):
         e = (1 - c) * kT / two_k
         return cmath.sqrt(c + e * (s + r * r) + 2 * r * cmath.sqrt(c * e))
 
-    def run(x_nc, p_nc):
-        for k in range(steps):
-            p_nc = p_nc + 0.5 * dt * forces(x_nc)
-            x_nc = x_nc + 0.5 * dt * p_nc / m_n1
-            two_k = np.sum(p_nc * p_nc / m_n1)
-            factor = (alpha(two_k, *noise[k]) - alpha(two_k.real, *noise[k])
-                      + ratios[k])
-            p_nc = factor * p_nc
-            x_nc = x_nc + 0.5 * dt * p_nc / m_n1
-            p_nc = p_nc + 0.5 * dt * forces(x_nc)
-        return x_nc, p_nc
+    def rescale(k, p_nc):
+        two_k = np.sum(p_nc * p_nc / m_n1)
+        factor = (alpha(two_k, *noise[k]) - alpha(two_k.real, *noise[k])
+                  + ratios[k])
+        return factor * p_nc
 
-    h = 1e-20
-    rng = np.random.default_rng(7)
-    errors = []
-    for _ in range(2):
-        u_nc = rng.normal(size=x0_nc.shape)
-        for dx, dp, ours in ((u_nc, 0, g.positions), (0, u_nc, g.momenta)):
-            x_nc, p_nc = run(x0_nc + 1j * h * dx, p0_nc + 1j * h * dp)
-            reference = (np.vdot(a_nc, x_nc.imag)
-                         + np.vdot(b_nc, p_nc.imag)) / h
-            errors.append(abs(np.vdot(ours, u_nc) - reference)
-                          / abs(reference))
-    for name, value in list(potential.items()):
-        potential[name] = value + 1j * h
-        x_nc, p_nc = run(x0_nc, p0_nc)
-        potential[name] = value
-        reference = (np.vdot(a_nc, x_nc.imag) + np.vdot(b_nc, p_nc.imag)) / h
-        errors.append(abs(g.parameters[name] - reference) / abs(reference))
+    def loss_imag(x_nc, p_nc):
+        x_nc, p_nc = float_kick_drift_run(x_nc, p_nc, m_n1, dt, steps,
+                                          forces, rescale)
+        return np.vdot(a_nc, x_nc.imag) + np.vdot(b_nc, p_nc.imag)
+
+    errors = complex_step_errors(loss_imag, x0_nc, p0_nc, g, potential)
     assert max(errors) < 1e-9, errors
-
-
-def test_energy_minus_heat_is_conserved():
-    atoms = argon_cluster(3, 40)
-    atoms.calc = CALCULATORS['ase-lj']()
-    e0 = atoms.get_total_energy()
-    dyn = bussi(atoms, temperature_K=120, taut=50 * units.fs)
-    dyn.run(200)
-    drift = atoms.get_total_energy() - dyn.heat - e0
-    assert dyn.heat > 0.1  # the thermostat heated the cluster
-    assert abs(drift) < 1e-3 * dyn.heat
 
 
 def test_the_energy_watch_checks_energy_minus_heat_and_loses_nothing():
@@ -480,81 +356,6 @@ def test_the_energy_watch_checks_energy_minus_heat_and_loses_nothing():
     dyn.reverse().run(taken)
     assert_same_state(atoms, start)
     assert_buffers_empty(dyn)
-
-
-def test_trajectory_frames_and_the_log_work_as_for_ase(tmp_path):
-    atoms = ar13()
-    log, traj = tmp_path / 'md.log', tmp_path / 'md.traj'
-    dyn = bussi(atoms, trajectory=str(traj), logfile=str(log),
-                loginterval=10)
-    dyn.run(50)
-    dyn.close()
-    frames = read(str(traj), ':')
-    assert len(frames) == 6
-    assert np.array_equal(frames[-1].positions, atoms.positions)
-    assert len(log.read_text().splitlines()) == 7
-    with Trajectory(str(traj)) as t:
-        assert t.description['taut'] == TAUT
-
-
-# -- restarts -----------------------------------------------------------------
-
-def test_a_frame_and_its_buffer_continue_bit_for_bit_and_run_back_through(
-        tmp_path):
-    traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
-    atoms = ar13(5)  # heats: the saved buffer holds reserve words
-    dyn = bussi(atoms, seed=9, trajectory=str(traj))
-    start = dyn.state
-    dyn.run(60)
-    assert dyn.rescale_step.buffer_for(dyn.dt).top_k.min() < 0
-    dyn.write_buffer(saved)
-    dyn.run(40)
-    straight = dyn.state
-    dyn.close()
-
-    frame = read(str(traj), 60)
-    frame.calc = CALCULATORS['ase-lj']()
-    resumed = ReversibleBussi(frame, 5 * units.fs, 300, TAUT, buffer=saved)
-    assert resumed.seed == 9 and resumed.step_index == 60
-    resumed.run(40)
-    assert np.array_equal(resumed.state.ix_nc, straight.ix_nc)
-    assert np.array_equal(resumed.state.ip_nc, straight.ip_nc)
-    resumed.reverse().run(100)
-    assert np.array_equal(resumed.state.ix_nc, start.ix_nc)
-    assert np.array_equal(resumed.state.ip_nc, start.ip_nc)
-    assert_buffers_empty(resumed)
-    with pytest.raises(RetraceLimitError):
-        resumed.run(1)
-
-
-def test_a_frame_alone_resumes_the_draws_but_not_the_way_back(tmp_path):
-    traj = tmp_path / 'md.traj'
-    atoms = ar13()
-    dyn = bussi(atoms, seed=4, trajectory=str(traj))
-    dyn.run(30)
-    dyn.close()
-    frame = read(str(traj), -1)
-    frame.calc = CALCULATORS['ase-lj']()
-    here = snapshot(frame)
-    resumed = ReversibleBussi(frame, 5 * units.fs, 300, TAUT)
-    assert resumed.seed == 4 and resumed.step_index == 30
-    forward_and_back(resumed, 20)
-    assert_same_state(frame, here)
-    with pytest.raises(RetraceLimitError):
-        resumed.run(1)
-
-
-def test_a_buffer_file_from_another_state_is_refused(tmp_path):
-    traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
-    atoms = ar13()
-    dyn = bussi(atoms, trajectory=str(traj))
-    dyn.run(20)
-    dyn.write_buffer(saved)
-    dyn.close()
-    frame = read(str(traj), 10)
-    frame.calc = CALCULATORS['ase-lj']()
-    with pytest.raises(ValueError, match='step 20 of another'):
-        ReversibleBussi(frame, 5 * units.fs, 300, TAUT, buffer=saved)
 
 
 # -- across machines ---------------------------------------------------------

@@ -24,15 +24,21 @@ def _rattled(atoms):
     return atoms
 
 
-class TestAseLennardJones(CalculatorConformance):
+class OtherPeoples(CalculatorConformance):
+    """What the calculators here share: ASE's time step, a check_state
+    with a tolerance (ASE's own, or the one LAMMPSlib inherits) and
+    gradients to 1e-7 of max|F|."""
+    timestep = DT
+    exact_check_state = False
+    gradient_tolerance = 1e-7
+
+
+class TestAseLennardJones(OtherPeoples):
+    # Its check_state has ASE's 1e-15 Å tolerance; gradients measured
+    # 0.3-3.6e-9 of max|F|: its forces jump at rc (smooth=False).
     systems = {'cluster': lambda: argon_cluster(3, 80),
                'crystal': lambda: _rattled(argon_bulk((2, 2, 2), 80))}
-    timestep = DT
     reversal_steps = 300
-    # Its check_state has ASE's 1e-15 Å tolerance.
-    exact_check_state = False
-    # Measured 0.3-3.6e-9 of max|F|: its forces jump at rc (smooth=False).
-    gradient_tolerance = 1e-7
 
     def make_calc(self, **parameters):
         calc = ase_lj()
@@ -40,13 +46,11 @@ class TestAseLennardJones(CalculatorConformance):
         return calc
 
 
-class TestAseEMT(CalculatorConformance):
+class TestAseEMT(OtherPeoples):
+    # Gradients measured 0.7-1.6e-9 of max|F|.
     systems = {'cluster': lambda: copper_cluster(2, 600),
                'crystal': lambda: copper_bulk((2, 2, 2), 600)}
-    timestep = DT
     reversal_steps = 300
-    exact_check_state = False
-    gradient_tolerance = 1e-7  # measured 0.7-1.6e-9 of max|F|
 
     def make_calc(self, **parameters):
         return EMT(**parameters)
@@ -68,27 +72,23 @@ def lammps_eam():
                      'Cu')
 
 
-class TestLammpsLibLennardJones(CalculatorConformance):
+class TestLammpsLibLennardJones(OtherPeoples):
+    # Gradients measured 3.0-3.9e-9 of max|F|: its energy jumps at rc
+    # (lj/cut).
     systems = {'cluster': lambda: argon_cluster(3, 80),
                'crystal': lambda: _rattled(argon_bulk((3, 3, 3), 80))}
-    timestep = DT
     reversal_steps = 1000
-    exact_check_state = False  # ASE's check_state
-    # Measured 3.0-3.9e-9 of max|F|: its energy jumps at rc (lj/cut).
-    gradient_tolerance = 1e-7
 
     def make_calc(self, **parameters):
         return lammps_lj()
 
 
-class TestLammpsLibEAM(CalculatorConformance):
+class TestLammpsLibEAM(OtherPeoples):
+    # Gradients measured 1.0-2.9e-8 of max|F|: the functions are splines
+    # of a table.
     systems = {'cluster': lambda: copper_cluster(3, 600),
                'crystal': lambda: copper_bulk((3, 3, 3), 600)}
-    timestep = DT
     reversal_steps = 1000
-    exact_check_state = False
-    # Measured 1.0-2.9e-8 of max|F|: the functions are splines of a table.
-    gradient_tolerance = 1e-7
 
     def make_calc(self, **parameters):
         return lammps_eam()

@@ -103,6 +103,26 @@ def same_fixed_point_state(a, b):
 
 # 1. dyn.dt = -dyn.dt
 
+def assert_refused_until_undone(atoms, change, error, match, steps=10,
+                                tried=5):
+    """``steps`` steps out, then ``change()`` (which returns its undo): a
+    run of ``tried`` more is refused with ``error`` before its first step,
+    nothing moved.  Undone, the anchor must still be the constructor's
+    state and the way back must reach it without a re-anchoring."""
+    dyn = ReversibleVerlet(atoms, DT)
+    start, anchor = snapshot(atoms), dyn.anchor
+    dyn.run(steps)
+    before = snapshot(atoms)
+    undo = change()
+    with pytest.raises(error, match=match):
+        dyn.run(tried)
+    assert dyn.nsteps == steps
+    assert_same_state(atoms, before)
+    undo()
+    run_back(dyn, steps, start)
+    assert same_fixed_point_state(dyn.anchor, anchor)
+
+
 def test_negated_dt_runs_back_to_the_start_and_the_clock_to_zero():
     atoms = argon()
     dyn = ReversibleVerlet(atoms, DT)
@@ -181,45 +201,30 @@ def test_fixatoms_set_after_construction_holds_its_atoms_and_reverses():
 # 4. FixBondLengths set after construction
 def test_bond_constraint_set_after_construction_is_refused_until_removed():
     atoms = argon()
-    dyn = ReversibleVerlet(atoms, DT)
-    start, anchor = snapshot(atoms), dyn.anchor
-    dyn.run(20)
-    before = snapshot(atoms)
 
-    atoms.set_constraint(FixBondLengths([(0, 1)]))
-    with pytest.raises(UnsupportedConstraintError, match='FixBondLengths'):
-        dyn.run(10)
-    assert dyn.nsteps == 20
-    assert_same_state(atoms, before)
+    def change():
+        atoms.set_constraint(FixBondLengths([(0, 1)]))
 
-    # The error says: remove it (del atoms.constraints).  That undoes the
-    # change, so the anchor must still be the constructor's state and the
-    # way back must reach it without a re-anchoring on the way.
-    del atoms.constraints
-    run_back(dyn, 20, start)
-    assert same_fixed_point_state(dyn.anchor, anchor)
+        # The error says: remove it (del atoms.constraints).
+        def undo():
+            del atoms.constraints
+        return undo
+    assert_refused_until_undone(atoms, change, UnsupportedConstraintError,
+                                'FixBondLengths', steps=20, tried=10)
 
 
 @pytest.mark.parametrize('bad_mass', [0.0, -1.0, np.nan, np.inf])
 def test_bad_mass_is_refused_and_undoing_it_keeps_the_anchor(bad_mass):
     atoms = copper()  # no masses array: the masses are the elements'
-    dyn = ReversibleVerlet(atoms, DT)
-    start, anchor = snapshot(atoms), dyn.anchor
-    dyn.run(10)
-    before = snapshot(atoms)
-    masses = atoms.get_masses()
 
-    bad = masses.copy()
-    bad[3] = bad_mass
-    atoms.set_masses(bad)
-    with pytest.raises(ValueError, match='Atom 3 has mass'):
-        dyn.run(5)
-    assert dyn.nsteps == 10
-    assert_same_state(atoms, before)
-
-    atoms.set_masses(masses)  # undone: the very masses the run had
-    run_back(dyn, 10, start)
-    assert same_fixed_point_state(dyn.anchor, anchor)
+    def change():
+        masses = atoms.get_masses()
+        bad = masses.copy()
+        bad[3] = bad_mass
+        atoms.set_masses(bad)
+        # Undone with the very masses the run had.
+        return lambda: atoms.set_masses(masses)
+    assert_refused_until_undone(atoms, change, ValueError, 'Atom 3 has mass')
 
 
 # 5. the cell changed between runs (periodic copper)
@@ -243,17 +248,13 @@ def test_cell_change_between_runs_anchors_reversal_at_the_change():
 @pytest.mark.parametrize('value', [np.nan, np.inf])
 def test_non_finite_cell_is_refused_until_set_back(value):
     atoms = copper()
-    dyn = ReversibleVerlet(atoms, DT)
-    start = snapshot(atoms)
-    dyn.run(10)
-    before, cell = snapshot(atoms), atoms.cell.copy()
-    atoms.cell.array[2, 2] = value
-    with pytest.raises(ValueError, match='cell has non-finite entries'):
-        dyn.run(5)
-    assert dyn.nsteps == 10
-    assert_same_state(atoms, before)
-    atoms.set_cell(cell)  # undone: the anchor is still the constructor's
-    run_back(dyn, 10, start)
+
+    def change():
+        cell = atoms.cell.copy()
+        atoms.cell.array[2, 2] = value
+        return lambda: atoms.set_cell(cell)
+    assert_refused_until_undone(atoms, change, ValueError,
+                                'cell has non-finite entries')
 
 
 # 6. calc.set(epsilon=...) between the way out and the way back
@@ -387,17 +388,14 @@ def test_trajectory_frame_without_a_calculator_is_refused_until_attached(
 
 def test_stored_results_attached_while_running_are_refused():
     atoms = argon()
-    dyn = ReversibleVerlet(atoms, DT)
-    start = snapshot(atoms)
-    dyn.run(10)
-    calc, before = atoms.calc, snapshot(atoms)
-    atoms.calc = SinglePointCalculator(atoms, energy=0.0,
-                                       forces=np.zeros((len(atoms), 3)))
-    with pytest.raises(RuntimeError, match='SinglePointCalculator'):
-        dyn.run(1)
-    assert_same_state(atoms, before)
-    atoms.calc = calc  # undone: the anchor is still the constructor's
-    run_back(dyn, 10, start)
+
+    def change():
+        calc = atoms.calc
+        atoms.calc = SinglePointCalculator(atoms, energy=0.0,
+                                           forces=np.zeros((len(atoms), 3)))
+        return lambda: setattr(atoms, 'calc', calc)
+    assert_refused_until_undone(atoms, change, RuntimeError,
+                                'SinglePointCalculator', tried=1)
 
 
 def test_backpropagate_over_more_steps_than_the_anchor_allows_is_refused():

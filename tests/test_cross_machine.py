@@ -267,16 +267,23 @@ def test_other_forces_at_the_frame_warn_before_the_first_step(tmp_path):
     assert not np.array_equal(frame.positions, first.positions)
 
 
-def test_langevin_buffer_with_other_forces_stops_at_the_frame(tmp_path):
+def langevin_frame_and_buffer(tmp_path):
+    """Ar13 under ReversibleLangevin for 10 steps with ASE's Lennard-Jones:
+    its state at the start, its last frame and its buffer file."""
     traj, saved = tmp_path / 'run.traj', tmp_path / 'buffer.npz'
     atoms = argon_cluster(2, 120)
     atoms.calc = ase_lj()
     dyn = ReversibleLangevin(atoms, DT, 300, FRICTION, seed=3,
                              trajectory=str(traj), loginterval=10)
+    start = snapshot(atoms)
     dyn.run(10)
     dyn.write_buffer(saved)
     dyn.close()
-    frame = read(traj, -1)
+    return start, read(traj, -1), saved
+
+
+def test_langevin_buffer_with_other_forces_stops_at_the_frame(tmp_path):
+    _, frame, saved = langevin_frame_and_buffer(tmp_path)
     state = snapshot(frame)
     frame.calc = ase_lj(AR_EPSILON * (1 + 1e-9))
     with pytest.warns(MachineChangedWarning, match='RetraceLimitError'):
@@ -292,16 +299,7 @@ def test_langevin_buffer_with_other_forces_stops_at_the_frame(tmp_path):
 
 
 def test_langevin_buffer_with_the_same_forces_goes_back(tmp_path):
-    traj, saved = tmp_path / 'run.traj', tmp_path / 'buffer.npz'
-    atoms = argon_cluster(2, 120)
-    atoms.calc = ase_lj()
-    dyn = ReversibleLangevin(atoms, DT, 300, FRICTION, seed=3,
-                             trajectory=str(traj), loginterval=10)
-    start = snapshot(atoms)
-    dyn.run(10)
-    dyn.write_buffer(saved)
-    dyn.close()
-    frame = read(traj, -1)
+    start, frame, saved = langevin_frame_and_buffer(tmp_path)
     # The file carries the section too, for a frame whose record lost it.
     with np.load(saved) as f:
         assert 'forces' in json.loads(str(f['machine']))

@@ -30,6 +30,10 @@ TRAINING = ['fit_rdf']
 
 
 def load(name):
+    # As when run as a script: its folder first, for an example that
+    # imports another (copper_surface takes argon_cluster's steps).
+    if str(EXAMPLES) not in sys.path:
+        sys.path.insert(0, str(EXAMPLES))
     spec = importlib.util.spec_from_file_location(name,
                                                   EXAMPLES / f'{name}.py')
     module = importlib.util.module_from_spec(spec)

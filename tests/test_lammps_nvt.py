@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from conftest import needs_compiler
+from lammps_systems import fcc_box
 from test_lammps import launch
 from tiers import SLOW
 
@@ -124,17 +125,7 @@ def test_s_reaching_zero_stops_the_run_with_the_state_valid(tmp_path):
     assert_same_state(result, 'back', 'start')
 
 
-SETUP = """units lj
-lattice fcc 0.8442
-region box block 0 4 0 4 0 4
-create_box 1 box
-create_atoms 1 box
-mass 1 1.0
-pair_style lj/cut 2.5
-pair_coeff 1 1 1.0 1.0
-velocity all create 1.5 87287 loop geom mom yes
-timestep 0.00390625
-"""
+SETUP = fcc_box('lj', 4, 1.5, 87287, mom=True) + '\ntimestep 0.00390625\n'
 
 SCRIPT = SETUP + """reversible nvt temp 1.5 tdamp 0.5
 run 0

@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from conftest import needs_compiler, needs_lammps
+from lammps_systems import fcc_box
 from test_lammps import (assert_same_state, job, launch, needs_path,
                          small_system, write_script)
 from tiers import SLOW
@@ -120,16 +121,6 @@ from ase_reversible.lammps import plugin
 
 lammps = import_lammps()
 here = Path.cwd()
-SYSTEM = """units metal
-lattice fcc 5.26
-region box block 0 3 0 3 0 3
-create_box 1 box
-create_atoms 1 box
-mass 1 39.948
-pair_style lj/cut 8.5
-pair_coeff 1 1 0.0104 3.40
-velocity all create 240 4928459 loop geom
-timestep 0.001953125"""
 
 
 def instance(name):
@@ -205,7 +196,8 @@ print(json.dumps(results))
 def failures(tmp_path_factory):
     needs_path('compiled')  # the stale plugin is compiled
     tmp = tmp_path_factory.mktemp('failures')
-    (tmp / 'failures.py').write_text(FAILURES)
+    system = fcc_box('argon', 3, 240, 4928459) + '\ntimestep 0.001953125'
+    (tmp / 'failures.py').write_text(f'SYSTEM = {system!r}\n' + FAILURES)
     done = launch(1, tmp / 'failures.py', cwd=tmp)
     assert done.returncode == 0, done.stderr[-3000:]
     return json.loads(done.stdout.strip().splitlines()[-1]), done.stderr

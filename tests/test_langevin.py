@@ -5,43 +5,20 @@ against the state right after the constructor, checks the run went
 somewhere, and that the information buffer is empty again.
 """
 
-import warnings
-
 import numpy as np
 import pytest
 from ase import units
 from ase.constraints import FixAtoms, FixCartesian, FixedPlane
-from ase.io import Trajectory, read
+from ase.io import read
 
 from ase_reversible import (AnchorMovedWarning, ReversibleLangevin,
-                            RetraceLimitError, UnsupportedConstraintError)
+                            UnsupportedConstraintError)
 
-from conftest import (AR_EPSILON, AR_SIGMA, CALCULATORS, THERMOSTAT_CASES,
-                      argon_bulk, argon_cluster)
-from exactness import assert_same_state, forward_and_back, snapshot
+from conftest import CALCULATORS, THERMOSTAT_CASES, argon_bulk
+from exactness import (assert_runs_back, assert_same_state, forward_and_back,
+                       snapshot)
+from thermostats import FRICTION, ar13, assert_buffers_empty, langevin
 from tiers import tiered
-
-FRICTION = 0.02 / units.fs
-
-
-
-def langevin(atoms, dt_fs=5, temperature_K=300, **kwargs):
-    kwargs.setdefault('seed', 1)
-    return ReversibleLangevin(atoms, dt_fs * units.fs,
-                              temperature_K=temperature_K, friction=FRICTION,
-                              **kwargs)
-
-
-def ar13():
-    """Ar13 at 60 K with ASE's Lennard-Jones."""
-    atoms = argon_cluster(2, 60)
-    atoms.calc = CALCULATORS['ase-lj']()
-    return atoms
-
-
-def assert_buffers_empty(dyn):
-    buffers = dyn.friction_step.buffers.values()
-    assert buffers and all(b.is_empty() for b in buffers)
 
 
 @pytest.mark.parametrize('fixcm', tiered([True, False], quick=[True]))
@@ -51,9 +28,7 @@ def test_round_trip_is_exact(case, fixcm):
     atoms = build()
     atoms.calc = CALCULATORS[calc]()
     dyn = langevin(atoms, dt_fs, fixcm=fixcm)
-    start, moved = forward_and_back(dyn, steps)
-    assert moved
-    assert_same_state(atoms, start)
+    assert_runs_back(dyn, steps)
     assert_buffers_empty(dyn)
     assert dyn.get_time() == 0.0
 
@@ -105,49 +80,6 @@ def test_a_plane_set_between_runs_is_refused_and_the_run_goes_on():
     del atoms.constraints
     dyn.reverse().run(10)  # the run was not re-anchored: back to the start
     assert dyn.engine.steps_since_anchor == 0
-
-
-def test_going_back_past_the_anchor_is_refused_at_a_valid_state():
-    atoms = ar13()
-    dyn = langevin(atoms)
-    start = snapshot(atoms)
-    dyn.run(30)
-    dyn.reverse()
-    dyn.run(30)
-    with pytest.raises(RetraceLimitError, match='run forward'):
-        dyn.run(1)
-    assert_same_state(atoms, start)
-    assert_buffers_empty(dyn)
-    dyn.reverse()
-    dyn.run(30)  # still a valid state to go on from
-    assert not np.array_equal(atoms.positions, start[0])
-
-
-def test_back_and_forth_is_one_trajectory():
-    """The noise is keyed by the step's index: retracing part of a run and
-    running it again gives the same states, bit for bit."""
-    straight = ar13()
-    langevin(straight).run(120)
-    wandering = ar13()
-    dyn = langevin(wandering)
-    dyn.run(80)
-    dyn.reverse().run(50)
-    dyn.reverse().run(90)
-    assert_same_state(wandering, snapshot(straight))
-
-
-def test_the_seed_decides_the_run():
-    runs = {}
-    for seed in (3, 3, 4):
-        atoms = ar13()
-        dyn = langevin(atoms, seed=seed)
-        assert dyn.seed == seed
-        dyn.run(50)
-        runs.setdefault(seed, []).append(snapshot(atoms))
-    assert_same_state_pair = [np.array_equal(a, b) for a, b in
-                              zip(runs[3][0], runs[3][1])]
-    assert all(assert_same_state_pair)
-    assert not np.array_equal(runs[3][0][1], runs[4][0][1])
 
 
 def test_a_default_seed_is_drawn_kept_and_resumed_from_the_record():
@@ -219,23 +151,6 @@ def test_friction_set_to_zero_and_back_mid_run():
     assert dyn.buffer_bits > 0
 
 
-def test_a_new_temperature_moves_the_anchor_and_reversal_leads_there():
-    atoms = ar13()
-    dyn = langevin(atoms)
-    dyn.run(40)
-    with pytest.warns(AnchorMovedWarning, match='temperature'):
-        dyn.set_temperature(500)
-    here = snapshot(atoms)
-    dyn.run(40)
-    dyn.reverse()
-    with warnings.catch_warnings():
-        warnings.simplefilter('error', AnchorMovedWarning)
-        dyn.run(40)
-    assert_same_state(atoms, here)
-    with pytest.raises(RetraceLimitError):
-        dyn.run(1)
-
-
 def test_a_new_friction_is_taken_like_a_new_temperature():
     atoms = ar13()
     dyn = langevin(atoms)
@@ -247,20 +162,6 @@ def test_a_new_friction_is_taken_like_a_new_temperature():
     assert_same_state(atoms, here)
     assert dyn.effective_friction == pytest.approx(0.05 / units.fs,
                                                    rel=1e-3)
-
-
-def test_a_changed_time_step_can_be_retraced_after_setting_it_back():
-    atoms = ar13()
-    dyn = langevin(atoms)
-    start = snapshot(atoms)
-    dyn.run(30)
-    with pytest.warns(AnchorMovedWarning):
-        dyn.dt = 3 * units.fs
-    dyn.run(20)
-    dyn.reverse().run(20)
-    dyn.dt = -5 * units.fs  # back where the step changed: nothing to warn
-    dyn.run(30)
-    assert_same_state(atoms, start)
 
 
 def test_the_thermostat_holds_the_temperature():
@@ -279,105 +180,8 @@ def test_the_thermostat_holds_the_temperature():
         80 * (3 * n - 3) / (3 * n), rel=0.02)
 
 
-def test_energy_minus_heat_is_conserved_and_noise_has_no_net_momentum():
-    atoms = argon_cluster(3, 40)
-    atoms.calc = CALCULATORS['ase-lj']()
-    atoms.set_momenta(atoms.get_momenta()
-                      - atoms.get_momenta().mean(axis=0))
-    e0 = atoms.get_total_energy()
-    dyn = langevin(atoms, 5, temperature_K=120)
-    dyn.run(200)
-    heat = dyn.heat
-    drift = atoms.get_total_energy() - heat - e0
-    assert abs(heat) > 0.1  # the thermostat heated the cluster
-    assert abs(drift) < 1e-3 * abs(heat)
-    p_thermal = np.sqrt(len(atoms) * atoms.get_masses()[0] * units.kB * 120)
-    assert np.abs(atoms.get_momenta().sum(axis=0)).max() < 1e-8 * p_thermal
-
-
-def test_trajectory_frames_and_the_log_work_as_for_ase(tmp_path):
-    atoms = ar13()
-    log = tmp_path / 'md.log'
-    traj = tmp_path / 'md.traj'
-    dyn = langevin(atoms, trajectory=str(traj), logfile=str(log),
-                   loginterval=10)
-    dyn.run(50)
-    dyn.close()
-    frames = read(str(traj), ':')
-    assert len(frames) == 6
-    assert np.array_equal(frames[-1].positions, atoms.positions)
-    assert len(log.read_text().splitlines()) == 7
-    with Trajectory(str(traj)) as t:
-        assert t.description['temperature_K'] == 300
-
-
 # -- restarts -----------------------------------------------------------------
 
-def test_a_frame_and_its_buffer_continue_bit_for_bit_and_run_back_through(
-        tmp_path):
-    traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
-
-    atoms = ar13()
-    dyn = langevin(atoms, seed=9, trajectory=str(traj))
-    start = dyn.state
-    dyn.run(60)
-    dyn.write_buffer(saved)
-    dyn.run(40)
-    straight = dyn.state
-    dyn.close()
-
-    frame = read(str(traj), 60)
-    frame.calc = CALCULATORS['ase-lj']()
-    resumed = ReversibleLangevin(frame, 5 * units.fs, 300, FRICTION,
-                                 buffer=saved)
-    assert resumed.seed == 9 and resumed.step_index == 60
-    assert resumed.get_time() == pytest.approx(60 * 5 * units.fs)
-    resumed.run(40)
-    assert np.array_equal(resumed.state.ix_nc, straight.ix_nc)
-    assert np.array_equal(resumed.state.ip_nc, straight.ip_nc)
-    resumed.reverse().run(100)
-    assert np.array_equal(resumed.state.ix_nc, start.ix_nc)
-    assert np.array_equal(resumed.state.ip_nc, start.ip_nc)
-    assert_buffers_empty(resumed)
-    with pytest.raises(RetraceLimitError):
-        resumed.run(1)
-
-
-def test_a_frame_alone_resumes_the_noise_but_not_the_way_back(tmp_path):
-    traj = tmp_path / 'md.traj'
-    atoms = ar13()
-    dyn = langevin(atoms, seed=4, trajectory=str(traj))
-    dyn.run(30)
-    dyn.close()
-    frame = read(str(traj), -1)
-    frame.calc = CALCULATORS['ase-lj']()
-    here = snapshot(frame)
-    resumed = ReversibleLangevin(frame, 5 * units.fs, 300, FRICTION)
-    assert resumed.seed == 4 and resumed.step_index == 30
-    forward_and_back(resumed, 20)
-    assert_same_state(frame, here)
-    with pytest.raises(RetraceLimitError):
-        resumed.run(1)
-
-
-def test_a_buffer_file_from_another_state_is_refused(tmp_path):
-    traj, saved = tmp_path / 'md.traj', tmp_path / 'md.npz'
-    atoms = ar13()
-    dyn = langevin(atoms, trajectory=str(traj))
-    dyn.run(20)
-    dyn.write_buffer(saved)
-    dyn.close()
-    # The way back past the frame would draw its noise at another
-    # temperature or friction: refused, not retraced elsewhere.
-    for index, temperature, friction, match in (
-            (10, 300, FRICTION, 'step 20 of another'),
-            (20, 300, 2 * FRICTION, 'friction='),
-            (20, 350, FRICTION, 'temperature_K=300.0, not 350.0')):
-        frame = read(str(traj), index)
-        frame.calc = CALCULATORS['ase-lj']()
-        with pytest.raises(ValueError, match=match):
-            ReversibleLangevin(frame, 5 * units.fs, temperature, friction,
-                               buffer=saved)
 
 
 # -- gradients ---------------------------------------------------------------
@@ -393,7 +197,8 @@ def test_gradients_match_complex_step_through_a_float_baoab_run():
     would be of order one."""
     from ase_reversible.core.infobuffer import friction_ratio
     from ase_reversible.core.noise import StepNoise, step_key
-    from finite_differences import complex_forces
+    from finite_differences import (argon_lj_forces, complex_step_errors,
+                                    float_kick_drift_run)
     from test_adjoint import FINE, argon, random_loss
 
     steps, dt, temperature = 150, 5 * units.fs, 60.0
@@ -408,12 +213,7 @@ def test_gradients_match_complex_step_through_a_float_baoab_run():
     assert np.array_equal(atoms.positions, x0_nc)
 
     m_n1 = atoms.get_masses()[:, None]
-    potential = {'epsilon': AR_EPSILON, 'sigma': AR_SIGMA}
-
-    def forces(x_nc):
-        return complex_forces(x_nc, potential['epsilon'],
-                              potential['sigma'])
-
+    potential, forces = argon_lj_forces()
     qp = dyn.grid.momentum_quantum
     ratio = friction_ratio(np.exp(-FRICTION * dt)) / 2**16
     sigma_nc = np.sqrt((1 - ratio**2) * m_n1 * units.kB * temperature) / qp \
@@ -422,30 +222,11 @@ def test_gradients_match_complex_step_through_a_float_baoab_run():
     noise = [np.rint(sigma_nc * draw.normals(key, k).reshape(-1, 3)) * qp
              for k in range(steps)]
 
-    def run(x_nc, p_nc):
-        for k in range(steps):
-            p_nc = p_nc + 0.5 * dt * forces(x_nc)
-            x_nc = x_nc + 0.5 * dt * p_nc / m_n1
-            p_nc = ratio * p_nc + noise[k]
-            x_nc = x_nc + 0.5 * dt * p_nc / m_n1
-            p_nc = p_nc + 0.5 * dt * forces(x_nc)
-        return x_nc, p_nc
+    def loss_imag(x_nc, p_nc):
+        x_nc, p_nc = float_kick_drift_run(
+            x_nc, p_nc, m_n1, dt, steps, forces,
+            lambda k, p_nc: ratio * p_nc + noise[k])
+        return np.vdot(a_nc, x_nc.imag) + np.vdot(b_nc, p_nc.imag)
 
-    h = 1e-20
-    rng = np.random.default_rng(7)
-    errors = []
-    for _ in range(2):
-        u_nc = rng.normal(size=x0_nc.shape)
-        for dx, dp, ours in ((u_nc, 0, g.positions), (0, u_nc, g.momenta)):
-            x_nc, p_nc = run(x0_nc + 1j * h * dx, p0_nc + 1j * h * dp)
-            reference = (np.vdot(a_nc, x_nc.imag)
-                         + np.vdot(b_nc, p_nc.imag)) / h
-            error = abs(np.vdot(ours, u_nc) - reference) / abs(reference)
-            errors.append(error)
-    for name, value in list(potential.items()):
-        potential[name] = value + 1j * h
-        x_nc, p_nc = run(x0_nc, p0_nc)
-        potential[name] = value
-        reference = (np.vdot(a_nc, x_nc.imag) + np.vdot(b_nc, p_nc.imag)) / h
-        errors.append(abs(g.parameters[name] - reference) / abs(reference))
+    errors = complex_step_errors(loss_imag, x0_nc, p0_nc, g, potential)
     assert max(errors) < 1e-7, errors

@@ -26,7 +26,6 @@ from tiers import SLOW
 TDAMP = 100 * units.fs
 
 
-
 def nose(atoms, dt_fs=5, temperature_K=300, **kwargs):
     return ReversibleNose(atoms, dt_fs * units.fs, temperature_K, TDAMP,
                           **kwargs)
@@ -44,6 +43,14 @@ def assert_same_counts(a, b):
     assert a.keys() == b.keys()
     for name in a:
         assert np.array_equal(a[name], b[name]), name
+
+
+def assert_counts_run_back(dyn, steps):
+    """From here, ``steps`` out and back: every exact variable as it was."""
+    here = dyn.counts
+    dyn.run(steps)
+    dyn.reverse().run(steps)
+    assert_same_counts(dyn.counts, here)
 
 
 def assert_thermostat_moved(dyn, start):
@@ -145,32 +152,6 @@ def test_the_thermostat_holds_the_temperature():
     assert temperature == pytest.approx(80, rel=0.02)
 
 
-def test_a_frame_resumes_bit_for_bit_and_runs_back_through(tmp_path):
-    traj = tmp_path / 'md.traj'
-    atoms = ar13()
-    dyn = nose(atoms, temperature_K=200, trajectory=str(traj))
-    start = dyn.counts
-    dyn.run(60)
-    dyn.run(40)
-    straight, time = dyn.counts, dyn.get_time()
-    dyn.close()
-
-    frame = read(str(traj), 60)
-    frame.calc = CALCULATORS['ase-lj']()
-    with warnings.catch_warnings():
-        warnings.simplefilter('error', AnchorMovedWarning)
-        resumed = nose(frame, temperature_K=200)
-    resumed.run(40)
-    for name in ('position', 'momentum', 'thermostat_position',
-                 'thermostat_momentum'):
-        assert np.array_equal(resumed.counts[name], straight[name]), name
-    assert resumed.get_time() == pytest.approx(time, rel=1e-12)
-    resumed.reverse().run(100)
-    for name in ('position', 'momentum', 'thermostat_position',
-                 'thermostat_momentum'):
-        assert np.array_equal(resumed.counts[name], start[name]), name
-
-
 def test_a_frame_with_edited_momenta_is_a_new_run_and_says_so(tmp_path):
     traj = tmp_path / 'md.traj'
     atoms = ar13()
@@ -182,10 +163,7 @@ def test_a_frame_with_edited_momenta_is_a_new_run_and_says_so(tmp_path):
     frame.set_momenta(frame.get_momenta() * 1.01)
     with pytest.warns(AnchorMovedWarning, match='new run'):
         resumed = nose(frame)
-    here = resumed.counts
-    resumed.run(30)
-    resumed.reverse().run(30)
-    assert_same_counts(resumed.counts, here)
+    assert_counts_run_back(resumed, 30)
 
 
 def test_momenta_edited_between_runs_are_taken_as_real_momenta():
@@ -201,10 +179,7 @@ def test_momenta_edited_between_runs_are_taken_as_real_momenta():
     assert np.allclose(atoms.get_momenta(), cooler, rtol=0,
                        atol=dyn.grid.momentum_quantum)
     assert dyn.thermostat_position == s
-    here = dyn.counts
-    dyn.run(30)
-    dyn.reverse().run(30)
-    assert_same_counts(dyn.counts, here)
+    assert_counts_run_back(dyn, 30)
 
 
 def test_a_new_temperature_moves_the_anchor_and_reversal_leads_there():
@@ -291,7 +266,7 @@ def test_gradients_match_complex_step_through_a_float_nose_run():
     the adjoint of the atoms alone (the terms through s and pi left out)
     they were 0.018 to 0.17; without carrying the thermostat's cotangents
     from one segment to the next (carry=False), 0.020 to 0.36."""
-    from finite_differences import complex_forces
+    from finite_differences import argon_lj_forces, complex_step_errors
     from test_adjoint import FINE, argon, random_loss
 
     steps, dt = 150, 5 * units.fs
@@ -319,11 +294,7 @@ def test_gradients_match_complex_step_through_a_float_nose_run():
         g.parameters[name] += last.parameters[name]
     assert np.array_equal(atoms.positions, x0_nc)
     m_n1 = atoms.get_masses()[:, None]
-    potential = {'epsilon': AR_EPSILON, 'sigma': AR_SIGMA}
-
-    def forces(x_nc):
-        return complex_forces(x_nc, potential['epsilon'],
-                              potential['sigma'])
+    potential, forces = argon_lj_forces()
 
     def flow_a(x_nc, p_nc, s, pi):
         return (x_nc + dt * p_nc / (m_n1 * s**2),
@@ -341,26 +312,12 @@ def test_gradients_match_complex_step_through_a_float_nose_run():
             p_nc = p_nc + 0.5 * dt * forces(x_nc)
         return x_nc, p_nc / s, x_half_nc
 
-    def loss_imag(run_result):
-        x_nc, p_nc, x_half_nc = run_result
+    def loss_imag(x_nc, p_nc):
+        x_nc, p_nc, x_half_nc = run(x_nc, p_nc)
         return (np.vdot(a_nc, x_nc.imag) + np.vdot(b_nc, p_nc.imag)
                 + np.vdot(c_nc, x_half_nc.imag))
 
-    h = 1e-20
-    rng = np.random.default_rng(7)
-    errors = []
-    for _ in range(2):
-        u_nc = rng.normal(size=x0_nc.shape)
-        for dx, dp, ours in ((u_nc, 0, g.positions), (0, u_nc, g.momenta)):
-            reference = loss_imag(run(x0_nc + 1j * h * dx,
-                                      p0_nc + 1j * h * dp)) / h
-            errors.append(abs(np.vdot(ours, u_nc) - reference)
-                          / abs(reference))
-    for name, value in list(potential.items()):
-        potential[name] = value + 1j * h
-        reference = loss_imag(run(x0_nc, p0_nc)) / h
-        potential[name] = value
-        errors.append(abs(g.parameters[name] - reference) / abs(reference))
+    errors = complex_step_errors(loss_imag, x0_nc, p0_nc, g, potential)
     assert max(errors) < 1e-7, errors
 
 
@@ -475,11 +432,13 @@ def test_a_chain_conserves_its_extended_energy_while_the_atoms_heat_up():
     assert all(s != 1.0 for s in dyn.thermostat_positions)
 
 
-def test_a_chain_frame_resumes_bit_for_bit_and_runs_back_through(tmp_path):
+@pytest.mark.parametrize('chain', [{}, {'tchain': 3, 'scheme': 'position'}],
+                         ids=['single', 'chain'])
+def test_a_frame_resumes_bit_for_bit_and_runs_back_through(chain, tmp_path):
     traj = tmp_path / 'md.traj'
+    tchain, scheme = chain.get('tchain', 1), chain.get('scheme', 'velocity')
     atoms = ar13()
-    dyn = nose(atoms, temperature_K=200, trajectory=str(traj), tchain=3,
-               scheme='position')
+    dyn = nose(atoms, temperature_K=200, trajectory=str(traj), **chain)
     start = dyn.counts
     dyn.run(60)
     dyn.run(40)
@@ -488,17 +447,17 @@ def test_a_chain_frame_resumes_bit_for_bit_and_runs_back_through(tmp_path):
 
     frame = read(str(traj), 60)
     frame.calc = CALCULATORS['ase-lj']()
-    assert frame.info['reversible']['nose']['tchain'] == 3
+    assert frame.info['reversible']['nose']['tchain'] == tchain
     with warnings.catch_warnings():
         warnings.simplefilter('error', AnchorMovedWarning)
         resumed = nose(frame, temperature_K=200)  # the chain of the record
-    assert (resumed.tchain, resumed.scheme) == (3, 'position')
+    assert (resumed.tchain, resumed.scheme) == (tchain, scheme)
     resumed.run(40)
     assert_same_counts(resumed.counts, {**straight, 'time':
                                         resumed.counts['time']})
     assert resumed.get_time() == pytest.approx(time, rel=1e-12)
     resumed.reverse().run(100)
-    for name in ['position', 'momentum'] + chain_names(3):
+    for name in ['position', 'momentum'] + chain_names(tchain):
         assert np.array_equal(resumed.counts[name], start[name]), name
 
 
@@ -608,14 +567,13 @@ def test_a_chain_of_three_samples_a_copper_crystal_canonically():
     ergodicity of one Nosé thermostat on a nearly harmonic crystal), which
     the test requires to show that it can fail."""
     from scipy import stats
-    from asap3 import EMT
     from ase_reversible.app.systems import copper_bulk
 
     widths = {}
     for tchain in (1, 3):
         atoms = copper_bulk((4, 4, 4), 1200, rattle=0)
         Stationary(atoms)
-        atoms.calc = EMT()
+        atoms.calc = CALCULATORS['asap-emt']()  # skips without asap3
         dof = 3 * len(atoms) - 3
         kT = units.kB * 600
         m_n1 = atoms.get_masses()[:, None]
