@@ -1,28 +1,14 @@
-"""Cost per MD step of ReversibleVerlet against ASE's VelocityVerlet.
-
-    python benchmarks/run_all.py --only step_cost           # ~8-12 minutes
-    python benchmarks/run_all.py --quick --only step_cost   # < 40 s
-
-Every contestant runs its own copy of the same atoms with its own
-calculator, in interleaved rounds.  The contestants: two floors for the
-force call alone ('force': one atom nudged, never a list rebuild;
-'replay': a recorded VelocityVerlet trajectory's force calls), 'vv' and its
-twin 'vv_twin' (the resolution of the measurement), ReversibleVerlet's
-schemes, 'rv_trust' (no purity handling), and 'rv_observed' /
-'rv_unwatched' (the per-step checks of ``SystemWatch`` with an observer
-attached, and the same steps without them).  The overhead cases use
-``systems.CachedForces``, whose force call costs microseconds; 'pairs'
-times asap3 EMT again with only three contestants in the rounds.
+"""Cost per MD step of ReversibleVerlet against ASE's VelocityVerlet
+(the contestants and the method: docs/benchmarks.md, "Cost per step").
 """
 
 from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
-import io
 import statistics
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from typing import Callable
 
 import asap3
@@ -31,10 +17,9 @@ import numpy as np
 import systems
 from ase import units
 from ase.calculators.emt import EMT
-from ase.md.logger import MDLogger
 from ase.md.verlet import VelocityVerlet
 from harness import (FLOOR_NUDGE, Contestant, Settings, choose_steps, medians,
-                     per_step, time_cached_queries, time_interleaved)
+                     per_step, time_interleaved)
 
 from ase_reversible import ReversibleVerlet
 from ase_reversible.app import systems as app_systems
@@ -143,13 +128,6 @@ def step_cost_cases(quick):
         cases += [Case(calc, r) for r in REPEATS
                   if calc.min_atoms <= 4 * np.prod(r) <= limit]
     return cases
-
-
-def logging_cases(quick):
-    """One ASE LJ and one mid-size asap3 EMT case for the logger table."""
-    by_label = {c.label: c for c in CALCULATORS}
-    return [Case(by_label['ASE LennardJones'], REPEATS[0]),
-            Case(by_label['asap3 EMT'], REPEATS[1] if quick else REPEATS[2])]
 
 
 # -- contestants -----------------------------------------------------------
@@ -283,26 +261,17 @@ INTEGRATORS = {
 }
 STEP_CONTESTANTS = ('force', 'replay', 'vv', 'vv_twin', 'rv_velocity',
                     'rv_position', 'rv_trust', 'rv_observed', 'rv_unwatched')
-LOGGING_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
 #: With CachedForces 'auto' is 'trust': rv_trust would be rv_velocity again.
 OVERHEAD_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
-#: The ratio to VelocityVerlet measured again with only these contestants
-#: in the rounds (see top), for asap3 EMT from 1000 atoms up.
-PAIR_CONTESTANTS = ('force', 'vv', 'rv_velocity')
-PAIR_CALCULATOR, PAIR_MIN_ATOMS = 'asap3 EMT', 1000
-PAIR_ROUNDS, PAIR_ROUNDS_QUICK = 21, 3
 
 
-def make_contestants(template, case, names, with_logger=False):
+def make_contestants(template, case, names):
     """Each contestant on its own copy of the same atoms and calculator."""
     contestants = []
     for name in names:
         atoms = template.copy()
         atoms.calc = case.calculator.make_calc()
-        runner = INTEGRATORS[name](atoms)
-        if with_logger and name not in ('force', 'replay'):
-            runner.attach(MDLogger(runner, atoms, io.StringIO()), interval=1)
-        contestants.append(Contestant(name, runner))
+        contestants.append(Contestant(name, INTEGRATORS[name](atoms)))
     return contestants
 
 
@@ -345,10 +314,10 @@ def time_energy_check(dyn, steps):
             'energy_check_steps': steps}
 
 
-def benchmark(case, names, settings, with_logger=False):
+def benchmark(case, names, settings):
     """Time one case; returns a JSON-ready dict of raw and median results."""
     template = case.build()
-    contestants = make_contestants(template, case, names, with_logger)
+    contestants = make_contestants(template, case, names)
     for c in contestants:
         if not isinstance(c.runner, ReplayFloor):
             c.runner.run(settings.warmup_steps)
@@ -369,9 +338,6 @@ def benchmark(case, names, settings, with_logger=False):
                 'recomputations': c.clean_recomputations()
                 - clean_before[c.name],
                 'force_calls': force_calls}
-    # Few calls suffice: a cache hit and a recomputation differ 100-fold.
-    forces_again, energy_after = time_cached_queries(
-        by_name['force'].runner.atoms, min(steps, 20))
     in_step, in_loop = (time_watch(by_name['rv_observed'].runner, steps)
                         if 'rv_unwatched' in by_name else (None, None))
     check = time_energy_check(by_name['rv_velocity'].runner, steps)
@@ -379,12 +345,10 @@ def benchmark(case, names, settings, with_logger=False):
         **check,
         'calculator': case.calculator.label,
         'system': case.calculator.system,
-        'n_atoms': len(template), 'with_logger': with_logger,
+        'n_atoms': len(template),
         'steps_per_block': steps, 'rounds': settings.rounds,
         **per_step(wall, cpu),
         'clean_recomputations': clean,
-        'get_forces_again_seconds': forces_again,
-        'energy_after_forces_seconds': energy_after,
         'watch_changes_seconds': in_step,
         'watch_changes_loop_seconds': in_loop,
         'force_purity': {c.name: c.purity.todict() for c in contestants
@@ -446,18 +410,6 @@ def run(quick):
     print('  cost per step:', flush=True)
     steps = [benchmark(case, STEP_CONTESTANTS, settings)
              for case in step_cost_cases(quick)]
-    print('  with a logger every step:', flush=True)
-    logging = [benchmark(case, LOGGING_CONTESTANTS, settings,
-                         with_logger=True)
-               for case in logging_cases(quick)]
-    print('  pairs (VelocityVerlet and Reversible velocity alone):',
-          flush=True)
-    pair_settings = replace(settings, rounds=PAIR_ROUNDS_QUICK if quick
-                            else PAIR_ROUNDS)
-    pairs = [benchmark(case, PAIR_CONTESTANTS, pair_settings)
-             for case in step_cost_cases(quick)
-             if case.calculator.label == PAIR_CALCULATOR
-             and case.n_atoms >= PAIR_MIN_ATOMS]
     return {
         'settings': {**asdict(settings), 'timestep_fs': TIMESTEP_FS,
                      'floor_nudge_angstrom': FLOOR_NUDGE,
@@ -467,9 +419,6 @@ def run(quick):
                      'watch_blocks': WATCH_BLOCKS,
                      'overhead': asdict(overhead_settings)},
         'step_cost': steps,
-        'logging': logging,
         'overhead': overheads,
-        'pairs': pairs,
-        'pair_rounds': pair_settings.rounds,
     }
 

@@ -6,8 +6,8 @@ the relative energy error at the same times and the run time without the
 sampling, refined until below the target, at a floor, or over the time
 budget.  Systems through asap3 ('guarded'): a free Ar cluster (cutoff
 beyond its diameter, behind ``ResultCache``) and periodic Cu with RGL.
-Checks: the sampling's cost, the momentum quantum's floor, asap3's cache,
-EMT's truncated cutoff; then whether orders 4 and 6 converge to 1e-11
+Checks: the sampling's cost, the momentum quantum's floor, asap3's cache;
+then whether orders 4 and 6 converge to 1e-11
 under 'auto'.
 """
 
@@ -22,7 +22,6 @@ import time
 from dataclasses import dataclass, replace
 from typing import Callable
 
-import asap3
 import numpy as np
 import systems as bench_systems
 from systems import ResultCache
@@ -445,33 +444,6 @@ def cache_check(system, template, raw_calc, settings, calls=40, blocks=5):
     return out
 
 
-def emt_cutoff(template):
-    """Where asap3's EMT truncates its cutoff function (ASE's EMT with
-    ``asap_cutoff=True`` exposes it), its value there, the 4th shell."""
-    from ase.calculators.emt import EMT
-    atoms = template.copy()
-    calc = EMT(asap_cutoff=True)
-    atoms.calc = calc
-    atoms.get_potential_energy()
-    weight = 1.0 / (1.0 + math.exp(calc.acut * (calc.rc_list - calc.rc)))
-    fourth = bench_systems.CU_RGL_LATTICE * math.sqrt(2.0)
-    return {'list_cutoff': calc.rc_list, 'weight_at_cutoff': weight,
-            'fourth_neighbour': fourth}
-
-
-def emt_check(copper, template, dts_fs=(0.5, 0.125)):
-    """VelocityVerlet's max error with asap3 EMT and with RGL, same runs."""
-    rows = []
-    for name, calc in (('asap3 EMT', asap3.EMT), ('asap3 RGL', copper_rgl)):
-        system = replace(copper, calc=calc)
-        for dt in dts_fs:
-            p = measure(system, template, VV, round(copper.interval_fs / dt))
-            rows.append({'calculator': name, 'dt_fs': p['dt_fs'],
-                         'max_error': p['max_error'],
-                         'rms_error': p['rms_error']})
-    return rows
-
-
 # -- convergence down to 1e-11 under 'auto' ---------------------------------
 
 #: The relative energy error the convergence sweeps must reach.
@@ -653,10 +625,6 @@ def run(quick):
             result['cutoff'] = AR_CUTOFF
             result['widest_distance'] = max(
                 p['widest_distance'] for s in sweeps for p in s['points'])
-        else:
-            print('  copper_crystal: EMT check', flush=True)
-            result['emt_check'] = emt_check(system, template)
-            result['emt_cutoff'] = emt_cutoff(template)
         out['systems'].append(result)
     out['convergence'] = convergence(quick, settings)
     return out

@@ -1,8 +1,5 @@
-"""Cost per step: ReversibleVerlet against VelocityVerlet and the force call.
-
-Measured by benchmarks/step_cost.py, whose docstring gives the method;
-the prose is docs/benchmarks.md's.
-"""
+"""Cost per step: ReversibleVerlet against VelocityVerlet and the force
+call (measured by benchmarks/step_cost.py)."""
 
 from __future__ import annotations
 
@@ -13,11 +10,6 @@ OVERHEAD_PLOT = 'step_cost_overhead.png'
 
 
 # -- derived numbers -------------------------------------------------------
-
-#: The process's CPU time: single-threaded here, so on a machine shared with
-#: other jobs it is the step's cost without the waits for a core.
-CPU = 'median_cpu_seconds'
-
 
 def ratio(r, name, reference='vv', clock='median_seconds'):
     med = r[clock]
@@ -36,20 +28,10 @@ def overhead_percent(r, name, floor='replay', clock='median_seconds'):
     return 100 * (med[name] - med[floor]) / med[floor]
 
 
-def in_force_calls(r, key):
-    return r[key] / r['median_seconds']['force']
-
-
 def wall_over_cpu(r):
     """Largest wall/CPU ratio of a case's medians: 1.00 on a quiet machine."""
     return max(r['median_seconds'][k] / r['median_cpu_seconds'][k]
                for k in r['median_seconds'])
-
-
-def position_extra_calls(r):
-    """Extra cost of 'position' over 'velocity', in nudge force calls."""
-    med = r['median_seconds']
-    return (med['rv_position'] - med['rv_velocity']) / med['force']
 
 
 def by_calculator(results):
@@ -265,21 +247,6 @@ OVERHEAD_COLUMNS = (
                f"{clean_fraction(r, 'rv_position')}"),
     *NOISE_COLUMNS)
 
-LOGGING_COLUMNS = (
-    ('calculator', '{calculator}'), ('N', '{n_atoms}'),
-    ('nudge floor (ms)', lambda r: ms(r['median_seconds']['force'])),
-    ('VelocityVerlet + logger (ms/step)',
-     lambda r: ms(r['median_seconds']['vv'])),
-    ('Reversible velocity + logger (ms/step, ×VV)',
-     lambda r: with_ratio(r, 'rv_velocity')),
-    ('Reversible position + logger (ms/step, ×VV)',
-     lambda r: with_ratio(r, 'rv_position')),
-    ('position − velocity (ms/step, in nudge force calls)',
-     lambda r: f"{ms(r['median_seconds']['rv_position'] - r['median_seconds']['rv_velocity'])} "
-               f'({position_extra_calls(r):.2f})'),
-    *NOISE_COLUMNS)
-
-
 def checked(r):
     """The contestant whose steps run the checks: 'rv_observed' (an
     observer attached); 'rv_velocity' in results from before a plain run()
@@ -333,41 +300,6 @@ def energy_check_table(results):
     return markdown_table(header, rows)
 
 
-def cache_table(results):
-    header = ('calculator', 'N', 'nudge floor (ms)',
-              'get_forces() again (ms, in force calls)',
-              'get_potential_energy() after get_forces() '
-              '(ms, in force calls)')
-    rows = [(r['calculator'], r['n_atoms'], ms(r['median_seconds']['force']),
-             *(f'{ms(r[key])} ({in_force_calls(r, key):.2f})'
-               for key in ('get_forces_again_seconds',
-                           'energy_after_forces_seconds')))
-            for r in results]
-    return markdown_table(header, rows)
-
-
-def pair_table(results):
-    """Reversible velocity against VelocityVerlet with only the nudge floor
-    beside them in the rounds (see benchmarks/step_cost.py)."""
-    pairs, steps = results['pairs'], results['step_cost']
-    header = ('calculator', 'N', 'steps × rounds', 'VelocityVerlet (ms/step)',
-              'Reversible velocity (ms/step, ×VV)', 'per-round range',
-              'on CPU time', 'same case, all contestants in the rounds')
-    alongside = {(r['calculator'], r['n_atoms']): r for r in steps}
-    rows = []
-    for r in pairs:
-        paired = paired_ratios(r, 'rv_velocity')
-        same = alongside.get((r['calculator'], r['n_atoms']))
-        rows.append((r['calculator'], r['n_atoms'],
-                     f"{r['steps_per_block']} × {r['rounds']}",
-                     ms(r['median_seconds']['vv']),
-                     with_ratio(r, 'rv_velocity'),
-                     f'×{min(paired):.2f} to ×{max(paired):.2f}',
-                     f"×{ratio(r, 'rv_velocity', clock=CPU):.3f}",
-                     f"×{ratio(same, 'rv_velocity'):.3f}" if same else '–'))
-    return markdown_table(header, rows)
-
-
 SPEC = Spec(
     'Cost per step',
     blocks={'overhead': block(integrator_overhead_table, 'overhead'),
@@ -378,8 +310,5 @@ SPEC = Spec(
             'energy-check': lambda stored: energy_check_table(
                 stored['results']['step_cost']
                 + stored['results']['overhead']),
-            'pairs': block(pair_table),
-            'logging': lambda stored: table(
-                LOGGING_COLUMNS, stored['results']['logging']),
-            'cache': block(cache_table, 'step_cost')},
+            },
     plots=(plot,))
