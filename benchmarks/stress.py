@@ -162,10 +162,7 @@ def sweep(system):
                    0 if beyond is None else ours['steps_done'] - beyond + 1),
                'steps_done': ours['steps_done'], 'error': ours['error'],
                'exact': ours['exact'], 'max_energy_error': worst,
-               'first_garbage_step': first_bad,
-               'energy_trace': (np.abs(ours['energies'] - ours['energies'][0])
-                                / k0).tolist(),
-               **grid_use(ours)}
+               'first_garbage_step': first_bad, **grid_use(ours)}
         atoms = system['make']()
         atoms.calc = CALCULATORS[system['calculator']]()
         vv = velocity_verlet(atoms, dt_fs, system['steps'])
@@ -174,10 +171,7 @@ def sweep(system):
                      'max_energy_error': vv_worst,
                      'first_garbage_step': vv_first_bad,
                      'non_finite': not np.all(np.isfinite(vv['energies'])),
-                     'x_max': vv['x_max'], 'p_max': vv['p_max'],
-                     'energy_trace': [
-                         x if np.isfinite(x) else None for x in
-                         (np.abs(vv['energies'] - vv['energies'][0]) / k0)]}
+                     'x_max': vv['x_max'], 'p_max': vv['p_max']}
         rows.append(row)
     return {key: system[key] for key in ('name', 'calculator', 'steps')} | {
         'rows': rows}
@@ -370,27 +364,11 @@ def silent_steps(row):
     return row['steps_done'] - row['first_garbage_step'] + 1
 
 
-def keep_one_trace(result):
-    """Keep the energy trace of the run that started sane and then spent
-    the most steps with |E - E0| > K0; the others are too long to store."""
-    late = [r for r in result['rows'] if r['first_garbage_step'] is not None
-            and r['first_garbage_step'] > 1]
-    traced = max(late or result['rows'], key=silent_steps)
-    result['traced_dt_fs'] = traced['dt_fs']
-    result['trace'] = {
-        'reversible': [x if np.isfinite(x) else None
-                       for x in traced['energy_trace']],
-        'velocity_verlet': traced['vv']['energy_trace']}
-    for row in result['rows']:
-        del row['energy_trace'], row['vv']['energy_trace']
-
-
 def run(quick):
     sweeps = [sweep(system) for system in sweep_systems(quick)]
     for result in sweeps:
         for row in result['rows']:
             row['silent_steps'] = silent_steps(row)
-        keep_one_trace(result)
     results = {
         'settings': {
             'dt_fs': DT_FS, 'ar_sigma': AR_SIGMA, 'cu_bond': CU_BOND,

@@ -136,23 +136,6 @@ COST_COLUMNS = (
     ('round spread', '{spread:.0%}'), ('wall / CPU', '{wall_over_cpu:.2f}'),
     ('back at start every round', '{exact_return_every_round}'))
 
-#: What the counting rounds saw besides the cost table's columns.
-COUNT_COLUMNS = (
-    ('case', case_name),
-    ('backward: force calls / step', lambda c: '{:.3g}'.format(
-        c['per_step']['backward_force_calls_retrace']
-        + c['per_step']['backward_force_calls_in_products'])),
-    ('products per block of N', lambda c: ' or '.join(
-        map(str, sorted(set(c['products_per_block']))))),
-    ('clean recomputations / step, forward / backward',
-     lambda c: '{forward_clean_recomputations:.3g} / '
-     '{backward_clean_recomputations:.3g}'.format(**c['per_step'])
-     if c['force_purity'] == 'guarded' else '-'),
-    ('energy-only calls / step, forward / backward',
-     '{per_step[forward_energy_only_calls]:.3g} / '
-     '{per_step[backward_energy_only_calls]:.3g}'))
-
-
 def memory_values(results):
     """The prose's numbers: growth of the traced peaks over the points."""
     points = results['memory']['points']
@@ -191,7 +174,5 @@ SPEC = Spec(
             'systems': block(lambda systems: '\n'.join(
                 f'- {v}' for v in systems.values()), 'cost_systems'),
             'cost': lambda stored: table(COST_COLUMNS,
-                                         stored['results']['cost']['cases']),
-            'counts': lambda stored: table(
-                COUNT_COLUMNS, stored['results']['cost']['cases'])},
+                                         stored['results']['cost']['cases'])},
     plots=(plot,), values=memory_values)

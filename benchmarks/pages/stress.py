@@ -10,10 +10,9 @@ import math
 
 import numpy as np
 
-from . import Spec, block, figure, label, markdown_table
+from . import Spec, block, figure, markdown_table
 
 SWEEP_PLOT = 'stress_dt_sweep.png'
-TRACES_PLOT = 'stress_blowup_traces.png'
 #: Where runs without an energy error (refused at their first step) are
 #: drawn on the log scale.
 PLOT_FLOOR = 1e-6
@@ -21,10 +20,6 @@ PLOT_FLOOR = 1e-6
 
 def plot(results, figures):
     _plot_sweep(results['sweeps'], figures)
-    # Results stored before the traces were kept have none: their plot
-    # stays as it was drawn at measurement time.
-    if all('trace' in result for result in results['sweeps']):
-        _plot_traces(results['sweeps'], figures)
 
 
 def _floored(values):
@@ -69,30 +64,6 @@ def _plot_sweep(sweeps, figures):
             ax.set_title(f'{result["name"]}, {result["calculator"]}',
                          fontsize=10)
             ax.legend(fontsize=8, loc='upper left')
-
-
-def _plot_traces(sweeps, figures):
-    """Energy error step by step in the run of each system that started
-    sane and then spent the most steps with |E - E0| > K0."""
-    with figure(figures / TRACES_PLOT, len(sweeps),
-                (6 * len(sweeps), 4)) as (plt, fig, axes):
-        for ax, result in zip(np.atleast_1d(axes), sweeps):
-            row = next(r for r in result['rows']
-                       if r['dt_fs'] == result['traced_dt_fs'])
-            trace = result['trace']
-            ax.plot(_floored(trace['velocity_verlet']), color='0.6', lw=4,
-                    alpha=0.6, label='VelocityVerlet')
-            ax.plot(_floored(trace['reversible']), color='C0',
-                    label='ReversibleVerlet')
-            if row['error'] is not None:
-                ax.axvline(row['error']['step'], color='C3', ls='--',
-                           label=f'{row["error"]["type"]} (step '
-                                 f'{row["error"]["step"]})')
-            ax.axhline(1.0, color='k', ls=':', lw=1)
-            ax.set_yscale('log')
-            label(ax, 'step', '|E - E0| / K0',
-                  f'{result["name"]}, {result["calculator"]}, '
-                  f'dt = {row["dt_fs"]:g} fs')
 
 
 def _float(value):
