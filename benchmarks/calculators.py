@@ -1,14 +1,5 @@
-"""Which ASE calculators ReversibleVerlet runs exactly, and at what cost.
-
-    python benchmarks/run_all.py --only calculators           # a few minutes
-    python benchmarks/run_all.py --quick --only calculators   # < 1 minute
-
-Per calculator (skipped, with the reason, where its package is missing):
-the mode ``force_purity='auto'`` chooses (or its refusal, after which the
-row runs 'guarded'), also after a first calculation and by
-``check_calculator``; ``steps`` out and back compared bit for bit; the
-cost per step against VelocityVerlet in interleaved rounds.
-"""
+"""Which ASE calculators ReversibleVerlet runs exactly, and at what cost
+(the method: docs/benchmarks.md, "Calculators")."""
 
 from __future__ import annotations
 
@@ -35,8 +26,7 @@ from ase.md.verlet import VelocityVerlet
 from harness import (FLOOR_NUDGE, Contestant, Settings, choose_steps, medians,
                      time_interleaved, warning_lines)
 
-from ase_reversible import (ImpureForcesError, ReversibleVerlet,
-                            check_calculator)
+from ase_reversible import ImpureForcesError, ReversibleVerlet
 from ase_reversible.app.systems import (AR_EPSILON, AR_RC, AR_SIGMA,
                                         argon_bulk, argon_lj, copper_bulk,
                                         thermalize)
@@ -318,30 +308,12 @@ def construct(atoms, timestep):
 
 
 def choose_mode(row, timestep):
-    """'auto' on a fresh calculator, and on one that has already computed
-    (as after a user's ``atoms.get_potential_energy()``); the mode the row
-    runs with."""
+    """'auto' on a fresh calculator, and the mode the row runs with: a
+    refusal's remedy, 'guarded'."""
     auto = construct(fresh(row), timestep)
-    atoms = fresh(row)
-    atoms.get_potential_energy()
-    after = construct(atoms, timestep)
     if auto['mode'] is not None:
-        used = auto['mode']
-    elif 'refused' in auto:
-        used = 'guarded'
-    else:
-        used = None
-    return auto, after, used
-
-
-def ask_check_calculator(row, timestep):
-    atoms = fresh(row)
-    try:
-        check = check_calculator(atoms, timestep)
-    except Exception as error:  # noqa: BLE001
-        return {'error': error_text(error)}
-    return {'mode': check.mode, 'exact': check.exact,
-            'probe_noise': check.probe_noise, 'advice': check.advice}
+        return auto, auto['mode']
+    return auto, 'guarded' if 'refused' in auto else None
 
 
 def out_and_back(row, timestep, mode, steps):
@@ -437,9 +409,7 @@ def measure(row, settings, quick):
         return result
     result['n_atoms'] = len(atoms)
     timestep = row.timestep_fs * units.fs
-    result['auto'], result['auto_after_a_calculation'], mode = \
-        choose_mode(row, timestep)
-    result['check_calculator'] = ask_check_calculator(row, timestep)
+    result['auto'], mode = choose_mode(row, timestep)
     result['mode_run'] = mode
     if mode is not None:
         try:

@@ -136,7 +136,6 @@ SPECS = {
         'table': block(savings_table), 'versus': block(savings_versus)}),
     'portable': Spec('Portable arithmetic', blocks={
         'forces': portable_table('forces', 1e3, 'ms'),
-        'steps': portable_table('steps', 1e3, 'ms'),
         'momentum-square': portable_table('momentum_square', 1e6, 'µs')}),
     'force_noise': Spec('Force noise and rebuild cost',
                         blocks={'table': block(force_noise_table)}),
