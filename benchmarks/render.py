@@ -137,17 +137,18 @@ def rendered_pages(out: Path) -> dict:
 def render(out: Path, plots=True) -> Path:
     """Rewrite the generated blocks of the pages in ``out`` (and, with
     ``plots``, every plot of a stored section); a directory other than
-    docs/ gets a copy of docs/benchmarks.md to fill."""
-    page = out / 'benchmarks.md'
-    if not page.exists():
-        shutil.copy(DOCS / 'benchmarks.md', page)
+    docs/ gets a copy of each docs page with generated blocks to fill."""
+    for source in DOCS.glob('*.md'):
+        if not (out / source.name).exists() and MARKER.search(
+                source.read_text()):
+            shutil.copy(source, out / source.name)
     if plots:
         for name, s in stored_sections(out).items():
             for plot in SPECS[name].plots:
                 plot(s['results'], out / 'benchmarks')
     for path, (_, new) in rendered_pages(out).items():
         path.write_text(new)
-    return page
+    return out / 'benchmarks.md'
 
 
 def check(out: Path) -> int:
