@@ -6,8 +6,7 @@ the relative energy error at the same times and the run time without the
 sampling, refined until below the target, at a floor, or over the time
 budget.  Systems through asap3 ('guarded'): a free Ar cluster (cutoff
 beyond its diameter, behind ``ResultCache``) and periodic Cu with RGL.
-Checks: the sampling's cost, the momentum quantum's floor, asap3's cache;
-then whether orders 4 and 6 converge to 1e-11
+Checks: the sampling's cost; then whether orders 4 and 6 converge to 1e-11
 under 'auto'.
 """
 
@@ -19,7 +18,7 @@ import functools
 import math
 import statistics
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -178,23 +177,20 @@ def auto_force_noise(atoms):
     return _AUTO_BOUNDS[key]
 
 
-def make_dynamics(method, atoms, dt, **kwargs):
+def make_dynamics(method, atoms, dt):
     if method.scheme is None:
         return VelocityVerlet(atoms, dt)
     # 'guarded' with the bound 'auto' measures for asap3; said explicitly
     # because the cluster's asap3 potential sits behind ResultCache.  The
     # energy check is off: the sweep starts at steps whose error is meant
     # to be measured, not stopped (and VelocityVerlet has no such check).
-    kwargs.setdefault('energy_check', 0)
-    if 'momentum_quantum' not in kwargs:
-        kwargs.setdefault('force_noise', auto_force_noise(atoms))
     return ReversibleVerlet(atoms, dt, scheme=method.scheme,
                             order=method.order, force_purity='guarded',
-                            **kwargs)
+                            energy_check=0,
+                            force_noise=auto_force_noise(atoms))
 
 
-def measure(system, template, method, k, observe=True, samples=None,
-            **kwargs):
+def measure(system, template, method, k, observe=True, samples=None):
     """Run ``method`` with ``k`` steps per sampling interval; the sampling
     observer's own time is subtracted (a 'position' sample costs a force
     call an unobserved run would not make)."""
@@ -204,7 +200,7 @@ def measure(system, template, method, k, observe=True, samples=None,
     if samples is None:
         samples = round(system.simulated_fs / system.interval_fs)
     n_steps = k * samples
-    dyn = make_dynamics(method, atoms, dt_fs * units.fs, **kwargs)
+    dyn = make_dynamics(method, atoms, dt_fs * units.fs)
     energies = []
     spent = [0.0, 0.0]
     widest = [0.0]
@@ -367,81 +363,6 @@ def sampling_check(system, template, settings):
             'unobserved_wall_s': median(q['wall_s'] for q in unobserved),
             'subtracted_cpu_s': median(q['cpu_s'] for q in observed),
             'unobserved_cpu_s': median(q['cpu_s'] for q in unobserved)}
-
-
-def quantum_check(system, template, sweeps, factor=2.0**-10):
-    """The error floor of the guarded mode's momentum quantum: the most
-    accurate point of the highest-order velocity sweep run again with the
-    quantum ``factor`` times the default."""
-    candidates = [s for s in sweeps if s['scheme'] == 'velocity']
-    s = max(candidates, key=lambda s: s['order'])
-    valid = [p for p in s['points'] if p['max_error'] is not None]
-    if not valid:
-        return None
-    p = min(valid, key=lambda p: p['max_error'])
-    method = Method(s['method'], s['scheme'], s['order'])
-    fine = measure(system, template, method, p['k'],
-                   momentum_quantum=p['momentum_quantum'] * factor)
-    return {'method': s['method'], 'dt_fs': p['dt_fs'],
-            'default_quantum': p['momentum_quantum'],
-            'default_error': p['max_error'],
-            'fine_quantum': fine['momentum_quantum'],
-            'fine_error': fine['max_error'],
-            'fine_clean_recomputations': fine['clean_recomputations'],
-            'fine_force_calls': fine['force_calls'],
-            'default_force_calls': p['force_calls']}
-
-
-def cache_check(system, template, raw_calc, settings, calls=40, blocks=5):
-    """Microseconds per ``get_forces`` of the bare asap3 potential at
-    unchanged positions and after a 1e-9 Å move (the fastest of ``blocks``
-    blocks); with a ResultCache, VelocityVerlet's step with and without."""
-    atoms = template.copy()
-    atoms.calc = raw_calc()
-    atoms.get_forces()
-    x_nc = atoms.positions.copy()
-
-    def repeated():
-        for _ in range(calls):
-            atoms.get_forces(md=True)
-
-    def fresh():
-        for i in range(calls):
-            x_nc[0, 0] += 1e-9 if i % 2 == 0 else -1e-9
-            atoms.positions = x_nc
-            atoms.get_forces(md=True)
-
-    def per_call(block):
-        times = []
-        for _ in range(blocks):
-            w = time.perf_counter()
-            block()
-            times.append((time.perf_counter() - w) / calls)
-        return min(times)
-
-    out = {'repeated_call_us': per_call(repeated) * 1e6,
-           'fresh_call_us': per_call(fresh) * 1e6}
-    if system.calc is raw_calc:
-        return out
-    k = 8  # 8 fs for argon: stable, and the cost per step does not care
-    probe = measure(system, template, VV, k, observe=False, samples=1)
-    samples = max(1, round(settings.check_seconds
-                           / max(probe['wall_s'], 1e-6)))
-    bare = replace(system, calc=raw_calc)
-    cached, uncached = [], []
-    for _ in range(3):
-        cached.append(measure(system, template, VV, k, observe=False,
-                              samples=samples))
-        uncached.append(measure(bare, template, VV, k, observe=False,
-                                samples=samples))
-    steps = k * samples
-    out.update({
-        'vv_steps': steps,
-        'vv_cached_us_per_step': statistics.median(
-            q['wall_s'] for q in cached) / steps * 1e6,
-        'vv_bare_us_per_step': statistics.median(
-            q['wall_s'] for q in uncached) / steps * 1e6})
-    return out
 
 
 # -- convergence down to 1e-11 under 'auto' ---------------------------------
@@ -616,11 +537,7 @@ def run(quick):
             'initial_energy_eV': e0,
             'sweeps': sweeps, 'summary': summarise(sweeps),
             'sampling_check': sampling_check(system, template, settings),
-            'quantum_check': quantum_check(system, template, sweeps),
         }
-        result['cache_check'] = cache_check(
-            system, template, raw_argon_lj if system.free else copper_rgl,
-            settings)
         if system.free:
             result['cutoff'] = AR_CUTOFF
             result['widest_distance'] = max(

@@ -168,13 +168,11 @@ def summary(r):
 def system_values(r):
     """A system's results and the checks' derived numbers, for the prose."""
     out = dict(r)
-    c, q = r.get('sampling_check'), r.get('quantum_check')
+    c = r.get('sampling_check')
     if c:
         out.update(
             wall_gap=c['subtracted_wall_s'] / c['unobserved_wall_s'] - 1,
             cpu_gap=c['subtracted_cpu_s'] / c['unobserved_cpu_s'] - 1)
-    if q:
-        out['fine_error'] = _e(q['fine_error'])
     return out
 
 
