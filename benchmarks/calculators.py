@@ -89,58 +89,6 @@ def ase_morse_argon():
                           rho0=6.0, rcut1=1.5, rcut2=2.0)
 
 
-#: The smooth cut-off of the EAM functions below, Å: between the third and
-#: fourth neighbour shells of fcc copper (4.43 and 5.11 Å).
-EAM_CUTOFF = (4.2, 5.0)
-
-
-def _switch(r):
-    """Quintic smoothstep from 1 (r <= EAM_CUTOFF[0]) to 0 (r >= [1]) and
-    its derivative: the functions and their first two derivatives are
-    continuous at the cut-off."""
-    r1, r2 = EAM_CUTOFF
-    s = np.clip((r2 - r) / (r2 - r1), 0.0, 1.0)
-    return (s**3 * (10 - 15 * s + 6 * s * s),
-            -30 * s * s * (1 - s)**2 / (r2 - r1))
-
-
-def ase_eam_copper():
-    """ASE's EAM with the second-moment (RGL) copper of benchmarks/systems.py
-    written as EAM functions, with a smooth cut-off: an analytic potential
-    built in code, no potential file."""
-    from ase.calculators.eam import EAM
-    from systems import CU_RGL
-    p, q, a, xi, r0 = (CU_RGL[k] for k in ('p', 'q', 'a', 'xi', 'r0'))
-
-    def density(r):
-        return np.exp(-2 * q * (r / r0 - 1)) * _switch(r)[0]
-
-    def d_density(r):
-        s, ds = _switch(r)
-        return np.exp(-2 * q * (r / r0 - 1)) * (ds - 2 * q / r0 * s)
-
-    def pair(r):  # phi: E = sum_i F(rho_i) + 1/2 sum_{i != j} phi(r_ij)
-        return 2 * a * np.exp(-p * (r / r0 - 1)) * _switch(r)[0]
-
-    def d_pair(r):
-        s, ds = _switch(r)
-        return 2 * a * np.exp(-p * (r / r0 - 1)) * (ds - p / r0 * s)
-
-    def embedding(rho):
-        return -xi * np.sqrt(rho)
-
-    def d_embedding(rho):
-        return -0.5 * xi / np.sqrt(rho)
-
-    return EAM(elements=['Cu'], form='alloy', cutoff=EAM_CUTOFF[1],
-               embedded_energy=np.array([embedding]),
-               electron_density=np.array([density]),
-               phi=np.array([[pair]]),
-               d_embedded_energy=np.array([d_embedding]),
-               d_electron_density=np.array([d_density]),
-               d_phi=np.array([[d_pair]]))
-
-
 def asap3_lj():
     need('asap3')
     import systems
@@ -251,9 +199,6 @@ ROWS = (
     Row('ASE MorsePotential', 'ase', 'Ar108 fcc, periodic',
         argon((3, 3, 3)), ase_morse_argon, 5.0, 300, 30,
         'argon-like, cut-off 7.6 Å'),
-    Row('ASE EAM', 'ase', 'Cu32 fcc, periodic', rgl_copper((2, 2, 2)),
-        ase_eam_copper, 5.0, 50, 8,
-        'analytic functions (RGL copper), built in code'),
     Row('asap3 LennardJones', 'asap3', 'Ar256 fcc, periodic',
         argon((4, 4, 4)), asap3_lj, 5.0, 2000, 200),
     Row('asap3 EMT', 'asap3', 'Cu108 fcc, periodic', copper((3, 3, 3)),

@@ -57,20 +57,6 @@ def savings_table(results):
     return markdown_table(['case'] + commits + ['round spread'], rows)
 
 
-def savings_versus(results):
-    """Each commit's CPU time per step over ASE VelocityVerlet's: on a
-    shared machine CPU time leaves out the waits for a core."""
-    commits, reference = measured_commits(results), 'VelocityVerlet'
-
-    def per_step(case):
-        return case.get('cpu_ms_per_step', case['ms_per_step'])
-
-    return markdown_table(['case'] + commits, [
-        [case['case']] + [f"{per_step(case)[c] / per_step(case)[reference]:.3f}"
-                          for c in commits]
-        for case in results['cases'] if reference in case['ms_per_step']])
-
-
 def log2_cell(value):
     return '-' if value is None else f'2^{value:g}'
 
@@ -133,7 +119,7 @@ SPECS = {
     'savings': Spec('Savings on the per-step path', blocks={
         'commits': block(lambda results: '\n'.join(
             f"- `{c['commit']}`: {c['change']}" for c in results['commits'])),
-        'table': block(savings_table), 'versus': block(savings_versus)}),
+        'table': block(savings_table)}),
     'portable': Spec('Portable arithmetic', blocks={
         'forces': portable_table('forces', 1e3, 'ms'),
         'momentum-square': portable_table('momentum_square', 1e6, 'µs')}),
