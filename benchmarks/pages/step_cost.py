@@ -164,12 +164,6 @@ def with_ratio(r, name):
     return f"{ms(r['median_seconds'][name])} (×{ratio(r, name):.2f})"
 
 
-def beyond(r, name, floor):
-    med = r['median_seconds']
-    return (f'{ms(med[name] - med[floor])} '
-            f'({overhead_percent(r, name, floor):+.0f}%)')
-
-
 def clean_fraction(r, name):
     entry = r['clean_recomputations'].get(name)
     if entry is None or r['force_purity'][name]['mode'] != 'guarded':
@@ -209,24 +203,8 @@ def integrator_overhead_table(results):
     return markdown_table(header, rows)
 
 
-def step_cost_table(results):
-    header = ('calculator', 'N', 'steps × rounds', 'purity (auto)',
-              'nudge floor (ms)', 'replay floor (ms)',
-              'VelocityVerlet (ms/step)',
-              'Reversible velocity (ms/step, ×VV)',
-              'Reversible position (ms/step, ×VV)',
-              'Reversible trust (ms/step, ×VV)',
-              'VelocityVerlet twin (×VV)')
-    rows = [(r['calculator'], r['n_atoms'],
-             f"{r['steps_per_block']} × {r['rounds']}",
-             r['force_purity']['rv_velocity']['mode'],
-             ms(r['median_seconds']['force']),
-             ms(r['median_seconds']['replay']),
-             ms(r['median_seconds']['vv']),
-             with_ratio(r, 'rv_velocity'), with_ratio(r, 'rv_position'),
-             with_ratio(r, 'rv_trust'), twin_cell(r))
-            for r in results]
-    return markdown_table(header, rows)
+def ms_cell(name):
+    return lambda r: ms(r['median_seconds'][name])
 
 
 #: The last two columns of the timing tables: how far to trust them.
@@ -234,18 +212,22 @@ NOISE_COLUMNS = (
     ('round spread', lambda r: f"{100 * max(r['spread'].values()):.0f}%"),
     ('wall / CPU', lambda r: f'{wall_over_cpu(r):.2f}'))
 
-OVERHEAD_COLUMNS = (
+TIME_COLUMNS = (
     ('calculator', '{calculator}'), ('N', '{n_atoms}'),
-    ('replay − nudge floor (ms, %)', lambda r: beyond(r, 'replay', 'force')),
-    ('VV beyond replay floor (ms, %)', lambda r: beyond(r, 'vv', 'replay')),
-    ('Reversible velocity beyond replay floor (ms, %)',
-     lambda r: beyond(r, 'rv_velocity', 'replay')),
-    ('Reversible velocity beyond nudge floor (ms, %)',
-     lambda r: beyond(r, 'rv_velocity', 'force')),
+    ('steps × rounds', '{steps_per_block} × {rounds}'),
+    ('purity (auto)', lambda r: r['force_purity']['rv_velocity']['mode']),
+    ('nudge floor (ms)', ms_cell('force')),
+    ('replay floor (ms)', ms_cell('replay')),
+    ('VelocityVerlet (ms/step)', ms_cell('vv')),
+    *((f'Reversible {name} (ms/step, ×VV)',
+       lambda r, n=f'rv_{name}': with_ratio(r, n))
+      for name in ('velocity', 'position', 'trust')),
+    ('VelocityVerlet twin (×VV)', twin_cell),
     ('clean recomputations, velocity / position',
      lambda r: f"{clean_fraction(r, 'rv_velocity')} / "
                f"{clean_fraction(r, 'rv_position')}"),
     *NOISE_COLUMNS)
+
 
 def checked(r):
     """The contestant whose steps run the checks: 'rv_observed' (an
@@ -303,9 +285,8 @@ def energy_check_table(results):
 SPEC = Spec(
     'Cost per step',
     blocks={'overhead': block(integrator_overhead_table, 'overhead'),
-            'time': block(step_cost_table, 'step_cost'),
-            'beyond-floor': lambda stored: table(
-                OVERHEAD_COLUMNS, stored['results']['step_cost']),
+            'time': lambda stored: table(
+                TIME_COLUMNS, stored['results']['step_cost']),
             'checks': block(checks_table, 'step_cost'),
             'energy-check': lambda stored: energy_check_table(
                 stored['results']['step_cost']
