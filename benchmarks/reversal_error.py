@@ -180,11 +180,8 @@ def energy_summary(steps, energies, dt_fs):
     return {
         'e0': float(e0),
         'max_relative_deviation': float(np.abs(rel).max()),
-        'max_relative_deviation_first_tenth': float(np.abs(rel[1:tenth + 1]).max()),
-        'max_relative_deviation_last_tenth': float(np.abs(rel[-tenth:]).max()),
         'mean_first_tenth': float(first.mean()), 'std_first_tenth': spread,
         'mean_last_tenth': float(last.mean()),
-        'std_last_tenth': float(last.std()),
         'samples_per_tenth': int(tenth),
         'mean_shift_in_std': float((last.mean() - first.mean()) / spread),
         'drift_eV_per_ns': slope,

@@ -378,7 +378,7 @@ def overhead(n_atoms, system, settings):
     by_name = {c.name: c for c in contestants}
     steps = choose_steps(by_name['vv'].runner.run, settings)
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
-    med, med_cpu = medians(wall), medians(cpu)
+    med = medians(wall)
     check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
         **check,
@@ -387,9 +387,6 @@ def overhead(n_atoms, system, settings):
         **per_step(wall, cpu),
         'overhead_seconds': {k: v - med['force'] for k, v in med.items()
                              if k != 'force'},
-        'overhead_cpu_seconds': {k: v - med_cpu['force']
-                                 for k, v in med_cpu.items()
-                                 if k != 'force'},
         'force_purity': {c.name: c.purity.todict() for c in contestants
                          if c.purity is not None},
     }

@@ -20,10 +20,9 @@ def plot(results, figures):
 
 
 def _plot_memory(memory, figures):
-    with figure(figures / MEMORY_PLOT, 2, (10, 4)) as (plt, fig, axes):
+    with figure(figures / MEMORY_PLOT, 1, (6, 4)) as (plt, fig, ax):
         points = memory['points']
         n = [p['steps'] for p in points]
-        ax = axes[0]
         ax.loglog(n, [p['reversible']['traced_peak_bytes'] / 2**20
                       for p in points], 'o-', color='C0',
                   label='ReversibleVerlet: run + backpropagate')
@@ -35,23 +34,10 @@ def _plot_memory(memory, figures):
         ax.set_ylabel('tracemalloc peak (MiB)')
         ax.grid(True, which='major', alpha=0.3)
         ax.legend(loc='upper left', fontsize=8)
-        ax = axes[1]
-        for kind, label, marker, color in (
-                ('reversible', 'ReversibleVerlet', 'o-', 'C0'),
-                ('stored', 'stored trajectory', 's-', 'C3')):
-            ax.semilogx(n, [p[kind]['max_rss_bytes'] / 2**20 for p in points],
-                        marker, color=color, label=f'{label}: peak')
-            ax.semilogx(n, [p[kind]['max_rss_before_bytes'] / 2**20
-                            for p in points], marker[0] + ':', color=color,
-                        alpha=0.5, label=f'{label}: before the run')
-        ax.set_xlabel('steps N')
-        ax.set_ylabel('peak resident set size (MiB)')
-        ax.grid(True, which='major', alpha=0.3)
-        ax.legend(loc='upper left', fontsize=8)
         s = memory['system']
-        fig.suptitle(f"{s['cluster']}, {s['temperature_K']:g} K, "
+        ax.set_title(f"{s['cluster']}, {s['temperature_K']:g} K, "
                      f"{s['timestep_fs']:g} fs: memory of a gradient through "
-                     'N steps (one process per point)')
+                     'N steps', fontsize=9)
 
 
 def _plot_cost(cost, figures):

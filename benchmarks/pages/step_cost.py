@@ -42,16 +42,9 @@ def by_calculator(results):
             for k, v in groups.items()}
 
 
-def overhead_ratio(r, name, key='overhead_seconds'):
+def overhead_ratio(r, name):
     """A contestant's overhead over VelocityVerlet's."""
-    return r[key][name] / r[key]['vv']
-
-
-def paired_overhead_ratios(r, name):
-    """Per-round overhead ratios, each round's floor subtracted."""
-    wall = r['per_step_seconds']
-    return [(a - f) / (b - f) for a, b, f in
-            zip(wall[name], wall['vv'], wall['force'])]
+    return r['overhead_seconds'][name] / r['overhead_seconds']['vv']
 
 
 # -- plot ------------------------------------------------------------------
@@ -182,12 +175,10 @@ def integrator_overhead_table(results):
               'VelocityVerlet overhead (µs)',
               'Reversible velocity overhead (µs, ×VV)',
               'Reversible position overhead (µs, ×VV)',
-              'velocity ×VV, per-round range', 'on CPU time: velocity ×VV',
               'round spread', 'wall / CPU')
     rows = []
     for r in results:
         o = r['overhead_seconds']
-        paired = paired_overhead_ratios(r, 'rv_velocity')
         rows.append((
             r['system'], r['n_atoms'],
             f"{r['steps_per_block']} × {r['rounds']}",
@@ -196,8 +187,6 @@ def integrator_overhead_table(results):
             f"(×{overhead_ratio(r, 'rv_velocity'):.2f})",
             f"{us(o['rv_position'])} "
             f"(×{overhead_ratio(r, 'rv_position'):.2f})",
-            f'×{min(paired):.2f} to ×{max(paired):.2f}',
-            f"×{overhead_ratio(r, 'rv_velocity', 'overhead_cpu_seconds'):.2f}",
             f"{100 * max(r['spread'].values()):.0f}%",
             f'{wall_over_cpu(r):.2f}'))
     return markdown_table(header, rows)
