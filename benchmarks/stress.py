@@ -194,27 +194,31 @@ def nearest_neighbour_distances(x_nc):
     return d.min(axis=1)
 
 
+def scene_row(system, atoms, steps, kwargs, extra):
+    """A run out and back under ASE LJ: the fields every scene records,
+    and those of ``extra(run)``."""
+    atoms.calc = CALCULATORS['ASE LJ']()
+    k0 = kinetic_energy(atoms)
+    run = forward_and_back(atoms, DT_FS, steps, **kwargs)
+    return {'system': system, 'steps': steps, 'kwargs': kwargs,
+            'steps_done': run['steps_done'], 'error': run['error'],
+            'exact': run['exact'],
+            'max_energy_error': energy_summary(run['energies'], k0)[0],
+            'seconds': run['seconds'], **grid_use(run), **extra(run)}
+
+
 def evaporation(quick):
-    rows = []
-    for name, shells, temperature, steps, kwargs in evaporation_cases(quick):
-        atoms = argon_cluster(shells, temperature)
-        atoms.calc = CALCULATORS['ASE LJ']()
-        k0 = kinetic_energy(atoms)
-        run = forward_and_back(atoms, DT_FS, steps, **kwargs)
+    def shape(run):
         centre = run['x0'].mean(axis=0)
-        worst, _ = energy_summary(run['energies'], k0)
-        rows.append({
-            'system': f'{name}, {temperature} K', 'steps': steps,
-            'kwargs': kwargs, 'steps_done': run['steps_done'],
-            'error': run['error'], 'exact': run['exact'],
-            'evaporated': int((nearest_neighbour_distances(run['x_turn'])
-                               > AR_RC).sum()),
-            'n_atoms': len(atoms),
-            'furthest_from_centre': float(np.linalg.norm(
-                run['x_turn'] - centre, axis=1).max()),
-            'max_energy_error': worst, 'seconds': run['seconds'],
-            **grid_use(run)})
-    return rows
+        return {'evaporated': int((nearest_neighbour_distances(run['x_turn'])
+                                   > AR_RC).sum()),
+                'n_atoms': len(run['x0']),
+                'furthest_from_centre': float(np.linalg.norm(
+                    run['x_turn'] - centre, axis=1).max())}
+    return [scene_row(f'{name}, {temperature} K',
+                      argon_cluster(shells, temperature), steps, kwargs, shape)
+            for name, shells, temperature, steps, kwargs
+            in evaporation_cases(quick)]
 
 
 # -- (c) close contacts ------------------------------------------------------
@@ -268,22 +272,17 @@ def diffusion_cases(quick):
 
 
 def diffusion(quick):
-    rows = []
-    for name, n, length, temperature, steps, kwargs in diffusion_cases(quick):
-        atoms = argon_fluid(n, length, temperature)
-        atoms.calc = CALCULATORS['ASE LJ']()
-        k0 = kinetic_energy(atoms)
-        run = forward_and_back(atoms, DT_FS, steps, **kwargs)
-        moved = np.linalg.norm(run['x_turn'] - run['x0'], axis=1) / length
-        worst, _ = energy_summary(run['energies'], k0)
-        rows.append({
-            'system': f'{name}, {length:g} Å cell, {temperature} K',
-            'cell_length': length, 'steps': steps, 'kwargs': kwargs,
-            'steps_done': run['steps_done'], 'error': run['error'],
-            'exact': run['exact'], 'max_cells': float(moved.max()),
-            'mean_cells': float(moved.mean()), 'max_energy_error': worst,
-            'seconds': run['seconds'], **grid_use(run)})
-    return rows
+    def cells(length):
+        def moved(run):
+            d = np.linalg.norm(run['x_turn'] - run['x0'], axis=1) / length
+            return {'cell_length': length, 'max_cells': float(d.max()),
+                    'mean_cells': float(d.mean())}
+        return moved
+    return [scene_row(f'{name}, {length:g} Å cell, {temperature} K',
+                      argon_fluid(n, length, temperature), steps, kwargs,
+                      cells(length))
+            for name, n, length, temperature, steps, kwargs
+            in diffusion_cases(quick)]
 
 
 # -- (e) asap3 with atoms far apart -----------------------------------------

@@ -127,18 +127,20 @@ def sweep_tables(sweeps):
     return '\n'.join(out)
 
 
-def evaporation_table(rows):
-    table = [[r['system'] + _quantum(r['kwargs']),
-              _outcome(r), f'{r["evaporated"]} / {r["n_atoms"]}',
-              f'{r["furthest_from_centre"]:.3g}',
-              f'{r["x_max"]:.3g} / {r["position_range"]:.3g} '
-              f'({_pct(r["x_max"], r["position_range"])})',
-              f'{_float(r["max_energy_error"]):.2g}', _yes(r['exact'])]
-             for r in rows]
-    return markdown_table(
-        ['system', 'ReversibleVerlet', 'evaporated', 'furthest from the '
-         'centre (Å)', 'max \\|x\\| / position range (Å)',
-         'max \\|ΔE\\|/K0', 'exact'], table)
+def roaming_table(headers, cells):
+    """A table of the evaporation or diffusion scene: ``cells`` of a row
+    between its outcome and its position range."""
+    def make(rows):
+        table = [[r['system'] + _quantum(r['kwargs']), _outcome(r),
+                  *cells(r), f'{r["x_max"]:.3g} / {r["position_range"]:.3g} '
+                  f'({_pct(r["x_max"], r["position_range"])})',
+                  f'{_float(r["max_energy_error"]):.2g}', _yes(r['exact'])]
+                 for r in rows]
+        return markdown_table(
+            ['system', 'ReversibleVerlet', *headers,
+             'max \\|x\\| / position range (Å)', 'max \\|ΔE\\|/K0',
+             'exact'], table)
+    return make
 
 
 def contacts_table(rows):
@@ -155,19 +157,6 @@ def contacts_table(rows):
          'ReversibleVerlet', 'max \\|ΔE\\| (eV)', 'garbage from step',
          'VV max \\|ΔE\\| (eV)', 'max \\|p\\| / range at the turn',
          'exact'], table)
-
-
-def diffusion_table(rows):
-    table = [[r['system'] + _quantum(r['kwargs']),
-              _outcome(r), f'{r["max_cells"]:.3g}', f'{r["mean_cells"]:.3g}',
-              f'{r["x_max"]:.3g} / {r["position_range"]:.3g} '
-              f'({_pct(r["x_max"], r["position_range"])})',
-              f'{_float(r["max_energy_error"]):.2g}', _yes(r['exact'])]
-             for r in rows]
-    return markdown_table(
-        ['system', 'ReversibleVerlet', 'max displacement (cells)',
-         'mean displacement (cells)', 'max \\|x\\| / position range (Å)',
-         'max \\|ΔE\\|/K0', 'exact'], table)
 
 
 def far_apart_table(result):
@@ -197,8 +186,15 @@ def values(results):
 SPEC = Spec(
     'Numerical stability under stress',
     blocks={'sweeps': block(sweep_tables, 'sweeps'),
-            'evaporation': block(evaporation_table, 'evaporation'),
+            'evaporation': block(roaming_table(
+                ('evaporated', 'furthest from the centre (Å)'),
+                lambda r: (f'{r["evaporated"]} / {r["n_atoms"]}',
+                           f'{r["furthest_from_centre"]:.3g}')),
+                'evaporation'),
             'contacts': block(contacts_table, 'contacts'),
-            'diffusion': block(diffusion_table, 'diffusion'),
+            'diffusion': block(roaming_table(
+                ('max displacement (cells)', 'mean displacement (cells)'),
+                lambda r: (f'{r["max_cells"]:.3g}', f'{r["mean_cells"]:.3g}')),
+                'diffusion'),
             'far-apart': block(far_apart_table, 'far_apart')},
     plots=(plot,), values=values)
