@@ -1,17 +1,6 @@
-"""The reversible adjoint: its memory against the number of steps, and the
-cost of a gradient in force evaluations and time.
-
-    python benchmarks/run_all.py --only adjoint           # ~4 minutes
-    python benchmarks/run_all.py --quick --only adjoint   # ~10 s
-
-Memory: one fresh process per point (``--memory-worker``) on a cold Ar13
-cluster, tracemalloc started after the integrator is built: the
-reversible adjoint (``backpropagate``) against a stored-trajectory adjoint
-(``stored_adjoint``), whose gradients are compared.  Cost: rounds of
-``run(N)`` then ``backpropagate(N)``, which puts the atoms back bit for bit;
-the first rounds count the force calls and Hessian-vector products, the
-others are timed without wrappers.
-"""
+"""The reversible adjoint: memory against steps (a process per point,
+``--memory-worker``), and the cost of a gradient in force calls and time;
+the method is docs/benchmarks.md's."""
 
 from __future__ import annotations
 

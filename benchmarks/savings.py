@@ -1,11 +1,6 @@
-"""Before and after: per-step cost of the package at two or more commits.
-
-Each commit of ``COMMITS`` is exported with ``git archive`` and imported by
-a worker process of its own (this script with ``--worker``); the workers
-get the same pickled atoms and calculator and run blocks of steps in
-rotating rounds, so the commits are timed side by side.  A commit missing
-from the clone is reported as skipped.
-"""
+"""Per-step cost of the package at several commits, each exported with
+``git archive`` into a worker process of its own (``--worker``), timed side
+by side in rotating rounds; a commit missing from the clone is skipped."""
 
 from __future__ import annotations
 

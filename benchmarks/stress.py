@@ -1,12 +1,7 @@
-"""Numerical stability: blow-ups, evaporation, close contacts, diffusion.
-
-(a) time-step sweeps far past the stability limit (free Ar cluster, ASE
-LennardJones; periodic Cu, asap3 EMT), ReversibleVerlet against
-VelocityVerlet, a stopped run taken back; (b) hot evaporating clusters;
-(c) close contacts; (d) hot argon fluid and gas over many cell lengths;
-(e) asap3 with atoms far apart, in a memory-limited subprocess.  Energies
-are compared with the initial kinetic energy K0.
-"""
+"""Numerical stability: time steps past the stability limit, evaporating
+clusters, close contacts, diffusion over many cells, asap3 with atoms far
+apart (the scenes: docs/benchmarks.md).  Energies against the initial
+kinetic energy K0."""
 
 from __future__ import annotations
 

@@ -1,14 +1,5 @@
-"""Work against precision: run time to reach a given energy error.
-
-For ASE's VelocityVerlet and ReversibleVerlet (both schemes, orders 2 to 8,
-and 10 in full mode), a sweep of time steps over the same simulated time:
-the relative energy error at the same times and the run time without the
-sampling, refined until below the target, at a floor, or over the time
-budget.  Systems through asap3 ('guarded'): a free Ar cluster (cutoff
-beyond its diameter, behind ``ResultCache``) and periodic Cu with RGL.
-Checks: the sampling's cost; then whether orders 4 and 6 converge to 1e-11
-under 'auto'.
-"""
+"""Work against precision: run time to reach a given energy error, and
+convergence to 1e-11 under 'auto' (the method: docs/benchmarks.md)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,4 @@
-"""Gradients by the reversible adjoint: memory against steps, and the cost
-of a gradient in force evaluations and time.
-
-Measured by benchmarks/adjoint.py, whose docstring gives the method.
-"""
+"""Gradients by the reversible adjoint (benchmarks/adjoint.py)."""
 
 from __future__ import annotations
 

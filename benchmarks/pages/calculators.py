@@ -1,5 +1,4 @@
-"""Which calculators run exactly under ReversibleVerlet, and at what cost
-(measured by benchmarks/calculators.py)."""
+"""Calculators (benchmarks/calculators.py)."""
 
 from __future__ import annotations
 

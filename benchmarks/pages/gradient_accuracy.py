@@ -1,9 +1,4 @@
-"""Gradient accuracy: finite-difference Hessian-vector products, and
-backpropagate against finite differences of whole runs.
-
-Measured by benchmarks/gradient_accuracy.py, whose docstring gives the
-method.
-"""
+"""Gradient accuracy (benchmarks/gradient_accuracy.py)."""
 
 from __future__ import annotations
 

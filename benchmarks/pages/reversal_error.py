@@ -1,8 +1,4 @@
-"""Reversal error against steps: VelocityVerlet's round trips against
-ReversibleVerlet's, and the energy over a long run.
-
-Measured by benchmarks/reversal_error.py, whose docstring gives the method.
-"""
+"""Reversal error against steps (benchmarks/reversal_error.py)."""
 
 from __future__ import annotations
 

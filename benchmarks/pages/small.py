@@ -1,10 +1,5 @@
-"""The sections that are one or a few tables: PyTorch products, savings
-per commit, full precision under asap3, portable arithmetic, force noise
-and long round trips.
-
-Measured by the benchmarks/ scripts of the same names, whose docstrings
-give the methods; the prose is docs/benchmarks.md's.
-"""
+"""The sections that are a table or two, each measured by the
+benchmarks/ script of its name."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Cost per step: ReversibleVerlet against VelocityVerlet and the force
-call (measured by benchmarks/step_cost.py)."""
+"""Cost per step (benchmarks/step_cost.py)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,4 @@
-"""Numerical stability under stress: blow-ups, evaporation, close contacts,
-diffusion, asap3 with atoms far apart.
-
-Measured by benchmarks/stress.py, whose docstring describes the scenes.
-"""
+"""Numerical stability under stress (benchmarks/stress.py)."""
 
 from __future__ import annotations
 

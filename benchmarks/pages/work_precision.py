@@ -1,7 +1,4 @@
-"""Work against precision: run time to reach a given energy error.
-
-Measured by benchmarks/work_precision.py, whose docstring gives the method.
-"""
+"""Work against precision (benchmarks/work_precision.py)."""
 
 from __future__ import annotations
 
