@@ -159,37 +159,29 @@ def memory_worker(kind, steps):
     t0 = time.perf_counter()
     result = {'kind': kind, 'steps': steps, 'atoms': len(atoms)}
     com0_c = atoms.get_center_of_mass()
-    if kind == 'reversible':
-        dyn.run(steps)
-        t1 = time.perf_counter()
-        result['centre_of_mass_moved'] = float(np.linalg.norm(
-            atoms.get_center_of_mass() - com0_c))
-        g = dyn.backpropagate(steps, grad_x, grad_p)
-        gx_nc, gp_nc = g
-        result['products'] = g.hessian_vector_products
-        result['exact_return'] = bool(
-            np.array_equal(atoms.positions, x0_nc)
-            and np.array_equal(atoms.get_momenta(), p0_nc))
-        result['stored_bytes'] = 0
-    elif kind == 'stored':
-        frames, momenta = [], []
-
+    frames, momenta = [], []
+    if kind == 'stored':
         def store():
             frames.append(atoms.positions.copy())
             momenta.append(atoms.get_momenta())  # a copy
 
         dyn.attach(store, interval=1)  # also called before the first step
-        dyn.run(steps)
-        t1 = time.perf_counter()
-        result['centre_of_mass_moved'] = float(np.linalg.norm(
-            atoms.get_center_of_mass() - com0_c))
+    dyn.run(steps)
+    t1 = time.perf_counter()
+    result['centre_of_mass_moved'] = float(np.linalg.norm(
+        atoms.get_center_of_mass() - com0_c))
+    if kind == 'reversible':
+        g = dyn.backpropagate(steps, grad_x, grad_p)
+        (gx_nc, gp_nc), result['products'] = g, g.hessian_vector_products
+        result['exact_return'] = bool(
+            np.array_equal(atoms.positions, x0_nc)
+            and np.array_equal(atoms.get_momenta(), p0_nc))
+    else:
         gx_nc, gp_nc, result['products'] = stored_adjoint(
             atoms, frames, masses_n1, TIMESTEP, grad_x, grad_p)
         result['frames'] = len(frames)
-        result['stored_bytes'] = sum(a.nbytes for a in frames + momenta)
         result['exact_return'] = None
-    else:
-        raise ValueError(kind)
+    result['stored_bytes'] = sum(a.nbytes for a in frames + momenta)
     t2 = time.perf_counter()
     current, peak = tracemalloc.get_traced_memory()
     result.update(

@@ -108,26 +108,11 @@ CALCULATORS = (
 )
 
 
-@dataclass(frozen=True)
-class Case:
-    calculator: Calculator
-    repeat: tuple
-
-    @property
-    def n_atoms(self):
-        return 4 * int(np.prod(self.repeat))
-
-    def build(self):
-        return self.calculator.build(self.repeat)
-
-
 def step_cost_cases(quick):
-    cases = []
-    for calc in CALCULATORS:
-        limit = calc.quick_max_atoms if quick else calc.full_max_atoms
-        cases += [Case(calc, r) for r in REPEATS
-                  if calc.min_atoms <= 4 * np.prod(r) <= limit]
-    return cases
+    """(calculator, repeat) of each case."""
+    return [(calc, r) for calc in CALCULATORS for r in REPEATS
+            if calc.min_atoms <= 4 * np.prod(r)
+            <= (calc.quick_max_atoms if quick else calc.full_max_atoms)]
 
 
 # -- contestants -----------------------------------------------------------
@@ -265,12 +250,12 @@ STEP_CONTESTANTS = ('force', 'replay', 'vv', 'vv_twin', 'rv_velocity',
 OVERHEAD_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
 
 
-def make_contestants(template, case, names):
+def make_contestants(template, calc, names):
     """Each contestant on its own copy of the same atoms and calculator."""
     contestants = []
     for name in names:
         atoms = template.copy()
-        atoms.calc = case.calculator.make_calc()
+        atoms.calc = calc.make_calc()
         contestants.append(Contestant(name, INTEGRATORS[name](atoms)))
     return contestants
 
@@ -314,10 +299,10 @@ def time_energy_check(dyn, steps):
             'energy_check_steps': steps}
 
 
-def benchmark(case, names, settings):
+def benchmark(calc, repeat, names, settings):
     """Time one case; returns a JSON-ready dict of raw and median results."""
-    template = case.build()
-    contestants = make_contestants(template, case, names)
+    template = calc.build(repeat)
+    contestants = make_contestants(template, calc, names)
     for c in contestants:
         if not isinstance(c.runner, ReplayFloor):
             c.runner.run(settings.warmup_steps)
@@ -325,7 +310,7 @@ def benchmark(case, names, settings):
     steps = choose_steps(by_name['vv'].runner.run, settings)
     if 'replay' in by_name:
         replay = by_name['replay'].runner
-        replay.record(template, case.calculator.make_calc,
+        replay.record(template, calc.make_calc,
                       settings.warmup_steps + steps * settings.rounds)
         replay.run(settings.warmup_steps)
     clean_before = {c.name: c.clean_recomputations() for c in contestants}
@@ -343,8 +328,7 @@ def benchmark(case, names, settings):
     check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
         **check,
-        'calculator': case.calculator.label,
-        'system': case.calculator.system,
+        'calculator': calc.label, 'system': calc.system,
         'n_atoms': len(template),
         'steps_per_block': steps, 'rounds': settings.rounds,
         **per_step(wall, cpu),
@@ -357,7 +341,7 @@ def benchmark(case, names, settings):
                   if hasattr(c.runner, 'grid')},
     }
     med = result['median_seconds']
-    print(f'  {case.calculator.label:20s} N={len(template):6d} '
+    print(f'  {calc.label:20s} N={len(template):6d} '
           f'S={steps:5d}  ' + '  '.join(f'{k}={v * 1e3:.3f}ms'
                                         for k, v in med.items()),
           flush=True)
@@ -405,8 +389,8 @@ def run(quick):
                  for n, system in OVERHEAD_SYSTEMS
                  if not quick or n in QUICK_OVERHEAD_SIZES]
     print('  cost per step:', flush=True)
-    steps = [benchmark(case, STEP_CONTESTANTS, settings)
-             for case in step_cost_cases(quick)]
+    steps = [benchmark(calc, repeat, STEP_CONTESTANTS, settings)
+             for calc, repeat in step_cost_cases(quick)]
     return {
         'settings': {**asdict(settings), 'timestep_fs': TIMESTEP_FS,
                      'floor_nudge_angstrom': FLOOR_NUDGE,
