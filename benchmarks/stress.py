@@ -151,13 +151,18 @@ def sweep(system):
         tolerance = ours['dyn'].engine.invariant.limit
         beyond = (None if tolerance is None else
                   energy_summary(ours['energies'], tolerance)[1])
+
+        def steps_from(first):
+            """Committed steps from ``first`` (None: never) to the last."""
+            return 0 if first is None else ours['steps_done'] - first + 1
+
         row = {'dt_fs': dt_fs, 'k0': k0, 'tolerance': tolerance,
                'first_beyond_tolerance_step': beyond,
-               'steps_beyond_tolerance': (
-                   0 if beyond is None else ours['steps_done'] - beyond + 1),
+               'steps_beyond_tolerance': steps_from(beyond),
                'steps_done': ours['steps_done'], 'error': ours['error'],
                'exact': ours['exact'], 'max_energy_error': worst,
-               'first_garbage_step': first_bad, **grid_use(ours)}
+               'first_garbage_step': first_bad,
+               'silent_steps': steps_from(first_bad), **grid_use(ours)}
         atoms = system['make']()
         atoms.calc = CALCULATORS[system['calculator']]()
         vv = velocity_verlet(atoms, dt_fs, system['steps'])
@@ -350,19 +355,8 @@ def _plain(value):
     return value
 
 
-def silent_steps(row):
-    """Steps ReversibleVerlet took with |E - E0| > K0 before it stopped
-    (or finished)."""
-    if row['first_garbage_step'] is None:
-        return 0
-    return row['steps_done'] - row['first_garbage_step'] + 1
-
-
 def run(quick):
     sweeps = [sweep(system) for system in sweep_systems(quick)]
-    for result in sweeps:
-        for row in result['rows']:
-            row['silent_steps'] = silent_steps(row)
     results = {
         'settings': {
             'dt_fs': DT_FS, 'ar_sigma': AR_SIGMA, 'cu_bond': CU_BOND,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from . import Spec, block, figure, markdown_table, table
+from . import Spec, figure, markdown_table, table
 
 PLOT = 'step_cost.png'
 OVERHEAD_PLOT = 'step_cost_overhead.png'
@@ -140,18 +140,6 @@ def ms(seconds):
     return f'{v:.3f}'
 
 
-def twin_gap(r):
-    """|VelocityVerlet twin / VelocityVerlet - 1|: how far two identical
-    contestants came apart; None in results from before the twin."""
-    if 'vv_twin' not in r['median_seconds']:
-        return None
-    return abs(ratio(r, 'vv_twin') - 1)
-
-
-def twin_cell(r):
-    return '–' if twin_gap(r) is None else f"×{ratio(r, 'vv_twin'):.3f}"
-
-
 def with_ratio(r, name):
     return f"{ms(r['median_seconds'][name])} (×{ratio(r, name):.2f})"
 
@@ -169,28 +157,6 @@ def us(seconds):
     return f'{seconds * 1e6:.1f}'
 
 
-def integrator_overhead_table(results):
-    header = ('system', 'N', 'steps × rounds', 'force call (µs)',
-              'VelocityVerlet overhead (µs)',
-              'Reversible velocity overhead (µs, ×VV)',
-              'Reversible position overhead (µs, ×VV)',
-              'round spread', 'wall / CPU')
-    rows = []
-    for r in results:
-        o = r['overhead_seconds']
-        rows.append((
-            r['system'], r['n_atoms'],
-            f"{r['steps_per_block']} × {r['rounds']}",
-            us(r['median_seconds']['force']), us(o['vv']),
-            f"{us(o['rv_velocity'])} "
-            f"(×{overhead_ratio(r, 'rv_velocity'):.2f})",
-            f"{us(o['rv_position'])} "
-            f"(×{overhead_ratio(r, 'rv_position'):.2f})",
-            f"{100 * max(r['spread'].values()):.0f}%",
-            f'{wall_over_cpu(r):.2f}'))
-    return markdown_table(header, rows)
-
-
 def ms_cell(name):
     return lambda r: ms(r['median_seconds'][name])
 
@@ -199,6 +165,18 @@ def ms_cell(name):
 NOISE_COLUMNS = (
     ('round spread', lambda r: f"{100 * max(r['spread'].values()):.0f}%"),
     ('wall / CPU', lambda r: f'{wall_over_cpu(r):.2f}'))
+
+OVERHEAD_COLUMNS = (
+    ('system', '{system}'), ('N', '{n_atoms}'),
+    ('steps × rounds', '{steps_per_block} × {rounds}'),
+    ('force call (µs)', lambda r: us(r['median_seconds']['force'])),
+    ('VelocityVerlet overhead (µs)',
+     lambda r: us(r['overhead_seconds']['vv'])),
+    *((f'Reversible {name} overhead (µs, ×VV)',
+       lambda r, n=f'rv_{name}': f"{us(r['overhead_seconds'][n])} "
+                                 f'(×{overhead_ratio(r, n):.2f})')
+      for name in ('velocity', 'position')),
+    *NOISE_COLUMNS)
 
 TIME_COLUMNS = (
     ('calculator', '{calculator}'), ('N', '{n_atoms}'),
@@ -210,74 +188,58 @@ TIME_COLUMNS = (
     *((f'Reversible {name} (ms/step, ×VV)',
        lambda r, n=f'rv_{name}': with_ratio(r, n))
       for name in ('velocity', 'position', 'trust')),
-    ('VelocityVerlet twin (×VV)', twin_cell),
+    ('VelocityVerlet twin (×VV)', lambda r: f"×{ratio(r, 'vv_twin'):.3f}"),
     ('clean recomputations, velocity / position',
      lambda r: f"{clean_fraction(r, 'rv_velocity')} / "
                f"{clean_fraction(r, 'rv_position')}"),
     *NOISE_COLUMNS)
 
 
-def checked(r):
-    """The contestant whose steps run the checks: 'rv_observed' (an
-    observer attached); 'rv_velocity' in results from before a plain run()
-    left the checks out between its steps."""
-    return 'rv_observed' if 'rv_observed' in r['median_seconds'] \
-        else 'rv_velocity'
+def checks_row(r):
+    """The per-step checks: 'rv_observed' (an observer attached, so the
+    checks run before every step) against 'rv_unwatched' (bypassed)."""
+    med = r['median_seconds']
+    on, off = med['rv_observed'], med['rv_unwatched']
+    paired = paired_ratios(r, 'rv_observed', 'rv_unwatched')
+    diff = 1e6 * (on - off)
+    watch = r['watch_changes_seconds']
+    spread = max(r['spread']['rv_observed'], r['spread']['rv_unwatched'])
+    return (r['calculator'], r['n_atoms'], ms(on), ms(off),
+            f"×{on / off:.3f} (×{min(paired):.2f} to ×{max(paired):.2f})",
+            f'{diff:+.1f}' if abs(diff) < 100 else f'{diff:+.0f}',
+            f'{1e6 * watch:.2f} ({100 * watch / on:.2g}%)',
+            f"{1e6 * r['watch_changes_loop_seconds']:.2f}",
+            f'{100 * spread:.0f}%')
 
 
-def checks_table(results):
-    header = ('calculator', 'N', 'Reversible velocity, observed (ms/step)',
-              'checks bypassed (ms/step)',
-              'with / without checks (per-round range)',
-              'difference of medians (µs/step)',
-              'changes() in the steps (µs/call, % of step)',
-              'changes() in a tight loop (µs/call)', 'round spread')
-    rows = []
-    for r in results:
-        med = r['median_seconds']
-        paired = paired_ratios(r, checked(r), 'rv_unwatched')
-        diff = 1e6 * (med[checked(r)] - med['rv_unwatched'])
-        watch = r['watch_changes_seconds']
-        spread = max(r['spread'][k] for k in (checked(r), 'rv_unwatched'))
-        rows.append((r['calculator'], r['n_atoms'], ms(med[checked(r)]),
-                     ms(med['rv_unwatched']),
-                     f"×{ratio(r, checked(r), 'rv_unwatched'):.3f} "
-                     f'(×{min(paired):.2f} to ×{max(paired):.2f})',
-                     f'{diff:+.1f}' if abs(diff) < 100 else f'{diff:+.0f}',
-                     f'{1e6 * watch:.2f} '
-                     f"({100 * watch / med[checked(r)]:.2g}%)",
-                     f"{1e6 * r['watch_changes_loop_seconds']:.2f}",
-                     f'{100 * spread:.0f}%'))
-    return markdown_table(header, rows)
-
-
-def check_share(r):
-    """The energy check's time per step in % of a Reversible velocity step
-    (the median step of the rounds, which includes it)."""
-    return (100 * r['energy_check_seconds_per_step']
-            / r['median_seconds']['rv_velocity'])
-
-
-def energy_check_table(results):
-    header = ('case', 'N', 'energy check (µs/step, % of step)',
-              'median call (µs)', 'energy measurements / steps')
-    rows = [(r.get('calculator', r.get('system')), r['n_atoms'],
-             f"{us(r['energy_check_seconds_per_step'])} "
-             f'({check_share(r):.2g}%)',
-             f"{1e6 * r['energy_check_median_call_seconds']:.2f}",
-             f"{r['energy_check_measurements']} / {r['energy_check_steps']}")
-            for r in results if 'energy_check_seconds_per_step' in r]
-    return markdown_table(header, rows)
+def energy_check_row(r):
+    """The energy check's time per step, also in % of a Reversible
+    velocity step (the median step of the rounds, which includes it)."""
+    share = (100 * r['energy_check_seconds_per_step']
+             / r['median_seconds']['rv_velocity'])
+    return (r.get('calculator', r.get('system')), r['n_atoms'],
+            f"{us(r['energy_check_seconds_per_step'])} ({share:.2g}%)",
+            f"{1e6 * r['energy_check_median_call_seconds']:.2f}",
+            f"{r['energy_check_measurements']} / {r['energy_check_steps']}")
 
 
 SPEC = Spec(
     'Cost per step',
-    blocks={'overhead': block(integrator_overhead_table, 'overhead'),
+    blocks={'overhead': lambda stored: table(
+                OVERHEAD_COLUMNS, stored['results']['overhead']),
             'time': lambda stored: table(
                 TIME_COLUMNS, stored['results']['step_cost']),
-            'checks': block(checks_table, 'step_cost'),
-            'energy-check': lambda stored: energy_check_table(
-                stored['results']['step_cost']
-                + stored['results']['overhead']),
-            },
+            'checks': lambda stored: markdown_table(
+                ('calculator', 'N', 'Reversible velocity, observed (ms/step)',
+                 'checks bypassed (ms/step)',
+                 'with / without checks (per-round range)',
+                 'difference of medians (µs/step)',
+                 'changes() in the steps (µs/call, % of step)',
+                 'changes() in a tight loop (µs/call)', 'round spread'),
+                map(checks_row, stored['results']['step_cost'])),
+            'energy-check': lambda stored: markdown_table(
+                ('case', 'N', 'energy check (µs/step, % of step)',
+                 'median call (µs)', 'energy measurements / steps'),
+                map(energy_check_row, stored['results']['step_cost']
+                    + stored['results']['overhead']))},
     plots=(plot,))
