@@ -2,20 +2,13 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from . import Spec, block, figure, table
 
 MEMORY_PLOT = 'adjoint_memory.png'
-COST_PLOT = 'adjoint_cost.png'
 
 
 def plot(results, figures):
-    _plot_memory(results['memory'], figures)
-    _plot_cost(results['cost'], figures)
-
-
-def _plot_memory(memory, figures):
+    memory = results['memory']
     with figure(figures / MEMORY_PLOT, 1, (6, 4)) as (plt, fig, ax):
         points = memory['points']
         n = [p['steps'] for p in points]
@@ -34,30 +27,6 @@ def _plot_memory(memory, figures):
         ax.set_title(f"{s['cluster']}, {s['temperature_K']:g} K, "
                      f"{s['timestep_fs']:g} fs: memory of a gradient through "
                      'N steps', fontsize=9)
-
-
-def _plot_cost(cost, figures):
-    cases = cost['cases']
-    with figure(figures / COST_PLOT, 1,
-                (9, 0.5 * len(cases) + 1.8)) as (plt, fig, ax):
-        labels = [case_name(c) for c in cases]
-        ratio = np.array([c['backward_over_forward'] for c in cases])
-        share = np.array([c['backward_share_in_products'] for c in cases])
-        y = np.arange(len(cases))[::-1]
-        ax.barh(y, ratio * (1 - share), color='C0',
-                label='retrace and adjoint bookkeeping')
-        ax.barh(y, ratio * share, left=ratio * (1 - share), color='C1',
-                label='Hessian-vector products')
-        for yi, r in zip(y, ratio):
-            ax.annotate(f'{r:.2f}', (r, yi), xytext=(3, 0),
-                        textcoords='offset points', va='center', fontsize=8)
-        ax.axvline(1, color='grey', lw=0.5)
-        ax.set_yticks(y)
-        ax.set_yticklabels(labels, fontsize=8)
-        ax.set_xlabel('backpropagate time per step, in forward steps')
-        ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.16), ncol=2,
-                  fontsize=8, frameon=False)
-        ax.set_xlim(0, ratio.max() * 1.15)
 
 
 # -- render -------------------------------------------------------------------

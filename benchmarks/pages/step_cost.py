@@ -5,7 +5,6 @@ from __future__ import annotations
 from . import Spec, figure, markdown_table, table
 
 PLOT = 'step_cost.png'
-OVERHEAD_PLOT = 'step_cost_overhead.png'
 
 
 # -- derived numbers -------------------------------------------------------
@@ -56,8 +55,6 @@ TARGET_OVERHEAD_MIN_ATOMS = 4000
 
 
 def plot(results, figures):
-    if results.get('overhead'):
-        plot_overhead(results['overhead'], figures)
     steps = results['step_cost']
     with figure(figures / PLOT, 2, (11, 4.3)) as (plt, fig, (left, right)):
         from matplotlib.lines import Line2D
@@ -104,29 +101,6 @@ def plot(results, figures):
             ax.xaxis.set_minor_formatter(NullFormatter())
             ax.set_xlabel('number of atoms')
             ax.grid(True, which='major', alpha=0.3)
-
-
-def plot_overhead(overheads, figures):
-    with figure(figures / OVERHEAD_PLOT, 1, (6.5, 4.3)) as (plt, fig, ax):
-        from matplotlib.ticker import FuncFormatter, NullFormatter
-        n = [r['n_atoms'] for r in overheads]
-        for name, label, style in (('vv', 'VelocityVerlet', 'x--'),
-                                   ('rv_velocity', 'Reversible velocity', 'o-'),
-                                   ('rv_position', 'Reversible position', 's:')):
-            ax.plot(n, [1e6 * r['overhead_seconds'][name] for r in overheads],
-                    style, label=label)
-        ax.plot(n, [1e6 * r['median_seconds']['force'] for r in overheads],
-                'k.-', lw=0.8, alpha=0.6, label='the force call (floor)')
-        ax.set_xscale('log')
-        ax.set_yscale('log')
-        ax.set_xticks(n)
-        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
-        ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.set_xlabel('number of atoms')
-        ax.set_ylabel('µs per step beyond the force call')
-        ax.set_title('Integrator overhead (CachedForces calculator)')
-        ax.grid(True, which='major', alpha=0.3)
-        ax.legend(fontsize=8)
 
 
 # -- Markdown --------------------------------------------------------------
