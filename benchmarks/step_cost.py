@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
+import io
 import statistics
 import time
 from dataclasses import asdict, dataclass
@@ -17,9 +18,10 @@ import numpy as np
 import systems
 from ase import units
 from ase.calculators.emt import EMT
+from ase.md.logger import MDLogger
 from ase.md.verlet import VelocityVerlet
 from harness import (FLOOR_NUDGE, Contestant, Settings, choose_steps, medians,
-                     per_step, time_interleaved)
+                     per_step, time_cached_queries, time_interleaved)
 
 from ase_reversible import ReversibleVerlet
 from ase_reversible.app import systems as app_systems
@@ -113,6 +115,13 @@ def step_cost_cases(quick):
     return [(calc, r) for calc in CALCULATORS for r in REPEATS
             if calc.min_atoms <= 4 * np.prod(r)
             <= (calc.quick_max_atoms if quick else calc.full_max_atoms)]
+
+
+def logging_cases(quick):
+    """One ASE LJ and one mid-size asap3 EMT case for the logger table."""
+    by_label = {c.label: c for c in CALCULATORS}
+    return [(by_label['ASE LennardJones'], REPEATS[0]),
+            (by_label['asap3 EMT'], REPEATS[1] if quick else REPEATS[2])]
 
 
 # -- contestants -----------------------------------------------------------
@@ -246,17 +255,21 @@ INTEGRATORS = {
 }
 STEP_CONTESTANTS = ('force', 'replay', 'vv', 'vv_twin', 'rv_velocity',
                     'rv_position', 'rv_trust', 'rv_observed', 'rv_unwatched')
+LOGGING_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
 #: With CachedForces 'auto' is 'trust': rv_trust would be rv_velocity again.
 OVERHEAD_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
 
 
-def make_contestants(template, calc, names):
+def make_contestants(template, calc, names, with_logger=False):
     """Each contestant on its own copy of the same atoms and calculator."""
     contestants = []
     for name in names:
         atoms = template.copy()
         atoms.calc = calc.make_calc()
-        contestants.append(Contestant(name, INTEGRATORS[name](atoms)))
+        runner = INTEGRATORS[name](atoms)
+        if with_logger and name not in ('force', 'replay'):
+            runner.attach(MDLogger(runner, atoms, io.StringIO()), interval=1)
+        contestants.append(Contestant(name, runner))
     return contestants
 
 
@@ -299,10 +312,10 @@ def time_energy_check(dyn, steps):
             'energy_check_steps': steps}
 
 
-def benchmark(calc, repeat, names, settings):
+def benchmark(calc, repeat, names, settings, with_logger=False):
     """Time one case; returns a JSON-ready dict of raw and median results."""
     template = calc.build(repeat)
-    contestants = make_contestants(template, calc, names)
+    contestants = make_contestants(template, calc, names, with_logger)
     for c in contestants:
         if not isinstance(c.runner, ReplayFloor):
             c.runner.run(settings.warmup_steps)
@@ -323,16 +336,21 @@ def benchmark(calc, repeat, names, settings):
                 'recomputations': c.clean_recomputations()
                 - clean_before[c.name],
                 'force_calls': force_calls}
+    # Few calls suffice: a cache hit and a recomputation differ 100-fold.
+    forces_again, energy_after = time_cached_queries(
+        by_name['force'].runner.atoms, min(steps, 20))
     in_step, in_loop = (time_watch(by_name['rv_observed'].runner, steps)
                         if 'rv_unwatched' in by_name else (None, None))
     check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
         **check,
         'calculator': calc.label, 'system': calc.system,
-        'n_atoms': len(template),
+        'n_atoms': len(template), 'with_logger': with_logger,
         'steps_per_block': steps, 'rounds': settings.rounds,
         **per_step(wall, cpu),
         'clean_recomputations': clean,
+        'get_forces_again_seconds': forces_again,
+        'energy_after_forces_seconds': energy_after,
         'watch_changes_seconds': in_step,
         'watch_changes_loop_seconds': in_loop,
         'force_purity': {c.name: c.purity.todict() for c in contestants
@@ -391,6 +409,10 @@ def run(quick):
     print('  cost per step:', flush=True)
     steps = [benchmark(calc, repeat, STEP_CONTESTANTS, settings)
              for calc, repeat in step_cost_cases(quick)]
+    print('  with a logger every step:', flush=True)
+    logging = [benchmark(calc, repeat, LOGGING_CONTESTANTS, settings,
+                         with_logger=True)
+               for calc, repeat in logging_cases(quick)]
     return {
         'settings': {**asdict(settings), 'timestep_fs': TIMESTEP_FS,
                      'floor_nudge_angstrom': FLOOR_NUDGE,
@@ -400,6 +422,7 @@ def run(quick):
                      'watch_blocks': WATCH_BLOCKS,
                      'overhead': asdict(overhead_settings)},
         'step_cost': steps,
+        'logging': logging,
         'overhead': overheads,
     }
 

@@ -32,6 +32,12 @@ def wall_over_cpu(r):
                for k in r['median_seconds'])
 
 
+def position_extra_calls(r):
+    """Extra cost of 'position' over 'velocity', in nudge force calls."""
+    med = r['median_seconds']
+    return (med['rv_position'] - med['rv_velocity']) / med['force']
+
+
 def by_calculator(results):
     groups = {}
     for r in results:
@@ -169,6 +175,34 @@ TIME_COLUMNS = (
     *NOISE_COLUMNS)
 
 
+LOGGING_COLUMNS = (
+    ('calculator', '{calculator}'), ('N', '{n_atoms}'),
+    ('nudge floor (ms)', ms_cell('force')),
+    ('VelocityVerlet + logger (ms/step)', ms_cell('vv')),
+    *((f'Reversible {name} + logger (ms/step, ×VV)',
+       lambda r, n=f'rv_{name}': with_ratio(r, n))
+      for name in ('velocity', 'position')),
+    ('position − velocity (ms/step, in nudge force calls)',
+     lambda r: f"{ms(r['median_seconds']['rv_position'] - r['median_seconds']['rv_velocity'])} "
+               f'({position_extra_calls(r):.2f})'),
+    *NOISE_COLUMNS)
+
+
+def cached(key):
+    """A cached query's time, also in nudge force calls."""
+    return lambda r: (f'{ms(r[key])} '
+                      f"({r[key] / r['median_seconds']['force']:.2f})")
+
+
+CACHE_COLUMNS = (
+    ('calculator', '{calculator}'), ('N', '{n_atoms}'),
+    ('nudge floor (ms)', ms_cell('force')),
+    ('get_forces() again (ms, in force calls)',
+     cached('get_forces_again_seconds')),
+    ('get_potential_energy() after get_forces() (ms, in force calls)',
+     cached('energy_after_forces_seconds')))
+
+
 def checks_row(r):
     """The per-step checks: 'rv_observed' (an observer attached, so the
     checks run before every step) against 'rv_unwatched' (bypassed)."""
@@ -215,5 +249,9 @@ SPEC = Spec(
                 ('case', 'N', 'energy check (µs/step, % of step)',
                  'median call (µs)', 'energy measurements / steps'),
                 map(energy_check_row, stored['results']['step_cost']
-                    + stored['results']['overhead']))},
+                    + stored['results']['overhead'])),
+            'logging': lambda stored: table(
+                LOGGING_COLUMNS, stored['results']['logging']),
+            'cache': lambda stored: table(
+                CACHE_COLUMNS, stored['results']['step_cost'])},
     plots=(plot,))
