@@ -72,20 +72,17 @@ class OldLennardJones(LennardJones):
                 -60 * t_p * (1 - t_p) * (1 - 2 * t_p) / width**2)
 
 
-class OldSoftenedGravity(SoftenedGravity):
-    """SoftenedGravity with its ``einsum`` row sums."""
+def with_einsum_rows(cls, module):
+    """``cls`` computing with ``module``'s old ``einsum`` row sums."""
+    class Old(cls):
+        def calculate(self, *args, **kwargs):
+            with old_kernels(module, rowsquare=einsum_rowsquare):
+                super().calculate(*args, **kwargs)
+    return Old
 
-    def calculate(self, *args, **kwargs):
-        with old_kernels(gravity, rowsquare=einsum_rowsquare):
-            super().calculate(*args, **kwargs)
 
-
-class OldPendulumChain(PendulumChain):
-    """PendulumChain with its ``einsum`` link lengths."""
-
-    def calculate(self, *args, **kwargs):
-        with old_kernels(chain, rowsquare=einsum_rowsquare):
-            super().calculate(*args, **kwargs)
+OldSoftenedGravity = with_einsum_rows(SoftenedGravity, gravity)
+OldPendulumChain = with_einsum_rows(PendulumChain, chain)
 
 
 # -- systems ------------------------------------------------------------------
