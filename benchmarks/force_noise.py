@@ -1,9 +1,5 @@
-"""Force history noise of each calculator, and what a rebuild costs: forces
-of a fresh calculator against those of one whose neighbour list was built
-elsewhere, and a force call against one that rebuilds the list.
-
-    python benchmarks/run_all.py --only force_noise
-"""
+"""Force history noise of each calculator, and what a neighbour-list
+rebuild costs."""
 
 from __future__ import annotations
 

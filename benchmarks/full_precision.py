@@ -1,11 +1,6 @@
-"""What full precision under asap3 would take: per asap3 system, the
-history noise a 'guarded' run meets (forces against a list built at the
-same positions), the momentum quanta of 'trust', 'auto' and what 1% of
-clean recomputations would need, the share of kicks inside the guard band,
-and the cost of a clean recomputation in force calls.
-
-    python benchmarks/run_all.py --only full_precision
-"""
+"""What full precision under asap3 would take: the history noise a
+'guarded' run meets, the momentum quanta, the share of kicks in the guard
+band, and a clean recomputation's cost in force calls."""
 
 from __future__ import annotations
 

@@ -1,15 +1,9 @@
-"""What the portable arithmetic costs: the package's calculators and the
-kinetic energy with the kernels before and after.
-
-    python benchmarks/run_all.py --only portable           # a few minutes
-    python benchmarks/run_all.py --quick --only portable   # < 1 minute
+"""What the portable arithmetic costs: the package's force calls and the
+kinetic energy with the kernels before and after, in one process.
 
 The old kernels (numpy powers such as ``(sigma / r)**6``, ``einsum`` row
-sums) are put back into the package's own calculators by swapping the
-module's portable kernels while an old calculator computes, so old and new
-run in one process on the same atoms, in interleaved blocks: the force
-call, ReversibleVerlet steps, and ``momentum_square`` (the BLAS dot it was
-against the ``np.sum`` it is).  Medians over rounds, per call.
+sums) are swapped into the package's modules while an old calculator
+computes; ``momentum_square`` was a BLAS dot and is an ``np.sum``.
 """
 
 from __future__ import annotations
@@ -20,24 +14,21 @@ import contextlib
 import os
 import statistics
 import time
-import warnings
 
 import numpy as np
-from ase import units
 from ase.cluster import Icosahedron
 
-from ase_reversible import (LennardJones, PendulumChain, ReversibleVerlet,
-                            SoftenedGravity)
+from ase_reversible import LennardJones, PendulumChain, SoftenedGravity
 from ase_reversible.app.systems import AR_EPSILON, AR_SIGMA, thermalize
 from ase_reversible.calculators import (chain, gravity, lennardjones,
                                         make_chain, make_ring)
 
 FULL = {'rounds': 9, 'block_seconds': 0.2,
         'lj_shells': (3, 4, 5, 6), 'ring_sizes': (32, 128, 512),
-        'chain_links': (16, 256, 4096), 'step_cases': 3}
+        'chain_links': (16, 256, 4096)}
 QUICK = {'rounds': 3, 'block_seconds': 0.03,
          'lj_shells': (3, 4), 'ring_sizes': (32, 128),
-         'chain_links': (16, 256), 'step_cases': 1}
+         'chain_links': (16, 256)}
 
 
 # -- the kernels as they were ----------------------------------------------
@@ -81,20 +72,17 @@ class OldLennardJones(LennardJones):
                 -60 * t_p * (1 - t_p) * (1 - 2 * t_p) / width**2)
 
 
-class OldSoftenedGravity(SoftenedGravity):
-    """SoftenedGravity with its ``einsum`` row sums."""
+def with_einsum_rows(cls, module):
+    """``cls`` computing with ``module``'s old ``einsum`` row sums."""
+    class Old(cls):
+        def calculate(self, *args, **kwargs):
+            with old_kernels(module, rowsquare=einsum_rowsquare):
+                super().calculate(*args, **kwargs)
+    return Old
 
-    def calculate(self, *args, **kwargs):
-        with old_kernels(gravity, rowsquare=einsum_rowsquare):
-            super().calculate(*args, **kwargs)
 
-
-class OldPendulumChain(PendulumChain):
-    """PendulumChain with its ``einsum`` link lengths."""
-
-    def calculate(self, *args, **kwargs):
-        with old_kernels(chain, rowsquare=einsum_rowsquare):
-            super().calculate(*args, **kwargs)
+OldSoftenedGravity = with_einsum_rows(SoftenedGravity, gravity)
+OldPendulumChain = with_einsum_rows(PendulumChain, chain)
 
 
 # -- systems ------------------------------------------------------------------
@@ -106,19 +94,18 @@ def argon(shells):
 
 
 def cases(settings):
-    """(name, atoms builder, old calculator, new calculator, time step)."""
+    """(name, atoms builder, old calculator, new calculator)."""
     lj = {'epsilon': AR_EPSILON, 'sigma': AR_SIGMA, 'rc': 8.5}
     for shells in settings['lj_shells']:
         yield ('LennardJones', lambda s=shells: argon(s),
-               lambda: OldLennardJones(**lj), lambda: LennardJones(**lj),
-               5 * units.fs)
+               lambda: OldLennardJones(**lj), lambda: LennardJones(**lj))
     for n in settings['ring_sizes']:
         yield ('SoftenedGravity', lambda n=n: make_ring(n, spin=0.5,
                                                         jitter=0.3),
-               OldSoftenedGravity, SoftenedGravity, 0.05)
+               OldSoftenedGravity, SoftenedGravity)
     for n in settings['chain_links']:
         yield ('PendulumChain', lambda n=n: make_chain(n), OldPendulumChain,
-               PendulumChain, 0.01)
+               PendulumChain)
 
 
 # -- timing -------------------------------------------------------------------
@@ -167,21 +154,6 @@ def force_caller(atoms, calc):
     return call
 
 
-#: Steps per timed call: one ``run`` call of ASE's costs more than a step
-#: of a small system.
-STEPS_PER_CALL = 10
-
-
-def step_caller(atoms, calc, dt):
-    """``STEPS_PER_CALL`` steps of ReversibleVerlet in one ``run``."""
-    atoms = atoms.copy()
-    atoms.calc = calc
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore')
-        dyn = ReversibleVerlet(atoms, dt, energy_check=0)
-    return lambda: dyn.run(STEPS_PER_CALL)
-
-
 def momentum_square_callers(n_atoms):
     """The old BLAS dot and the new ``np.sum`` of ``(p / sqrt m)**2``."""
     rng = np.random.default_rng(0)
@@ -204,9 +176,8 @@ def run(quick) -> dict:
     settings = QUICK if quick else FULL
     rounds, block = settings['rounds'], settings['block_seconds']
     load_before = os.getloadavg()[0]
-    forces, steps, kinetic = [], [], []
-    step_done = {}
-    for name, build, old, new, dt in cases(settings):
+    forces, kinetic = [], []
+    for name, build, old, new in cases(settings):
         atoms = build()
         times = interleaved({'old': force_caller(atoms, old()),
                              'new': force_caller(atoms, new())},
@@ -217,18 +188,10 @@ def run(quick) -> dict:
         print(f"  {name} {len(atoms)} atoms: force call "
               f"{times['old'] * 1e3:.3f} -> {times['new'] * 1e3:.3f} ms",
               flush=True)
-        if step_done.get(name, 0) < settings['step_cases']:
-            step_done[name] = step_done.get(name, 0) + 1
-            times = interleaved({'old': step_caller(atoms, old(), dt),
-                                 'new': step_caller(atoms, new(), dt)},
-                                rounds, block)
-            steps.append({'calculator': name, 'n_atoms': len(atoms),
-                          'old_seconds': times['old'] / STEPS_PER_CALL,
-                          'new_seconds': times['new'] / STEPS_PER_CALL})
     for n_atoms in (55, 1000, 10000):
         times = interleaved(momentum_square_callers(n_atoms), rounds, block)
         kinetic.append({'n_atoms': n_atoms, 'old_seconds': times['old'],
                         'new_seconds': times['new']})
-    return {'settings': settings, 'forces': forces, 'steps': steps,
+    return {'settings': settings, 'forces': forces,
             'momentum_square': kinetic,
             'load_average': [load_before, os.getloadavg()[0]]}

@@ -4,16 +4,11 @@
     python benchmarks/render.py --check    # exit 1, with a diff, if stale
     python benchmarks/render.py --out DIR  # DIR/*.md from DIR/benchmarks/
 
-The prose of ``docs/benchmarks.md`` and of the other pages is written by
-hand; the numbers are not.  They sit between marker comments (see
-``block_markers``) that name a section (``<out>/benchmarks/<section>.json``
-as written by ``run_all.py``) and one of its blocks (``pages.SPECS``:
-tables, lists); every block found in a page is rewritten from the
-stored JSON, and every block a section declares must be found once.
-Numbers inside the prose are inline values (``INLINE``), rewritten the
-same way.  The renderer formats, it does not judge: verdicts are the prose's.
-Measures nothing, so the pages can be rebuilt (or restyled) without
-rerunning hours of measurements.
+The prose of the docs pages is written by hand; the numbers are not.  They
+sit between marker comments (``block_markers``) naming a section (its
+``<out>/benchmarks/<section>.json``) and one of its blocks
+(``pages.SPECS``), each declared block found once, or inline in the prose
+(``INLINE``).  The renderer formats, it does not judge or measure.
 """
 
 from __future__ import annotations
@@ -31,8 +26,7 @@ from pages import SPECS, measured
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / 'docs'
 
-#: The sections in the order of docs/benchmarks.md; each is measured by
-#: benchmarks/<name>.py and specified by pages.SPECS[name].
+#: The sections in the order of docs/benchmarks.md.
 SECTIONS = tuple(SPECS)
 
 MARKER = re.compile(r'<!-- (\w+) ([\w-]+): written by benchmarks/render\.py')
@@ -50,9 +44,8 @@ def block_markers(name, block):
 
 
 def with_blocks(text, name, blocks) -> str:
-    """``text`` with each block's markers enclosing its newly rendered
-    Markdown; a page without a block's markers is an error, not a skip, so
-    that a moved heading cannot leave old numbers standing."""
+    """``text`` with each block's markers enclosing its new Markdown; missing
+    markers are an error, so a moved heading cannot leave old numbers."""
     for block, markdown in blocks.items():
         begin, end = block_markers(name, block)
         if text.count(begin) != 1 or text.count(end) != 1:
@@ -75,8 +68,7 @@ def stored_sections(out: Path) -> dict:
 
 
 def block_markdown(name, block, stored) -> str:
-    """One block's Markdown from the section's stored JSON (or a line
-    saying it was not measured into this directory)."""
+    """One block's Markdown from the section's stored JSON."""
     if name not in stored:
         return (f'*Not measured yet: `python benchmarks/run_all.py --only '
                 f'{name}` stores benchmarks/{name}.json.*'
@@ -104,9 +96,8 @@ def inline_values(text, stored) -> str:
 
 
 def rendered_pages(out: Path) -> dict:
-    """{page path: (old text, new text)} of every page of ``out`` with
-    generated blocks.  Raises if a block is unknown or a declared one is
-    missing or repeated."""
+    """{page: (old text, new text)} of the pages of ``out`` with generated
+    blocks; raises if a block is unknown, missing or repeated."""
     stored = stored_sections(out)
     pages, seen = {}, {}
     for path in sorted(out.glob('*.md')):
@@ -137,22 +128,23 @@ def rendered_pages(out: Path) -> dict:
 def render(out: Path, plots=True) -> Path:
     """Rewrite the generated blocks of the pages in ``out`` (and, with
     ``plots``, every plot of a stored section); a directory other than
-    docs/ gets a copy of docs/benchmarks.md to fill."""
-    page = out / 'benchmarks.md'
-    if not page.exists():
-        shutil.copy(DOCS / 'benchmarks.md', page)
+    docs/ gets a copy of each docs page with generated blocks to fill."""
+    for source in DOCS.glob('*.md'):
+        if not (out / source.name).exists() and MARKER.search(
+                source.read_text()):
+            shutil.copy(source, out / source.name)
     if plots:
         for name, s in stored_sections(out).items():
             for plot in SPECS[name].plots:
                 plot(s['results'], out / 'benchmarks')
     for path, (_, new) in rendered_pages(out).items():
         path.write_text(new)
-    return page
+    return out / 'benchmarks.md'
 
 
 def check(out: Path) -> int:
-    """0 when every generated block of ``out`` is what the stored JSON
-    renders to; else 1, with the unified diff on stdout."""
+    """0 when the generated blocks of ``out`` are what the stored JSON
+    renders to; else 1, with the diff on stdout."""
     stale = 0
     for path, (old, new) in rendered_pages(out).items():
         if old != new:

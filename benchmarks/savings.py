@@ -1,11 +1,6 @@
-"""Before and after: per-step cost of the package at two or more commits.
-
-Each commit of ``COMMITS`` is exported with ``git archive`` and imported by
-a worker process of its own (this script with ``--worker``); the workers
-get the same pickled atoms and calculator and run blocks of steps in
-rotating rounds, so the commits are timed side by side.  A commit missing
-from the clone is reported as skipped.
-"""
+"""Per-step cost of the package at several commits, each exported with
+``git archive`` into a worker process of its own (``--worker``), timed side
+by side in rotating rounds; a commit missing from the clone is skipped."""
 
 from __future__ import annotations
 
@@ -31,10 +26,6 @@ COMMITS = (
     ('d48a84e', "guard bound scaled with the coordinates' extent"),
     ('bedad94', 'before the engine rewrite: the integrator as one class'),
 )
-#: The reference every commit's cost is also given against, run by a worker
-#: of its own in the same rounds.
-REFERENCE = 'VelocityVerlet'
-
 #: (label, steps per block in the full and the quick run; None: not run).
 CASES = (
     ('Cu 4000 asap3 EMT', (100, 20)),
@@ -67,27 +58,24 @@ def build(label):
     raise ValueError(label)
 
 
-def worker(source, case_file, integrator='ReversibleVerlet'):
+def worker(source, case_file):
     """Run blocks of steps on request: a line with a number of steps on
     stdin, a line with the seconds they took on stdout."""
     from ase import units
-    from ase.md.verlet import VelocityVerlet
 
     import ase_reversible
     from ase_reversible import ReversibleVerlet
     assert ase_reversible.__file__.startswith(source), ase_reversible.__file__
     atoms, calc = pickle.loads(Path(case_file).read_bytes())
     atoms.calc = calc() if callable(calc) else calc
-    md = VelocityVerlet if integrator == REFERENCE else ReversibleVerlet
-    dyn = md(atoms, TIMESTEP_FS * units.fs)
+    dyn = ReversibleVerlet(atoms, TIMESTEP_FS * units.fs)
     dyn.run(WARMUP_STEPS)
     print('ready', flush=True)
     for line in sys.stdin:
         steps = int(line)
-        start, cpu = time.perf_counter(), time.process_time()
+        start = time.perf_counter()
         dyn.run(steps)
-        print(time.perf_counter() - start, time.process_time() - cpu,
-              flush=True)
+        print(time.perf_counter() - start, flush=True)
 
 
 def export(commit, into: Path) -> bool:
@@ -112,18 +100,13 @@ def head_commits():
 def time_case(label, steps, sources, quick, case_file):
     workers = {}
     for name, path in sources.items():
-        integrator = REFERENCE if name == REFERENCE else 'ReversibleVerlet'
         workers[name] = subprocess.Popen(
-            [sys.executable, __file__, '--worker', str(path), str(case_file),
-             integrator],
+            [sys.executable, __file__, '--worker', str(path), str(case_file)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
             env={**common.os.environ, 'PYTHONPATH': str(path)})
         assert workers[name].stdout.readline().strip() == 'ready'
     names = list(workers)
     samples = {name: [] for name in names}
-    cpu_samples = {name: [] for name in names}
-    # The process's CPU time does not count the waits for a core on a
-    # shared machine; the wall time does.  Both are kept.
     rounds = 3 if quick else 15
     try:
         for r in range(rounds):
@@ -131,9 +114,7 @@ def time_case(label, steps, sources, quick, case_file):
                 proc = workers[name]
                 proc.stdin.write(f'{steps}\n')
                 proc.stdin.flush()
-                wall, cpu = map(float, proc.stdout.readline().split())
-                samples[name].append(wall / steps)
-                cpu_samples[name].append(cpu / steps)
+                samples[name].append(float(proc.stdout.readline()) / steps)
     finally:
         for proc in workers.values():
             proc.stdin.close()
@@ -141,8 +122,6 @@ def time_case(label, steps, sources, quick, case_file):
     medians = {name: statistics.median(v) for name, v in samples.items()}
     return {'case': label, 'steps_per_block': steps, 'rounds': rounds,
             'ms_per_step': {n: 1e3 * m for n, m in medians.items()},
-            'cpu_ms_per_step': {n: 1e3 * statistics.median(v)
-                                for n, v in cpu_samples.items()},
             'spread': max((max(v) - min(v)) / statistics.median(v)
                           for v in samples.values())}
 
@@ -167,7 +146,6 @@ def run(quick):
             sources[label] = common.ROOT
         if len(sources) < 2:
             return results
-        sources[REFERENCE] = common.ROOT
         for label, (full_steps, quick_steps) in CASES:
             steps = quick_steps if quick else full_steps
             if steps is None:
@@ -181,4 +159,4 @@ def run(quick):
 
 
 if __name__ == '__main__' and sys.argv[1:2] == ['--worker']:
-    worker(*sys.argv[2:5])
+    worker(*sys.argv[2:4])

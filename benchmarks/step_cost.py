@@ -1,18 +1,5 @@
-"""Cost per MD step of ReversibleVerlet against ASE's VelocityVerlet.
-
-    python benchmarks/run_all.py --only step_cost           # ~8-12 minutes
-    python benchmarks/run_all.py --quick --only step_cost   # < 40 s
-
-Every contestant runs its own copy of the same atoms with its own
-calculator, in interleaved rounds.  The contestants: two floors for the
-force call alone ('force': one atom nudged, never a list rebuild;
-'replay': a recorded VelocityVerlet trajectory's force calls), 'vv' and its
-twin 'vv_twin' (the resolution of the measurement), ReversibleVerlet's
-schemes, 'rv_trust' (no purity handling), and 'rv_observed' /
-'rv_unwatched' (the per-step checks of ``SystemWatch`` with an observer
-attached, and the same steps without them).  The overhead cases use
-``systems.CachedForces``, whose force call costs microseconds; 'pairs'
-times asap3 EMT again with only three contestants in the rounds.
+"""Cost per MD step of ReversibleVerlet against ASE's VelocityVerlet
+(the contestants and the method: docs/benchmarks.md, "Cost per step").
 """
 
 from __future__ import annotations
@@ -22,7 +9,7 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 import io
 import statistics
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from typing import Callable
 
 import asap3
@@ -123,33 +110,18 @@ CALCULATORS = (
 )
 
 
-@dataclass(frozen=True)
-class Case:
-    calculator: Calculator
-    repeat: tuple
-
-    @property
-    def n_atoms(self):
-        return 4 * int(np.prod(self.repeat))
-
-    def build(self):
-        return self.calculator.build(self.repeat)
-
-
 def step_cost_cases(quick):
-    cases = []
-    for calc in CALCULATORS:
-        limit = calc.quick_max_atoms if quick else calc.full_max_atoms
-        cases += [Case(calc, r) for r in REPEATS
-                  if calc.min_atoms <= 4 * np.prod(r) <= limit]
-    return cases
+    """(calculator, repeat) of each case."""
+    return [(calc, r) for calc in CALCULATORS for r in REPEATS
+            if calc.min_atoms <= 4 * np.prod(r)
+            <= (calc.quick_max_atoms if quick else calc.full_max_atoms)]
 
 
 def logging_cases(quick):
     """One ASE LJ and one mid-size asap3 EMT case for the logger table."""
     by_label = {c.label: c for c in CALCULATORS}
-    return [Case(by_label['ASE LennardJones'], REPEATS[0]),
-            Case(by_label['asap3 EMT'], REPEATS[1] if quick else REPEATS[2])]
+    return [(by_label['ASE LennardJones'], REPEATS[0]),
+            (by_label['asap3 EMT'], REPEATS[1] if quick else REPEATS[2])]
 
 
 # -- contestants -----------------------------------------------------------
@@ -286,19 +258,14 @@ STEP_CONTESTANTS = ('force', 'replay', 'vv', 'vv_twin', 'rv_velocity',
 LOGGING_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
 #: With CachedForces 'auto' is 'trust': rv_trust would be rv_velocity again.
 OVERHEAD_CONTESTANTS = ('force', 'vv', 'rv_velocity', 'rv_position')
-#: The ratio to VelocityVerlet measured again with only these contestants
-#: in the rounds (see top), for asap3 EMT from 1000 atoms up.
-PAIR_CONTESTANTS = ('force', 'vv', 'rv_velocity')
-PAIR_CALCULATOR, PAIR_MIN_ATOMS = 'asap3 EMT', 1000
-PAIR_ROUNDS, PAIR_ROUNDS_QUICK = 21, 3
 
 
-def make_contestants(template, case, names, with_logger=False):
+def make_contestants(template, calc, names, with_logger=False):
     """Each contestant on its own copy of the same atoms and calculator."""
     contestants = []
     for name in names:
         atoms = template.copy()
-        atoms.calc = case.calculator.make_calc()
+        atoms.calc = calc.make_calc()
         runner = INTEGRATORS[name](atoms)
         if with_logger and name not in ('force', 'replay'):
             runner.attach(MDLogger(runner, atoms, io.StringIO()), interval=1)
@@ -345,10 +312,10 @@ def time_energy_check(dyn, steps):
             'energy_check_steps': steps}
 
 
-def benchmark(case, names, settings, with_logger=False):
+def benchmark(calc, repeat, names, settings, with_logger=False):
     """Time one case; returns a JSON-ready dict of raw and median results."""
-    template = case.build()
-    contestants = make_contestants(template, case, names, with_logger)
+    template = calc.build(repeat)
+    contestants = make_contestants(template, calc, names, with_logger)
     for c in contestants:
         if not isinstance(c.runner, ReplayFloor):
             c.runner.run(settings.warmup_steps)
@@ -356,7 +323,7 @@ def benchmark(case, names, settings, with_logger=False):
     steps = choose_steps(by_name['vv'].runner.run, settings)
     if 'replay' in by_name:
         replay = by_name['replay'].runner
-        replay.record(template, case.calculator.make_calc,
+        replay.record(template, calc.make_calc,
                       settings.warmup_steps + steps * settings.rounds)
         replay.run(settings.warmup_steps)
     clean_before = {c.name: c.clean_recomputations() for c in contestants}
@@ -377,8 +344,7 @@ def benchmark(case, names, settings, with_logger=False):
     check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
         **check,
-        'calculator': case.calculator.label,
-        'system': case.calculator.system,
+        'calculator': calc.label, 'system': calc.system,
         'n_atoms': len(template), 'with_logger': with_logger,
         'steps_per_block': steps, 'rounds': settings.rounds,
         **per_step(wall, cpu),
@@ -393,7 +359,7 @@ def benchmark(case, names, settings, with_logger=False):
                   if hasattr(c.runner, 'grid')},
     }
     med = result['median_seconds']
-    print(f'  {case.calculator.label:20s} N={len(template):6d} '
+    print(f'  {calc.label:20s} N={len(template):6d} '
           f'S={steps:5d}  ' + '  '.join(f'{k}={v * 1e3:.3f}ms'
                                         for k, v in med.items()),
           flush=True)
@@ -414,7 +380,7 @@ def overhead(n_atoms, system, settings):
     by_name = {c.name: c for c in contestants}
     steps = choose_steps(by_name['vv'].runner.run, settings)
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
-    med, med_cpu = medians(wall), medians(cpu)
+    med = medians(wall)
     check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
         **check,
@@ -423,9 +389,6 @@ def overhead(n_atoms, system, settings):
         **per_step(wall, cpu),
         'overhead_seconds': {k: v - med['force'] for k, v in med.items()
                              if k != 'force'},
-        'overhead_cpu_seconds': {k: v - med_cpu['force']
-                                 for k, v in med_cpu.items()
-                                 if k != 'force'},
         'force_purity': {c.name: c.purity.todict() for c in contestants
                          if c.purity is not None},
     }
@@ -444,20 +407,12 @@ def run(quick):
                  for n, system in OVERHEAD_SYSTEMS
                  if not quick or n in QUICK_OVERHEAD_SIZES]
     print('  cost per step:', flush=True)
-    steps = [benchmark(case, STEP_CONTESTANTS, settings)
-             for case in step_cost_cases(quick)]
+    steps = [benchmark(calc, repeat, STEP_CONTESTANTS, settings)
+             for calc, repeat in step_cost_cases(quick)]
     print('  with a logger every step:', flush=True)
-    logging = [benchmark(case, LOGGING_CONTESTANTS, settings,
+    logging = [benchmark(calc, repeat, LOGGING_CONTESTANTS, settings,
                          with_logger=True)
-               for case in logging_cases(quick)]
-    print('  pairs (VelocityVerlet and Reversible velocity alone):',
-          flush=True)
-    pair_settings = replace(settings, rounds=PAIR_ROUNDS_QUICK if quick
-                            else PAIR_ROUNDS)
-    pairs = [benchmark(case, PAIR_CONTESTANTS, pair_settings)
-             for case in step_cost_cases(quick)
-             if case.calculator.label == PAIR_CALCULATOR
-             and case.n_atoms >= PAIR_MIN_ATOMS]
+               for calc, repeat in logging_cases(quick)]
     return {
         'settings': {**asdict(settings), 'timestep_fs': TIMESTEP_FS,
                      'floor_nudge_angstrom': FLOOR_NUDGE,
@@ -469,7 +424,5 @@ def run(quick):
         'step_cost': steps,
         'logging': logging,
         'overhead': overheads,
-        'pairs': pairs,
-        'pair_rounds': pair_settings.rounds,
     }
 

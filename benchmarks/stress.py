@@ -1,12 +1,7 @@
-"""Numerical stability: blow-ups, evaporation, close contacts, diffusion.
-
-(a) time-step sweeps far past the stability limit (free Ar cluster, ASE
-LennardJones; periodic Cu, asap3 EMT), ReversibleVerlet against
-VelocityVerlet, a stopped run taken back; (b) hot evaporating clusters;
-(c) close contacts; (d) hot argon fluid and gas over many cell lengths;
-(e) asap3 with atoms far apart, in a memory-limited subprocess.  Energies
-are compared with the initial kinetic energy K0.
-"""
+"""Numerical stability: time steps past the stability limit, evaporating
+clusters, close contacts, diffusion over many cells, asap3 with atoms far
+apart (the scenes: docs/benchmarks.md).  Energies against the initial
+kinetic energy K0."""
 
 from __future__ import annotations
 
@@ -156,16 +151,18 @@ def sweep(system):
         tolerance = ours['dyn'].engine.invariant.limit
         beyond = (None if tolerance is None else
                   energy_summary(ours['energies'], tolerance)[1])
+
+        def steps_from(first):
+            """Committed steps from ``first`` (None: never) to the last."""
+            return 0 if first is None else ours['steps_done'] - first + 1
+
         row = {'dt_fs': dt_fs, 'k0': k0, 'tolerance': tolerance,
                'first_beyond_tolerance_step': beyond,
-               'steps_beyond_tolerance': (
-                   0 if beyond is None else ours['steps_done'] - beyond + 1),
+               'steps_beyond_tolerance': steps_from(beyond),
                'steps_done': ours['steps_done'], 'error': ours['error'],
                'exact': ours['exact'], 'max_energy_error': worst,
                'first_garbage_step': first_bad,
-               'energy_trace': (np.abs(ours['energies'] - ours['energies'][0])
-                                / k0).tolist(),
-               **grid_use(ours)}
+               'silent_steps': steps_from(first_bad), **grid_use(ours)}
         atoms = system['make']()
         atoms.calc = CALCULATORS[system['calculator']]()
         vv = velocity_verlet(atoms, dt_fs, system['steps'])
@@ -174,10 +171,7 @@ def sweep(system):
                      'max_energy_error': vv_worst,
                      'first_garbage_step': vv_first_bad,
                      'non_finite': not np.all(np.isfinite(vv['energies'])),
-                     'x_max': vv['x_max'], 'p_max': vv['p_max'],
-                     'energy_trace': [
-                         x if np.isfinite(x) else None for x in
-                         (np.abs(vv['energies'] - vv['energies'][0]) / k0)]}
+                     'x_max': vv['x_max'], 'p_max': vv['p_max']}
         rows.append(row)
     return {key: system[key] for key in ('name', 'calculator', 'steps')} | {
         'rows': rows}
@@ -200,27 +194,31 @@ def nearest_neighbour_distances(x_nc):
     return d.min(axis=1)
 
 
+def scene_row(system, atoms, steps, kwargs, extra):
+    """A run out and back under ASE LJ: the fields every scene records,
+    and those of ``extra(run)``."""
+    atoms.calc = CALCULATORS['ASE LJ']()
+    k0 = kinetic_energy(atoms)
+    run = forward_and_back(atoms, DT_FS, steps, **kwargs)
+    return {'system': system, 'steps': steps, 'kwargs': kwargs,
+            'steps_done': run['steps_done'], 'error': run['error'],
+            'exact': run['exact'],
+            'max_energy_error': energy_summary(run['energies'], k0)[0],
+            'seconds': run['seconds'], **grid_use(run), **extra(run)}
+
+
 def evaporation(quick):
-    rows = []
-    for name, shells, temperature, steps, kwargs in evaporation_cases(quick):
-        atoms = argon_cluster(shells, temperature)
-        atoms.calc = CALCULATORS['ASE LJ']()
-        k0 = kinetic_energy(atoms)
-        run = forward_and_back(atoms, DT_FS, steps, **kwargs)
+    def shape(run):
         centre = run['x0'].mean(axis=0)
-        worst, _ = energy_summary(run['energies'], k0)
-        rows.append({
-            'system': f'{name}, {temperature} K', 'steps': steps,
-            'kwargs': kwargs, 'steps_done': run['steps_done'],
-            'error': run['error'], 'exact': run['exact'],
-            'evaporated': int((nearest_neighbour_distances(run['x_turn'])
-                               > AR_RC).sum()),
-            'n_atoms': len(atoms),
-            'furthest_from_centre': float(np.linalg.norm(
-                run['x_turn'] - centre, axis=1).max()),
-            'max_energy_error': worst, 'seconds': run['seconds'],
-            **grid_use(run)})
-    return rows
+        return {'evaporated': int((nearest_neighbour_distances(run['x_turn'])
+                                   > AR_RC).sum()),
+                'n_atoms': len(run['x0']),
+                'furthest_from_centre': float(np.linalg.norm(
+                    run['x_turn'] - centre, axis=1).max())}
+    return [scene_row(f'{name}, {temperature} K',
+                      argon_cluster(shells, temperature), steps, kwargs, shape)
+            for name, shells, temperature, steps, kwargs
+            in evaporation_cases(quick)]
 
 
 # -- (c) close contacts ------------------------------------------------------
@@ -274,22 +272,17 @@ def diffusion_cases(quick):
 
 
 def diffusion(quick):
-    rows = []
-    for name, n, length, temperature, steps, kwargs in diffusion_cases(quick):
-        atoms = argon_fluid(n, length, temperature)
-        atoms.calc = CALCULATORS['ASE LJ']()
-        k0 = kinetic_energy(atoms)
-        run = forward_and_back(atoms, DT_FS, steps, **kwargs)
-        moved = np.linalg.norm(run['x_turn'] - run['x0'], axis=1) / length
-        worst, _ = energy_summary(run['energies'], k0)
-        rows.append({
-            'system': f'{name}, {length:g} Å cell, {temperature} K',
-            'cell_length': length, 'steps': steps, 'kwargs': kwargs,
-            'steps_done': run['steps_done'], 'error': run['error'],
-            'exact': run['exact'], 'max_cells': float(moved.max()),
-            'mean_cells': float(moved.mean()), 'max_energy_error': worst,
-            'seconds': run['seconds'], **grid_use(run)})
-    return rows
+    def cells(length):
+        def moved(run):
+            d = np.linalg.norm(run['x_turn'] - run['x0'], axis=1) / length
+            return {'cell_length': length, 'max_cells': float(d.max()),
+                    'mean_cells': float(d.mean())}
+        return moved
+    return [scene_row(f'{name}, {length:g} Å cell, {temperature} K',
+                      argon_fluid(n, length, temperature), steps, kwargs,
+                      cells(length))
+            for name, n, length, temperature, steps, kwargs
+            in diffusion_cases(quick)]
 
 
 # -- (e) asap3 with atoms far apart -----------------------------------------
@@ -362,35 +355,8 @@ def _plain(value):
     return value
 
 
-def silent_steps(row):
-    """Steps ReversibleVerlet took with |E - E0| > K0 before it stopped
-    (or finished)."""
-    if row['first_garbage_step'] is None:
-        return 0
-    return row['steps_done'] - row['first_garbage_step'] + 1
-
-
-def keep_one_trace(result):
-    """Keep the energy trace of the run that started sane and then spent
-    the most steps with |E - E0| > K0; the others are too long to store."""
-    late = [r for r in result['rows'] if r['first_garbage_step'] is not None
-            and r['first_garbage_step'] > 1]
-    traced = max(late or result['rows'], key=silent_steps)
-    result['traced_dt_fs'] = traced['dt_fs']
-    result['trace'] = {
-        'reversible': [x if np.isfinite(x) else None
-                       for x in traced['energy_trace']],
-        'velocity_verlet': traced['vv']['energy_trace']}
-    for row in result['rows']:
-        del row['energy_trace'], row['vv']['energy_trace']
-
-
 def run(quick):
     sweeps = [sweep(system) for system in sweep_systems(quick)]
-    for result in sweeps:
-        for row in result['rows']:
-            row['silent_steps'] = silent_steps(row)
-        keep_one_trace(result)
     results = {
         'settings': {
             'dt_fs': DT_FS, 'ar_sigma': AR_SIGMA, 'cu_bond': CU_BOND,

@@ -1,14 +1,6 @@
 """PyTorch models: the vector-Jacobian product against a force call, and
-the canonical neighbour list against ASE's (needs PyTorch).
-
-    python benchmarks/run_all.py --only torch_products           # ~3 min
-    python benchmarks/run_all.py --quick --only torch_products   # ~10 s
-
-Per model (PairMLP, torch LennardJones), size and thread count, rounds of:
-a force call at new positions, the product a retrace pays (graph kept),
-the product without a graph, and (one thread) the neighbour lists.  CPU
-and wall time per call; ratios are medians of each round's ratio.
-"""
+the canonical neighbour list against ASE's (needs PyTorch; the method is
+docs/benchmarks.md's)."""
 
 from __future__ import annotations
 

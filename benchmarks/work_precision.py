@@ -1,15 +1,5 @@
-"""Work against precision: run time to reach a given energy error.
-
-For ASE's VelocityVerlet and ReversibleVerlet (both schemes, orders 2 to 8,
-and 10 in full mode), a sweep of time steps over the same simulated time:
-the relative energy error at the same times and the run time without the
-sampling, refined until below the target, at a floor, or over the time
-budget.  Systems through asap3 ('guarded'): a free Ar cluster (cutoff
-beyond its diameter, behind ``ResultCache``) and periodic Cu with RGL.
-Checks: the sampling's cost, the momentum quantum's floor, asap3's cache,
-EMT's truncated cutoff; then whether orders 4 and 6 converge to 1e-11
-under 'auto'.
-"""
+"""Work against precision: run time to reach a given energy error, and
+convergence to 1e-11 under 'auto' (the method: docs/benchmarks.md)."""
 
 from __future__ import annotations
 
@@ -19,10 +9,9 @@ import functools
 import math
 import statistics
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
-import asap3
 import numpy as np
 import systems as bench_systems
 from systems import ResultCache
@@ -49,9 +38,7 @@ FLOOR_STEP_RATIO = 4.0
 
 #: Larger than the cluster's diameter (22 Å for 147 atoms) with margin.
 AR_CUTOFF = 40.0
-AR_TEMPERATURE_K = 30.0
-# Copper: the RGL potential at its own lattice constant (benchmarks/systems.py).
-CU_TEMPERATURE_K = 300.0
+AR_TEMPERATURE_K, CU_TEMPERATURE_K = 30.0, 300.0
 
 
 @dataclass(frozen=True)
@@ -62,9 +49,7 @@ class Method:
 
     @property
     def stages(self) -> int:
-        if self.scheme is None:
-            return 1
-        return stages(self.order)
+        return 1 if self.scheme is None else stages(self.order)
 
 
 @functools.cache
@@ -106,27 +91,16 @@ def argon_cluster(shells):
 raw_argon_lj = bench_systems.asap3_argon_lj(AR_CUTOFF)
 
 
-def argon_lj():
-    return ResultCache(raw_argon_lj())
-
-
-def copper_crystal(repeat):
-    return functools.partial(bench_systems.rgl_copper_crystal, repeat,
-                             CU_TEMPERATURE_K)
-
-
-copper_rgl = bench_systems.copper_rgl
-
-
 def systems(quick):
     shells, simulated_ar = (3, 640.0) if quick else (4, 1536.0)
     repeat, simulated_cu = ((3, 3, 3), 96.0) if quick else ((4, 4, 4), 320.0)
     return [
         System('argon_cluster', 'free Ar cluster', argon_cluster(shells),
-               argon_lj, interval_fs=64.0, simulated_fs=simulated_ar,
-               start_fs_per_call=16.0, free=True),
-        System('copper_crystal', 'periodic Cu crystal',
-               copper_crystal(repeat), copper_rgl, interval_fs=16.0,
+               lambda: ResultCache(raw_argon_lj()), interval_fs=64.0,
+               simulated_fs=simulated_ar, start_fs_per_call=16.0, free=True),
+        System('copper_crystal', 'periodic Cu crystal', functools.partial(
+                   bench_systems.rgl_copper_crystal, repeat, CU_TEMPERATURE_K),
+               bench_systems.copper_rgl, interval_fs=16.0,
                simulated_fs=simulated_cu, start_fs_per_call=4.0, free=False),
     ]
 
@@ -179,23 +153,20 @@ def auto_force_noise(atoms):
     return _AUTO_BOUNDS[key]
 
 
-def make_dynamics(method, atoms, dt, **kwargs):
+def make_dynamics(method, atoms, dt):
     if method.scheme is None:
         return VelocityVerlet(atoms, dt)
     # 'guarded' with the bound 'auto' measures for asap3; said explicitly
     # because the cluster's asap3 potential sits behind ResultCache.  The
     # energy check is off: the sweep starts at steps whose error is meant
     # to be measured, not stopped (and VelocityVerlet has no such check).
-    kwargs.setdefault('energy_check', 0)
-    if 'momentum_quantum' not in kwargs:
-        kwargs.setdefault('force_noise', auto_force_noise(atoms))
     return ReversibleVerlet(atoms, dt, scheme=method.scheme,
                             order=method.order, force_purity='guarded',
-                            **kwargs)
+                            energy_check=0,
+                            force_noise=auto_force_noise(atoms))
 
 
-def measure(system, template, method, k, observe=True, samples=None,
-            **kwargs):
+def measure(system, template, method, k, observe=True, samples=None):
     """Run ``method`` with ``k`` steps per sampling interval; the sampling
     observer's own time is subtracted (a 'position' sample costs a force
     call an unobserved run would not make)."""
@@ -205,7 +176,7 @@ def measure(system, template, method, k, observe=True, samples=None,
     if samples is None:
         samples = round(system.simulated_fs / system.interval_fs)
     n_steps = k * samples
-    dyn = make_dynamics(method, atoms, dt_fs * units.fs, **kwargs)
+    dyn = make_dynamics(method, atoms, dt_fs * units.fs)
     energies = []
     spent = [0.0, 0.0]
     widest = [0.0]
@@ -232,24 +203,12 @@ def measure(system, template, method, k, observe=True, samples=None,
              'cpu_s': cpu, 'sampling_wall_s': spent[0]}
     if not observe:
         return point
-    purity = getattr(dyn, 'force_purity', None)
-    clean = getattr(purity, 'clean_recomputations', 0)
-    # VelocityVerlet and kick-drift-kick compute the forces once before the
-    # first step; drift-kick-drift starts with a drift.  A clean
-    # recomputation of the guarded mode costs two calls.
-    initial = 0 if method.scheme == 'position' else 1
-    point['force_calls'] = initial + n_steps * method.stages + 2 * clean
-    point['clean_recomputations'] = clean
-    if hasattr(dyn, 'grid'):
-        point['momentum_quantum'] = dyn.grid.momentum_quantum
     point['widest_distance'] = widest[0] if system.free else None
     e = np.array(energies)
-    relative = np.abs(e - e[0]) / abs(e[0])
     if failure is None and len(e) == samples + 1 and np.isfinite(e).all():
-        point['max_error'] = float(relative.max())
-        point['rms_error'] = float(np.sqrt(np.mean(relative[1:] ** 2)))
+        point['max_error'] = float((np.abs(e - e[0]) / abs(e[0])).max())
     else:
-        point['max_error'] = point['rms_error'] = None
+        point['max_error'] = None
         point['failure'] = failure or 'non-finite energy'
     return point
 
@@ -368,108 +327,6 @@ def sampling_check(system, template, settings):
             'unobserved_wall_s': median(q['wall_s'] for q in unobserved),
             'subtracted_cpu_s': median(q['cpu_s'] for q in observed),
             'unobserved_cpu_s': median(q['cpu_s'] for q in unobserved)}
-
-
-def quantum_check(system, template, sweeps, factor=2.0**-10):
-    """The error floor of the guarded mode's momentum quantum: the most
-    accurate point of the highest-order velocity sweep run again with the
-    quantum ``factor`` times the default."""
-    candidates = [s for s in sweeps if s['scheme'] == 'velocity']
-    s = max(candidates, key=lambda s: s['order'])
-    valid = [p for p in s['points'] if p['max_error'] is not None]
-    if not valid:
-        return None
-    p = min(valid, key=lambda p: p['max_error'])
-    method = Method(s['method'], s['scheme'], s['order'])
-    fine = measure(system, template, method, p['k'],
-                   momentum_quantum=p['momentum_quantum'] * factor)
-    return {'method': s['method'], 'dt_fs': p['dt_fs'],
-            'default_quantum': p['momentum_quantum'],
-            'default_error': p['max_error'],
-            'fine_quantum': fine['momentum_quantum'],
-            'fine_error': fine['max_error'],
-            'fine_clean_recomputations': fine['clean_recomputations'],
-            'fine_force_calls': fine['force_calls'],
-            'default_force_calls': p['force_calls']}
-
-
-def cache_check(system, template, raw_calc, settings, calls=40, blocks=5):
-    """Microseconds per ``get_forces`` of the bare asap3 potential at
-    unchanged positions and after a 1e-9 Å move (the fastest of ``blocks``
-    blocks); with a ResultCache, VelocityVerlet's step with and without."""
-    atoms = template.copy()
-    atoms.calc = raw_calc()
-    atoms.get_forces()
-    x_nc = atoms.positions.copy()
-
-    def repeated():
-        for _ in range(calls):
-            atoms.get_forces(md=True)
-
-    def fresh():
-        for i in range(calls):
-            x_nc[0, 0] += 1e-9 if i % 2 == 0 else -1e-9
-            atoms.positions = x_nc
-            atoms.get_forces(md=True)
-
-    def per_call(block):
-        times = []
-        for _ in range(blocks):
-            w = time.perf_counter()
-            block()
-            times.append((time.perf_counter() - w) / calls)
-        return min(times)
-
-    out = {'repeated_call_us': per_call(repeated) * 1e6,
-           'fresh_call_us': per_call(fresh) * 1e6}
-    if system.calc is raw_calc:
-        return out
-    k = 8  # 8 fs for argon: stable, and the cost per step does not care
-    probe = measure(system, template, VV, k, observe=False, samples=1)
-    samples = max(1, round(settings.check_seconds
-                           / max(probe['wall_s'], 1e-6)))
-    bare = replace(system, calc=raw_calc)
-    cached, uncached = [], []
-    for _ in range(3):
-        cached.append(measure(system, template, VV, k, observe=False,
-                              samples=samples))
-        uncached.append(measure(bare, template, VV, k, observe=False,
-                                samples=samples))
-    steps = k * samples
-    out.update({
-        'vv_steps': steps,
-        'vv_cached_us_per_step': statistics.median(
-            q['wall_s'] for q in cached) / steps * 1e6,
-        'vv_bare_us_per_step': statistics.median(
-            q['wall_s'] for q in uncached) / steps * 1e6})
-    return out
-
-
-def emt_cutoff(template):
-    """Where asap3's EMT truncates its cutoff function (ASE's EMT with
-    ``asap_cutoff=True`` exposes it), its value there, the 4th shell."""
-    from ase.calculators.emt import EMT
-    atoms = template.copy()
-    calc = EMT(asap_cutoff=True)
-    atoms.calc = calc
-    atoms.get_potential_energy()
-    weight = 1.0 / (1.0 + math.exp(calc.acut * (calc.rc_list - calc.rc)))
-    fourth = bench_systems.CU_RGL_LATTICE * math.sqrt(2.0)
-    return {'list_cutoff': calc.rc_list, 'weight_at_cutoff': weight,
-            'fourth_neighbour': fourth}
-
-
-def emt_check(copper, template, dts_fs=(0.5, 0.125)):
-    """VelocityVerlet's max error with asap3 EMT and with RGL, same runs."""
-    rows = []
-    for name, calc in (('asap3 EMT', asap3.EMT), ('asap3 RGL', copper_rgl)):
-        system = replace(copper, calc=calc)
-        for dt in dts_fs:
-            p = measure(system, template, VV, round(copper.interval_fs / dt))
-            rows.append({'calculator': name, 'dt_fs': p['dt_fs'],
-                         'max_error': p['max_error'],
-                         'rms_error': p['rms_error']})
-    return rows
 
 
 # -- convergence down to 1e-11 under 'auto' ---------------------------------
@@ -644,19 +501,11 @@ def run(quick):
             'initial_energy_eV': e0,
             'sweeps': sweeps, 'summary': summarise(sweeps),
             'sampling_check': sampling_check(system, template, settings),
-            'quantum_check': quantum_check(system, template, sweeps),
         }
-        result['cache_check'] = cache_check(
-            system, template, raw_argon_lj if system.free else copper_rgl,
-            settings)
         if system.free:
             result['cutoff'] = AR_CUTOFF
             result['widest_distance'] = max(
                 p['widest_distance'] for s in sweeps for p in s['points'])
-        else:
-            print('  copper_crystal: EMT check', flush=True)
-            result['emt_check'] = emt_check(system, template)
-            result['emt_cutoff'] = emt_cutoff(template)
         out['systems'].append(result)
     out['convergence'] = convergence(quick, settings)
     return out

@@ -1,11 +1,6 @@
-"""What each section of the docs shows of its stored JSON.
-
-``SPECS[name]`` (in the order of docs/benchmarks.md) is a ``Spec``: the
-section's heading, its blocks (each a function of the stored JSON to
-Markdown: tables, lists, figure links) and its plots (each writes PNG
-files into a folder).  Nothing here measures, judges or imports the
-library: the pages can be rebuilt from the JSON alone.
-"""
+"""What each section of the docs shows of its stored JSON: ``SPECS[name]``
+(in the order of docs/benchmarks.md).  Nothing here measures, judges or
+imports the library."""
 
 from __future__ import annotations
 
@@ -18,8 +13,7 @@ from typing import Callable
 @dataclass(frozen=True)
 class Spec:
     """A section: its ``## title`` in docs/benchmarks.md, ``blocks``
-    {name: function(stored JSON) -> Markdown}, each filled between its
-    markers in whichever docs page holds them, ``plots`` (functions of
+    {name: function(stored JSON) -> Markdown}, ``plots`` (functions of
     ``results`` and a folder, writing PNG files) and ``values``."""
     title: str
     blocks: dict = field(default_factory=dict)
@@ -104,9 +98,7 @@ NAMES = ('step_cost', 'calculators', 'savings', 'work_precision',
 
 
 def load(name) -> Spec:
-    """The spec of section ``name``: its module's ``SPEC``, or its entry
-    in ``pages.small``'s ``SPECS`` (the sections that are a table or
-    two)."""
+    """Section ``name``'s spec: ``pages.small``'s or its module's."""
     from . import small
     if name in small.SPECS:
         return small.SPECS[name]

@@ -1,29 +1,17 @@
-"""Gradients by the reversible adjoint: memory against steps, and the cost
-of a gradient in force evaluations and time.
-
-Measured by benchmarks/adjoint.py, whose docstring gives the method.
-"""
+"""Gradients by the reversible adjoint (benchmarks/adjoint.py)."""
 
 from __future__ import annotations
-
-import numpy as np
 
 from . import Spec, block, figure, table
 
 MEMORY_PLOT = 'adjoint_memory.png'
-COST_PLOT = 'adjoint_cost.png'
 
 
 def plot(results, figures):
-    _plot_memory(results['memory'], figures)
-    _plot_cost(results['cost'], figures)
-
-
-def _plot_memory(memory, figures):
-    with figure(figures / MEMORY_PLOT, 2, (10, 4)) as (plt, fig, axes):
+    memory = results['memory']
+    with figure(figures / MEMORY_PLOT, 1, (6, 4)) as (plt, fig, ax):
         points = memory['points']
         n = [p['steps'] for p in points]
-        ax = axes[0]
         ax.loglog(n, [p['reversible']['traced_peak_bytes'] / 2**20
                       for p in points], 'o-', color='C0',
                   label='ReversibleVerlet: run + backpropagate')
@@ -35,47 +23,10 @@ def _plot_memory(memory, figures):
         ax.set_ylabel('tracemalloc peak (MiB)')
         ax.grid(True, which='major', alpha=0.3)
         ax.legend(loc='upper left', fontsize=8)
-        ax = axes[1]
-        for kind, label, marker, color in (
-                ('reversible', 'ReversibleVerlet', 'o-', 'C0'),
-                ('stored', 'stored trajectory', 's-', 'C3')):
-            ax.semilogx(n, [p[kind]['max_rss_bytes'] / 2**20 for p in points],
-                        marker, color=color, label=f'{label}: peak')
-            ax.semilogx(n, [p[kind]['max_rss_before_bytes'] / 2**20
-                            for p in points], marker[0] + ':', color=color,
-                        alpha=0.5, label=f'{label}: before the run')
-        ax.set_xlabel('steps N')
-        ax.set_ylabel('peak resident set size (MiB)')
-        ax.grid(True, which='major', alpha=0.3)
-        ax.legend(loc='upper left', fontsize=8)
         s = memory['system']
-        fig.suptitle(f"{s['cluster']}, {s['temperature_K']:g} K, "
+        ax.set_title(f"{s['cluster']}, {s['temperature_K']:g} K, "
                      f"{s['timestep_fs']:g} fs: memory of a gradient through "
-                     'N steps (one process per point)')
-
-
-def _plot_cost(cost, figures):
-    cases = cost['cases']
-    with figure(figures / COST_PLOT, 1,
-                (9, 0.5 * len(cases) + 1.8)) as (plt, fig, ax):
-        labels = [case_name(c) for c in cases]
-        ratio = np.array([c['backward_over_forward'] for c in cases])
-        share = np.array([c['backward_share_in_products'] for c in cases])
-        y = np.arange(len(cases))[::-1]
-        ax.barh(y, ratio * (1 - share), color='C0',
-                label='retrace and adjoint bookkeeping')
-        ax.barh(y, ratio * share, left=ratio * (1 - share), color='C1',
-                label='Hessian-vector products')
-        for yi, r in zip(y, ratio):
-            ax.annotate(f'{r:.2f}', (r, yi), xytext=(3, 0),
-                        textcoords='offset points', va='center', fontsize=8)
-        ax.axvline(1, color='grey', lw=0.5)
-        ax.set_yticks(y)
-        ax.set_yticklabels(labels, fontsize=8)
-        ax.set_xlabel('backpropagate time per step, in forward steps')
-        ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.16), ncol=2,
-                  fontsize=8, frameon=False)
-        ax.set_xlim(0, ratio.max() * 1.15)
+                     'N steps', fontsize=9)
 
 
 # -- render -------------------------------------------------------------------
@@ -136,23 +87,6 @@ COST_COLUMNS = (
     ('round spread', '{spread:.0%}'), ('wall / CPU', '{wall_over_cpu:.2f}'),
     ('back at start every round', '{exact_return_every_round}'))
 
-#: What the counting rounds saw besides the cost table's columns.
-COUNT_COLUMNS = (
-    ('case', case_name),
-    ('backward: force calls / step', lambda c: '{:.3g}'.format(
-        c['per_step']['backward_force_calls_retrace']
-        + c['per_step']['backward_force_calls_in_products'])),
-    ('products per block of N', lambda c: ' or '.join(
-        map(str, sorted(set(c['products_per_block']))))),
-    ('clean recomputations / step, forward / backward',
-     lambda c: '{forward_clean_recomputations:.3g} / '
-     '{backward_clean_recomputations:.3g}'.format(**c['per_step'])
-     if c['force_purity'] == 'guarded' else '-'),
-    ('energy-only calls / step, forward / backward',
-     '{per_step[forward_energy_only_calls]:.3g} / '
-     '{per_step[backward_energy_only_calls]:.3g}'))
-
-
 def memory_values(results):
     """The prose's numbers: growth of the traced peaks over the points."""
     points = results['memory']['points']
@@ -191,7 +125,5 @@ SPEC = Spec(
             'systems': block(lambda systems: '\n'.join(
                 f'- {v}' for v in systems.values()), 'cost_systems'),
             'cost': lambda stored: table(COST_COLUMNS,
-                                         stored['results']['cost']['cases']),
-            'counts': lambda stored: table(
-                COUNT_COLUMNS, stored['results']['cost']['cases'])},
+                                         stored['results']['cost']['cases'])},
     plots=(plot,), values=memory_values)

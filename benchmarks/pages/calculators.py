@@ -1,7 +1,4 @@
-"""Which calculators run exactly under ReversibleVerlet, and at what cost.
-
-Measured by benchmarks/calculators.py, whose docstring gives the method.
-"""
+"""Calculators (benchmarks/calculators.py)."""
 
 from __future__ import annotations
 
@@ -69,22 +66,6 @@ def cost_cell(r):
 def notes(r):
     out = [r['setup']] if r.get('setup') else []
     rev = r.get('reversal')
-    after = r['auto_after_a_calculation']
-    check = r['check_calculator']
-    if after != r['auto'] and 'error' in after \
-            and check.get('error') == after['error']:
-        out.append("check_calculator(), and 'auto' on a calculator that had "
-                   f"computed before, raised {after['error']}")
-    else:
-        if after != r['auto']:
-            out.append("'auto' on a calculator that had computed before: "
-                       + auto_text(after))
-        if 'error' in check:
-            out.append(f"check_calculator() raised {check['error']}")
-        elif check['mode'] != r['auto'].get('mode'):
-            out.append(f"check_calculator() chose {check['mode']!r}")
-        elif not check['exact']:
-            out.append('check_calculator() reported exact=False')
     if rev and rev['clean_recomputations'] is not None:
         out.append(f"{rev['clean_recomputations']} clean recomputations in "
                    f"{2 * rev['steps']} steps")

@@ -1,17 +1,10 @@
-"""Gradient accuracy: finite-difference Hessian-vector products, and
-backpropagate against finite differences of whole runs.
-
-Measured by benchmarks/gradient_accuracy.py, whose docstring gives the
-method.
-"""
+"""Gradient accuracy (benchmarks/gradient_accuracy.py)."""
 
 from __future__ import annotations
 
 import math
 
-from . import Spec, block, figure, markdown_table
-
-PLOT = 'gradient_accuracy.png'
+from . import Spec, block, markdown_table
 
 
 def finite_difference_steps(results):
@@ -27,32 +20,6 @@ def _short(x):
 
 def _exponent(power_of_two):
     return math.frexp(power_of_two)[1] - 1
-
-
-def plot(results, figures):
-    with figure(figures / PLOT, 2, (11, 4.2),
-                dpi=120) as (plt, fig, (left, right)):
-        for row in results['hvp']:
-            steps = [float(k) for k in row['errors']]
-            left.loglog(steps, list(row['errors'].values()), 'o-',
-                        label=row['case'])
-        default = results['hvp'][0]['default_step']
-        left.axvline(default, color='grey', ls=':', label='default step')
-        left.set_xlabel('finite-difference step (Å)')
-        left.set_ylabel('relative error of H v')
-        left.set_title('Finite-difference Hessian-vector products')
-        left.legend(fontsize=7)
-        for case in results['runs']:
-            steps = [r['steps'] for r in case['rows']]
-            best = [max(min(d['errors'].values()) for d in r['directions'])
-                    for r in case['rows']]
-            growth = [r['growth'] for r in case['rows']]
-            line, = right.loglog(steps, best, 'o-', label=f"{case['case']}: error")
-            right.loglog(steps, growth, 's--', color=line.get_color(),
-                         label='gradient growth')
-        right.set_xlabel(f"steps ({results['settings']['timestep_fs']:g} fs)")
-        right.set_title('backpropagate against whole-run finite differences')
-        right.legend(fontsize=7)
 
 
 def hvp_table(results):
@@ -112,4 +79,4 @@ def values(results):
 
 SPEC = Spec('Gradient accuracy',
             blocks={'hvp': block(hvp_table), 'runs': block(run_tables)},
-            plots=(plot,), values=values)
+            values=values)

@@ -1,10 +1,5 @@
-"""The sections that are one or a few tables: PyTorch products, savings
-per commit, full precision under asap3, portable arithmetic, force noise
-and long round trips.
-
-Measured by the benchmarks/ scripts of the same names, whose docstrings
-give the methods; the prose is docs/benchmarks.md's.
-"""
+"""The sections that are a table or two, each measured by the
+benchmarks/ script of its name."""
 
 from __future__ import annotations
 
@@ -55,20 +50,6 @@ def savings_table(results):
             f"{case['ms_per_step'][c]:.3f} ({case['ms_per_step'][c] / base:.3f})"
             for c in commits] + [f"{case['spread']:.0%}"])
     return markdown_table(['case'] + commits + ['round spread'], rows)
-
-
-def savings_versus(results):
-    """Each commit's CPU time per step over ASE VelocityVerlet's: on a
-    shared machine CPU time leaves out the waits for a core."""
-    commits, reference = measured_commits(results), 'VelocityVerlet'
-
-    def per_step(case):
-        return case.get('cpu_ms_per_step', case['ms_per_step'])
-
-    return markdown_table(['case'] + commits, [
-        [case['case']] + [f"{per_step(case)[c] / per_step(case)[reference]:.3f}"
-                          for c in commits]
-        for case in results['cases'] if reference in case['ms_per_step']])
 
 
 def log2_cell(value):
@@ -133,10 +114,9 @@ SPECS = {
     'savings': Spec('Savings on the per-step path', blocks={
         'commits': block(lambda results: '\n'.join(
             f"- `{c['commit']}`: {c['change']}" for c in results['commits'])),
-        'table': block(savings_table), 'versus': block(savings_versus)}),
+        'table': block(savings_table)}),
     'portable': Spec('Portable arithmetic', blocks={
         'forces': portable_table('forces', 1e3, 'ms'),
-        'steps': portable_table('steps', 1e3, 'ms'),
         'momentum-square': portable_table('momentum_square', 1e6, 'µs')}),
     'force_noise': Spec('Force noise and rebuild cost',
                         blocks={'table': block(force_noise_table)}),

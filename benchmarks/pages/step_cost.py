@@ -1,23 +1,13 @@
-"""Cost per step: ReversibleVerlet against VelocityVerlet and the force call.
-
-Measured by benchmarks/step_cost.py, whose docstring gives the method;
-the prose is docs/benchmarks.md's.
-"""
+"""Cost per step (benchmarks/step_cost.py)."""
 
 from __future__ import annotations
 
-from . import Spec, block, figure, markdown_table, table
+from . import Spec, figure, markdown_table, table
 
 PLOT = 'step_cost.png'
-OVERHEAD_PLOT = 'step_cost_overhead.png'
 
 
 # -- derived numbers -------------------------------------------------------
-
-#: The process's CPU time: single-threaded here, so on a machine shared with
-#: other jobs it is the step's cost without the waits for a core.
-CPU = 'median_cpu_seconds'
-
 
 def ratio(r, name, reference='vv', clock='median_seconds'):
     med = r[clock]
@@ -34,10 +24,6 @@ def overhead_percent(r, name, floor='replay', clock='median_seconds'):
     """Time beyond the floor, in % of the floor."""
     med = r[clock]
     return 100 * (med[name] - med[floor]) / med[floor]
-
-
-def in_force_calls(r, key):
-    return r[key] / r['median_seconds']['force']
 
 
 def wall_over_cpu(r):
@@ -60,16 +46,9 @@ def by_calculator(results):
             for k, v in groups.items()}
 
 
-def overhead_ratio(r, name, key='overhead_seconds'):
+def overhead_ratio(r, name):
     """A contestant's overhead over VelocityVerlet's."""
-    return r[key][name] / r[key]['vv']
-
-
-def paired_overhead_ratios(r, name):
-    """Per-round overhead ratios, each round's floor subtracted."""
-    wall = r['per_step_seconds']
-    return [(a - f) / (b - f) for a, b, f in
-            zip(wall[name], wall['vv'], wall['force'])]
+    return r['overhead_seconds'][name] / r['overhead_seconds']['vv']
 
 
 # -- plot ------------------------------------------------------------------
@@ -82,8 +61,6 @@ TARGET_OVERHEAD_MIN_ATOMS = 4000
 
 
 def plot(results, figures):
-    if results.get('overhead'):
-        plot_overhead(results['overhead'], figures)
     steps = results['step_cost']
     with figure(figures / PLOT, 2, (11, 4.3)) as (plt, fig, (left, right)):
         from matplotlib.lines import Line2D
@@ -132,29 +109,6 @@ def plot(results, figures):
             ax.grid(True, which='major', alpha=0.3)
 
 
-def plot_overhead(overheads, figures):
-    with figure(figures / OVERHEAD_PLOT, 1, (6.5, 4.3)) as (plt, fig, ax):
-        from matplotlib.ticker import FuncFormatter, NullFormatter
-        n = [r['n_atoms'] for r in overheads]
-        for name, label, style in (('vv', 'VelocityVerlet', 'x--'),
-                                   ('rv_velocity', 'Reversible velocity', 'o-'),
-                                   ('rv_position', 'Reversible position', 's:')):
-            ax.plot(n, [1e6 * r['overhead_seconds'][name] for r in overheads],
-                    style, label=label)
-        ax.plot(n, [1e6 * r['median_seconds']['force'] for r in overheads],
-                'k.-', lw=0.8, alpha=0.6, label='the force call (floor)')
-        ax.set_xscale('log')
-        ax.set_yscale('log')
-        ax.set_xticks(n)
-        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
-        ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.set_xlabel('number of atoms')
-        ax.set_ylabel('µs per step beyond the force call')
-        ax.set_title('Integrator overhead (CachedForces calculator)')
-        ax.grid(True, which='major', alpha=0.3)
-        ax.legend(fontsize=8)
-
-
 # -- Markdown --------------------------------------------------------------
 
 def ms(seconds):
@@ -166,26 +120,8 @@ def ms(seconds):
     return f'{v:.3f}'
 
 
-def twin_gap(r):
-    """|VelocityVerlet twin / VelocityVerlet - 1|: how far two identical
-    contestants came apart; None in results from before the twin."""
-    if 'vv_twin' not in r['median_seconds']:
-        return None
-    return abs(ratio(r, 'vv_twin') - 1)
-
-
-def twin_cell(r):
-    return '–' if twin_gap(r) is None else f"×{ratio(r, 'vv_twin'):.3f}"
-
-
 def with_ratio(r, name):
     return f"{ms(r['median_seconds'][name])} (×{ratio(r, name):.2f})"
-
-
-def beyond(r, name, floor):
-    med = r['median_seconds']
-    return (f'{ms(med[name] - med[floor])} '
-            f'({overhead_percent(r, name, floor):+.0f}%)')
 
 
 def clean_fraction(r, name):
@@ -201,50 +137,8 @@ def us(seconds):
     return f'{seconds * 1e6:.1f}'
 
 
-def integrator_overhead_table(results):
-    header = ('system', 'N', 'steps × rounds', 'force call (µs)',
-              'VelocityVerlet overhead (µs)',
-              'Reversible velocity overhead (µs, ×VV)',
-              'Reversible position overhead (µs, ×VV)',
-              'velocity ×VV, per-round range', 'on CPU time: velocity ×VV',
-              'round spread', 'wall / CPU')
-    rows = []
-    for r in results:
-        o = r['overhead_seconds']
-        paired = paired_overhead_ratios(r, 'rv_velocity')
-        rows.append((
-            r['system'], r['n_atoms'],
-            f"{r['steps_per_block']} × {r['rounds']}",
-            us(r['median_seconds']['force']), us(o['vv']),
-            f"{us(o['rv_velocity'])} "
-            f"(×{overhead_ratio(r, 'rv_velocity'):.2f})",
-            f"{us(o['rv_position'])} "
-            f"(×{overhead_ratio(r, 'rv_position'):.2f})",
-            f'×{min(paired):.2f} to ×{max(paired):.2f}',
-            f"×{overhead_ratio(r, 'rv_velocity', 'overhead_cpu_seconds'):.2f}",
-            f"{100 * max(r['spread'].values()):.0f}%",
-            f'{wall_over_cpu(r):.2f}'))
-    return markdown_table(header, rows)
-
-
-def step_cost_table(results):
-    header = ('calculator', 'N', 'steps × rounds', 'purity (auto)',
-              'nudge floor (ms)', 'replay floor (ms)',
-              'VelocityVerlet (ms/step)',
-              'Reversible velocity (ms/step, ×VV)',
-              'Reversible position (ms/step, ×VV)',
-              'Reversible trust (ms/step, ×VV)',
-              'VelocityVerlet twin (×VV)')
-    rows = [(r['calculator'], r['n_atoms'],
-             f"{r['steps_per_block']} × {r['rounds']}",
-             r['force_purity']['rv_velocity']['mode'],
-             ms(r['median_seconds']['force']),
-             ms(r['median_seconds']['replay']),
-             ms(r['median_seconds']['vv']),
-             with_ratio(r, 'rv_velocity'), with_ratio(r, 'rv_position'),
-             with_ratio(r, 'rv_trust'), twin_cell(r))
-            for r in results]
-    return markdown_table(header, rows)
+def ms_cell(name):
+    return lambda r: ms(r['median_seconds'][name])
 
 
 #: The last two columns of the timing tables: how far to trust them.
@@ -253,133 +147,111 @@ NOISE_COLUMNS = (
     ('wall / CPU', lambda r: f'{wall_over_cpu(r):.2f}'))
 
 OVERHEAD_COLUMNS = (
+    ('system', '{system}'), ('N', '{n_atoms}'),
+    ('steps × rounds', '{steps_per_block} × {rounds}'),
+    ('force call (µs)', lambda r: us(r['median_seconds']['force'])),
+    ('VelocityVerlet overhead (µs)',
+     lambda r: us(r['overhead_seconds']['vv'])),
+    *((f'Reversible {name} overhead (µs, ×VV)',
+       lambda r, n=f'rv_{name}': f"{us(r['overhead_seconds'][n])} "
+                                 f'(×{overhead_ratio(r, n):.2f})')
+      for name in ('velocity', 'position')),
+    *NOISE_COLUMNS)
+
+TIME_COLUMNS = (
     ('calculator', '{calculator}'), ('N', '{n_atoms}'),
-    ('replay − nudge floor (ms, %)', lambda r: beyond(r, 'replay', 'force')),
-    ('VV beyond replay floor (ms, %)', lambda r: beyond(r, 'vv', 'replay')),
-    ('Reversible velocity beyond replay floor (ms, %)',
-     lambda r: beyond(r, 'rv_velocity', 'replay')),
-    ('Reversible velocity beyond nudge floor (ms, %)',
-     lambda r: beyond(r, 'rv_velocity', 'force')),
+    ('steps × rounds', '{steps_per_block} × {rounds}'),
+    ('purity (auto)', lambda r: r['force_purity']['rv_velocity']['mode']),
+    ('nudge floor (ms)', ms_cell('force')),
+    ('replay floor (ms)', ms_cell('replay')),
+    ('VelocityVerlet (ms/step)', ms_cell('vv')),
+    *((f'Reversible {name} (ms/step, ×VV)',
+       lambda r, n=f'rv_{name}': with_ratio(r, n))
+      for name in ('velocity', 'position', 'trust')),
+    ('VelocityVerlet twin (×VV)', lambda r: f"×{ratio(r, 'vv_twin'):.3f}"),
     ('clean recomputations, velocity / position',
      lambda r: f"{clean_fraction(r, 'rv_velocity')} / "
                f"{clean_fraction(r, 'rv_position')}"),
     *NOISE_COLUMNS)
 
+
 LOGGING_COLUMNS = (
     ('calculator', '{calculator}'), ('N', '{n_atoms}'),
-    ('nudge floor (ms)', lambda r: ms(r['median_seconds']['force'])),
-    ('VelocityVerlet + logger (ms/step)',
-     lambda r: ms(r['median_seconds']['vv'])),
-    ('Reversible velocity + logger (ms/step, ×VV)',
-     lambda r: with_ratio(r, 'rv_velocity')),
-    ('Reversible position + logger (ms/step, ×VV)',
-     lambda r: with_ratio(r, 'rv_position')),
+    ('nudge floor (ms)', ms_cell('force')),
+    ('VelocityVerlet + logger (ms/step)', ms_cell('vv')),
+    *((f'Reversible {name} + logger (ms/step, ×VV)',
+       lambda r, n=f'rv_{name}': with_ratio(r, n))
+      for name in ('velocity', 'position')),
     ('position − velocity (ms/step, in nudge force calls)',
      lambda r: f"{ms(r['median_seconds']['rv_position'] - r['median_seconds']['rv_velocity'])} "
                f'({position_extra_calls(r):.2f})'),
     *NOISE_COLUMNS)
 
 
-def checked(r):
-    """The contestant whose steps run the checks: 'rv_observed' (an
-    observer attached); 'rv_velocity' in results from before a plain run()
-    left the checks out between its steps."""
-    return 'rv_observed' if 'rv_observed' in r['median_seconds'] \
-        else 'rv_velocity'
+def cached(key):
+    """A cached query's time, also in nudge force calls."""
+    return lambda r: (f'{ms(r[key])} '
+                      f"({r[key] / r['median_seconds']['force']:.2f})")
 
 
-def checks_table(results):
-    header = ('calculator', 'N', 'Reversible velocity, observed (ms/step)',
-              'checks bypassed (ms/step)',
-              'with / without checks (per-round range)',
-              'difference of medians (µs/step)',
-              'changes() in the steps (µs/call, % of step)',
-              'changes() in a tight loop (µs/call)', 'round spread')
-    rows = []
-    for r in results:
-        med = r['median_seconds']
-        paired = paired_ratios(r, checked(r), 'rv_unwatched')
-        diff = 1e6 * (med[checked(r)] - med['rv_unwatched'])
-        watch = r['watch_changes_seconds']
-        spread = max(r['spread'][k] for k in (checked(r), 'rv_unwatched'))
-        rows.append((r['calculator'], r['n_atoms'], ms(med[checked(r)]),
-                     ms(med['rv_unwatched']),
-                     f"×{ratio(r, checked(r), 'rv_unwatched'):.3f} "
-                     f'(×{min(paired):.2f} to ×{max(paired):.2f})',
-                     f'{diff:+.1f}' if abs(diff) < 100 else f'{diff:+.0f}',
-                     f'{1e6 * watch:.2f} '
-                     f"({100 * watch / med[checked(r)]:.2g}%)",
-                     f"{1e6 * r['watch_changes_loop_seconds']:.2f}",
-                     f'{100 * spread:.0f}%'))
-    return markdown_table(header, rows)
+CACHE_COLUMNS = (
+    ('calculator', '{calculator}'), ('N', '{n_atoms}'),
+    ('nudge floor (ms)', ms_cell('force')),
+    ('get_forces() again (ms, in force calls)',
+     cached('get_forces_again_seconds')),
+    ('get_potential_energy() after get_forces() (ms, in force calls)',
+     cached('energy_after_forces_seconds')))
 
 
-def check_share(r):
-    """The energy check's time per step in % of a Reversible velocity step
-    (the median step of the rounds, which includes it)."""
-    return (100 * r['energy_check_seconds_per_step']
-            / r['median_seconds']['rv_velocity'])
+def checks_row(r):
+    """The per-step checks: 'rv_observed' (an observer attached, so the
+    checks run before every step) against 'rv_unwatched' (bypassed)."""
+    med = r['median_seconds']
+    on, off = med['rv_observed'], med['rv_unwatched']
+    paired = paired_ratios(r, 'rv_observed', 'rv_unwatched')
+    diff = 1e6 * (on - off)
+    watch = r['watch_changes_seconds']
+    spread = max(r['spread']['rv_observed'], r['spread']['rv_unwatched'])
+    return (r['calculator'], r['n_atoms'], ms(on), ms(off),
+            f"×{on / off:.3f} (×{min(paired):.2f} to ×{max(paired):.2f})",
+            f'{diff:+.1f}' if abs(diff) < 100 else f'{diff:+.0f}',
+            f'{1e6 * watch:.2f} ({100 * watch / on:.2g}%)',
+            f"{1e6 * r['watch_changes_loop_seconds']:.2f}",
+            f'{100 * spread:.0f}%')
 
 
-def energy_check_table(results):
-    header = ('case', 'N', 'energy check (µs/step, % of step)',
-              'median call (µs)', 'energy measurements / steps')
-    rows = [(r.get('calculator', r.get('system')), r['n_atoms'],
-             f"{us(r['energy_check_seconds_per_step'])} "
-             f'({check_share(r):.2g}%)',
-             f"{1e6 * r['energy_check_median_call_seconds']:.2f}",
-             f"{r['energy_check_measurements']} / {r['energy_check_steps']}")
-            for r in results if 'energy_check_seconds_per_step' in r]
-    return markdown_table(header, rows)
-
-
-def cache_table(results):
-    header = ('calculator', 'N', 'nudge floor (ms)',
-              'get_forces() again (ms, in force calls)',
-              'get_potential_energy() after get_forces() '
-              '(ms, in force calls)')
-    rows = [(r['calculator'], r['n_atoms'], ms(r['median_seconds']['force']),
-             *(f'{ms(r[key])} ({in_force_calls(r, key):.2f})'
-               for key in ('get_forces_again_seconds',
-                           'energy_after_forces_seconds')))
-            for r in results]
-    return markdown_table(header, rows)
-
-
-def pair_table(results):
-    """Reversible velocity against VelocityVerlet with only the nudge floor
-    beside them in the rounds (see benchmarks/step_cost.py)."""
-    pairs, steps = results['pairs'], results['step_cost']
-    header = ('calculator', 'N', 'steps × rounds', 'VelocityVerlet (ms/step)',
-              'Reversible velocity (ms/step, ×VV)', 'per-round range',
-              'on CPU time', 'same case, all contestants in the rounds')
-    alongside = {(r['calculator'], r['n_atoms']): r for r in steps}
-    rows = []
-    for r in pairs:
-        paired = paired_ratios(r, 'rv_velocity')
-        same = alongside.get((r['calculator'], r['n_atoms']))
-        rows.append((r['calculator'], r['n_atoms'],
-                     f"{r['steps_per_block']} × {r['rounds']}",
-                     ms(r['median_seconds']['vv']),
-                     with_ratio(r, 'rv_velocity'),
-                     f'×{min(paired):.2f} to ×{max(paired):.2f}',
-                     f"×{ratio(r, 'rv_velocity', clock=CPU):.3f}",
-                     f"×{ratio(same, 'rv_velocity'):.3f}" if same else '–'))
-    return markdown_table(header, rows)
+def energy_check_row(r):
+    """The energy check's time per step, also in % of a Reversible
+    velocity step (the median step of the rounds, which includes it)."""
+    share = (100 * r['energy_check_seconds_per_step']
+             / r['median_seconds']['rv_velocity'])
+    return (r.get('calculator', r.get('system')), r['n_atoms'],
+            f"{us(r['energy_check_seconds_per_step'])} ({share:.2g}%)",
+            f"{1e6 * r['energy_check_median_call_seconds']:.2f}",
+            f"{r['energy_check_measurements']} / {r['energy_check_steps']}")
 
 
 SPEC = Spec(
     'Cost per step',
-    blocks={'overhead': block(integrator_overhead_table, 'overhead'),
-            'time': block(step_cost_table, 'step_cost'),
-            'beyond-floor': lambda stored: table(
-                OVERHEAD_COLUMNS, stored['results']['step_cost']),
-            'checks': block(checks_table, 'step_cost'),
-            'energy-check': lambda stored: energy_check_table(
-                stored['results']['step_cost']
-                + stored['results']['overhead']),
-            'pairs': block(pair_table),
+    blocks={'overhead': lambda stored: table(
+                OVERHEAD_COLUMNS, stored['results']['overhead']),
+            'time': lambda stored: table(
+                TIME_COLUMNS, stored['results']['step_cost']),
+            'checks': lambda stored: markdown_table(
+                ('calculator', 'N', 'Reversible velocity, observed (ms/step)',
+                 'checks bypassed (ms/step)',
+                 'with / without checks (per-round range)',
+                 'difference of medians (µs/step)',
+                 'changes() in the steps (µs/call, % of step)',
+                 'changes() in a tight loop (µs/call)', 'round spread'),
+                map(checks_row, stored['results']['step_cost'])),
+            'energy-check': lambda stored: markdown_table(
+                ('case', 'N', 'energy check (µs/step, % of step)',
+                 'median call (µs)', 'energy measurements / steps'),
+                map(energy_check_row, stored['results']['step_cost']
+                    + stored['results']['overhead'])),
             'logging': lambda stored: table(
                 LOGGING_COLUMNS, stored['results']['logging']),
-            'cache': block(cache_table, 'step_cost')},
+            'cache': lambda stored: table(
+                CACHE_COLUMNS, stored['results']['step_cost'])},
     plots=(plot,))

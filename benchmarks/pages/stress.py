@@ -1,8 +1,4 @@
-"""Numerical stability under stress: blow-ups, evaporation, close contacts,
-diffusion, asap3 with atoms far apart.
-
-Measured by benchmarks/stress.py, whose docstring describes the scenes.
-"""
+"""Numerical stability under stress (benchmarks/stress.py)."""
 
 from __future__ import annotations
 
@@ -10,10 +6,9 @@ import math
 
 import numpy as np
 
-from . import Spec, block, figure, label, markdown_table
+from . import Spec, block, figure, markdown_table
 
 SWEEP_PLOT = 'stress_dt_sweep.png'
-TRACES_PLOT = 'stress_blowup_traces.png'
 #: Where runs without an energy error (refused at their first step) are
 #: drawn on the log scale.
 PLOT_FLOOR = 1e-6
@@ -21,10 +16,6 @@ PLOT_FLOOR = 1e-6
 
 def plot(results, figures):
     _plot_sweep(results['sweeps'], figures)
-    # Results stored before the traces were kept have none: their plot
-    # stays as it was drawn at measurement time.
-    if all('trace' in result for result in results['sweeps']):
-        _plot_traces(results['sweeps'], figures)
 
 
 def _floored(values):
@@ -69,30 +60,6 @@ def _plot_sweep(sweeps, figures):
             ax.set_title(f'{result["name"]}, {result["calculator"]}',
                          fontsize=10)
             ax.legend(fontsize=8, loc='upper left')
-
-
-def _plot_traces(sweeps, figures):
-    """Energy error step by step in the run of each system that started
-    sane and then spent the most steps with |E - E0| > K0."""
-    with figure(figures / TRACES_PLOT, len(sweeps),
-                (6 * len(sweeps), 4)) as (plt, fig, axes):
-        for ax, result in zip(np.atleast_1d(axes), sweeps):
-            row = next(r for r in result['rows']
-                       if r['dt_fs'] == result['traced_dt_fs'])
-            trace = result['trace']
-            ax.plot(_floored(trace['velocity_verlet']), color='0.6', lw=4,
-                    alpha=0.6, label='VelocityVerlet')
-            ax.plot(_floored(trace['reversible']), color='C0',
-                    label='ReversibleVerlet')
-            if row['error'] is not None:
-                ax.axvline(row['error']['step'], color='C3', ls='--',
-                           label=f'{row["error"]["type"]} (step '
-                                 f'{row["error"]["step"]})')
-            ax.axhline(1.0, color='k', ls=':', lw=1)
-            ax.set_yscale('log')
-            label(ax, 'step', '|E - E0| / K0',
-                  f'{result["name"]}, {result["calculator"]}, '
-                  f'dt = {row["dt_fs"]:g} fs')
 
 
 def _float(value):
@@ -156,18 +123,20 @@ def sweep_tables(sweeps):
     return '\n'.join(out)
 
 
-def evaporation_table(rows):
-    table = [[r['system'] + _quantum(r['kwargs']),
-              _outcome(r), f'{r["evaporated"]} / {r["n_atoms"]}',
-              f'{r["furthest_from_centre"]:.3g}',
-              f'{r["x_max"]:.3g} / {r["position_range"]:.3g} '
-              f'({_pct(r["x_max"], r["position_range"])})',
-              f'{_float(r["max_energy_error"]):.2g}', _yes(r['exact'])]
-             for r in rows]
-    return markdown_table(
-        ['system', 'ReversibleVerlet', 'evaporated', 'furthest from the '
-         'centre (Å)', 'max \\|x\\| / position range (Å)',
-         'max \\|ΔE\\|/K0', 'exact'], table)
+def roaming_table(headers, cells):
+    """A table of the evaporation or diffusion scene: ``cells`` of a row
+    between its outcome and its position range."""
+    def make(rows):
+        table = [[r['system'] + _quantum(r['kwargs']), _outcome(r),
+                  *cells(r), f'{r["x_max"]:.3g} / {r["position_range"]:.3g} '
+                  f'({_pct(r["x_max"], r["position_range"])})',
+                  f'{_float(r["max_energy_error"]):.2g}', _yes(r['exact'])]
+                 for r in rows]
+        return markdown_table(
+            ['system', 'ReversibleVerlet', *headers,
+             'max \\|x\\| / position range (Å)', 'max \\|ΔE\\|/K0',
+             'exact'], table)
+    return make
 
 
 def contacts_table(rows):
@@ -184,19 +153,6 @@ def contacts_table(rows):
          'ReversibleVerlet', 'max \\|ΔE\\| (eV)', 'garbage from step',
          'VV max \\|ΔE\\| (eV)', 'max \\|p\\| / range at the turn',
          'exact'], table)
-
-
-def diffusion_table(rows):
-    table = [[r['system'] + _quantum(r['kwargs']),
-              _outcome(r), f'{r["max_cells"]:.3g}', f'{r["mean_cells"]:.3g}',
-              f'{r["x_max"]:.3g} / {r["position_range"]:.3g} '
-              f'({_pct(r["x_max"], r["position_range"])})',
-              f'{_float(r["max_energy_error"]):.2g}', _yes(r['exact'])]
-             for r in rows]
-    return markdown_table(
-        ['system', 'ReversibleVerlet', 'max displacement (cells)',
-         'mean displacement (cells)', 'max \\|x\\| / position range (Å)',
-         'max \\|ΔE\\|/K0', 'exact'], table)
 
 
 def far_apart_table(result):
@@ -226,8 +182,15 @@ def values(results):
 SPEC = Spec(
     'Numerical stability under stress',
     blocks={'sweeps': block(sweep_tables, 'sweeps'),
-            'evaporation': block(evaporation_table, 'evaporation'),
+            'evaporation': block(roaming_table(
+                ('evaporated', 'furthest from the centre (Å)'),
+                lambda r: (f'{r["evaporated"]} / {r["n_atoms"]}',
+                           f'{r["furthest_from_centre"]:.3g}')),
+                'evaporation'),
             'contacts': block(contacts_table, 'contacts'),
-            'diffusion': block(diffusion_table, 'diffusion'),
+            'diffusion': block(roaming_table(
+                ('max displacement (cells)', 'mean displacement (cells)'),
+                lambda r: (f'{r["max_cells"]:.3g}', f'{r["mean_cells"]:.3g}')),
+                'diffusion'),
             'far-apart': block(far_apart_table, 'far_apart')},
     plots=(plot,), values=values)

@@ -1,7 +1,4 @@
-"""Work against precision: run time to reach a given energy error.
-
-Measured by benchmarks/work_precision.py, whose docstring gives the method.
-"""
+"""Work against precision (benchmarks/work_precision.py)."""
 
 from __future__ import annotations
 
@@ -98,8 +95,7 @@ def _converged_to(run, target, slack=0.5):
 def convergence(c):
     """Per system: what ran, and each method's halvings."""
     target = c['target']
-    lines = [
-]
+    lines = []
     for r in c['systems']:
         closest = min(p['closest_to_cutoff'] for run in r['runs']
                       for p in run['points'])
@@ -112,7 +108,7 @@ def convergence(c):
             f'than {closest:.2f} Å to the cutoff.', '']
         table = []
         for run in r['runs']:
-            first, last = run['points'][0], run['points'][-1]
+            first = run['points'][0]
             reached = _converged_to(run, target)
             both = run.get('fine_both')
             table.append([
@@ -166,53 +162,14 @@ def summary(r):
     return '\n'.join(lines)
 
 
-def every_run(r):
-    table = []
-    for s in r['sweeps']:
-        for p in s['points']:
-            table.append([s['method'], f"{p['dt_fs']:.4g}", p['steps'],
-                          p['force_calls'], p['repeats'],
-                          f"{p['wall_s']:.3g}",
-                          f"{p['cpu_s']:.3g}",
-                          p.get('failure') or _e(p['max_error']),
-                          _e(p['rms_error'])])
-    return markdown_table(
-        ['method', 'dt (fs)', 'steps', 'force calls', 'runs', 'wall (s)',
-         'CPU (s)',
-         'max error', 'RMS error'], table)
-
-
-def emt_table(r):
-    return markdown_table(
-        ['calculator', 'dt (fs)', 'max error', 'RMS error'],
-        [[row['calculator'], f"{row['dt_fs']:.4g}", _e(row['max_error']),
-          _e(row['rms_error'])] for row in r['emt_check']])
-
-
 def system_values(r):
     """A system's results and the checks' derived numbers, for the prose."""
     out = dict(r)
-    c, q = r.get('sampling_check'), r.get('quantum_check')
+    c = r.get('sampling_check')
     if c:
         out.update(
             wall_gap=c['subtracted_wall_s'] / c['unobserved_wall_s'] - 1,
             cpu_gap=c['subtracted_cpu_s'] / c['unobserved_cpu_s'] - 1)
-    if q:
-        out['fine_error'] = _e(q['fine_error'])
-    if r.get('emt_check'):
-        gains = {}
-        for name in dict.fromkeys(row['calculator'] for row in r['emt_check']):
-            coarse, fine = [row for row in r['emt_check']
-                            if row['calculator'] == name]
-            gains[name] = (f"{coarse['max_error'] / fine['max_error']:.3g}×"
-                           if coarse['max_error'] and fine['max_error']
-                           else '–')
-        out.update(
-            emt_ratio=coarse['dt_fs'] / fine['dt_fs'],
-            emt_gains=', '.join(f'{n} {g}' for n, g in gains.items()),
-            emt_gap=(r['emt_cutoff']['fourth_neighbour']
-                     - r['emt_cutoff']['list_cutoff']))
-        out['emt_ratio_squared'] = out['emt_ratio'] ** 2
     return out
 
 
@@ -226,10 +183,8 @@ def of_system(make, key):
 
 SPEC = Spec(
     'Work against precision',
-    blocks={**{f'{key}{part}': of_system(make, key)
-               for key in ('argon_cluster', 'copper_crystal')
-               for part, make in (('', summary), ('-runs', every_run))},
-            'copper_crystal-emt': of_system(emt_table, 'copper_crystal'),
+    blocks={**{key: of_system(summary, key)
+               for key in ('argon_cluster', 'copper_crystal')},
             'convergence': block(convergence, 'convergence')},
     plots=(plot,),
     values=lambda results: {

@@ -1,11 +1,6 @@
-"""Long exact-reversal runs with ASE's pure-Python LennardJones.
-
-The test suite runs the 20,000-step hot Ar147 round trip with asap3; with
-ASE's LennardJones it takes minutes per scheme, so it lives here, out of
-the default run::
-
-    python benchmarks/run_all.py --only long_reversal
-"""
+"""Long exact-reversal runs with ASE's pure-Python LennardJones: the test
+suite's 20,000-step hot Ar147 round trip, which takes minutes per scheme
+with it."""
 
 from __future__ import annotations
 
