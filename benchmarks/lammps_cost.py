@@ -1,15 +1,7 @@
 """ReversibleLammps, compiled and Python paths, against LAMMPS's own
 ``fix nve`` (and ``reversible nvt`` against ``fix nvt``), on 1 and 2 MPI
-ranks.
-
-    python benchmarks/run_all.py --only lammps_cost          # ~25 minutes
-    python benchmarks/run_all.py --quick --only lammps_cost  # < 40 s
-
-Each case is ``mpiexec -n R python lammps_worker.py``: one LAMMPS instance
-per integrator in one process, blocks of the same steps in rotating order,
-wall time between MPI barriers and the ranks' largest CPU time, LAMMPS's
-own log read back; then single-step blocks, ``run 0`` setups and the MPI
-maximum from Python.  Per-step times are medians over blocks.
+ranks, each case one ``mpiexec -n R python lammps_worker.py``
+(``--only lammps_cost``: ~25 minutes, < 40 s with ``--quick``).
 """
 
 from __future__ import annotations
@@ -86,9 +78,7 @@ def run_case(case, log_dir) -> dict:
 
 def per_step_medians(blocks) -> dict:
     """Medians over blocks of what a step costs, in ms, and the counts."""
-    def median(values):
-        return statistics.median(values)
-
+    median = statistics.median
     sections = sorted({k for b in blocks for k in b['breakdown_seconds']})
     steps = sum(b['steps'] for b in blocks)
     return {
@@ -98,9 +88,6 @@ def per_step_medians(blocks) -> dict:
                                          for b in blocks]),
         'loop_ms_per_step': 1e3 * median([b['loop_seconds'] / b['steps']
                                           for b in blocks]),
-        'outside_loop_ms_per_step': 1e3 * median(
-            [(b['wall_seconds'] - b['loop_seconds']) / b['steps']
-             for b in blocks]),
         'breakdown_ms_per_step': {
             s: 1e3 * median([b['breakdown_seconds'].get(s, 0.0) / b['steps']
                              for b in blocks]) for s in sections},
@@ -109,13 +96,9 @@ def per_step_medians(blocks) -> dict:
                    / median([b['wall_seconds'] / b['steps']
                              for b in blocks])),
         'steps': steps,
-        'runs_per_block': median([b['runs'] for b in blocks]),
         'clean_recomputations': sum(b['clean_recomputations']
                                     for b in blocks),
         'clean_per_step': sum(b['clean_recomputations'] for b in blocks)
-        / steps,
-        'sort_retries': sum(b['sort_retries'] for b in blocks),
-        'neighbor_builds_per_step': sum(b['neighbor_builds'] for b in blocks)
         / steps,
     }
 

@@ -1,13 +1,6 @@
 """ReversibleNose against ASE's thermostats: sampling, exact reversal,
-memory, cost per step.
-
-    python benchmarks/run_all.py --only nose           # 12-15 minutes
-    python benchmarks/run_all.py --quick --only nose   # ~15 s
-
-The momenta are drawn at ``START_FACTOR`` times the target on the bare
-lattice (equipartition halves it).  Memory points run one fresh process
-each (``--memory-worker``).  The time-step and chain studies are
-``studies/nose_timestep.py`` and ``studies/nose_chain.py``.
+memory (one fresh process per point, ``--memory-worker``), cost per step
+(``--only nose``: 12-15 minutes, ~15 s with ``--quick``).
 """
 
 from __future__ import annotations
@@ -27,13 +20,12 @@ from pathlib import Path
 
 import numpy as np
 from ase import units
-from harness import (BLOCKS, FORCE_EVERY, TRAJECTORY_BYTES_PER_COORDINATE,
-                     WINDOW_C, NoseSampler, against_reference, buffer_sizes,
-                     max_rss_bytes, nose_statistics, resident_bytes,
-                     speed_case, there_and_back)
+from harness import (BLOCKS, FORCE_EVERY, WINDOW_C, NoseSampler,
+                     against_reference, nose_statistics,
+                     resident_bytes, speed_case, there_and_back)
 from systems import (FRICTION_PER_FS, NOSE_SYSTEMS, SEED, START_FACTOR,
                      TDAMP_STEPS, THERMOSTAT_SPEED, THERMOSTATS, ase_langevin,
-                     reversible_langevin, reversible_nose)
+                     reversible_nose)
 
 from ase_reversible.md.nose.dynamics import ENERGY_CHECK_INTERVAL
 from ase_reversible.purity import SPOT_CHECK_INTERVAL
@@ -148,7 +140,6 @@ def nose_memory_worker(steps):
     grad_x, grad_p = (rng.standard_normal((len(atoms), 3)),
                       rng.standard_normal((len(atoms), 3)))
     gc.collect()
-    rss_before = max_rss_bytes()
     resident = [resident_bytes()]
     with tallied() as tally:
         tracemalloc.start()
@@ -156,13 +147,11 @@ def nose_memory_worker(steps):
         dyn.run(steps)
         t1 = time.perf_counter()
         forward_current, forward_peak = tracemalloc.get_traced_memory()
-        rss_forward = max_rss_bytes()
         resident.append(resident_bytes())
         tracemalloc.reset_peak()
         gradients = dyn.backpropagate(steps, grad_x, grad_p)
         t2 = time.perf_counter()
         current, peak = tracemalloc.get_traced_memory()
-        own = tracemalloc.get_tracemalloc_memory()
         tracemalloc.stop()
     resident.append(resident_bytes())
     end = dyn.counts
@@ -173,10 +162,6 @@ def nose_memory_worker(steps):
         'forward_traced_end_bytes': forward_current,
         'backpropagate_traced_peak_bytes': peak,
         'backpropagate_traced_end_bytes': current,
-        'tracemalloc_own_bytes': own,
-        'max_rss_before_bytes': rss_before,
-        'max_rss_after_forward_bytes': rss_forward,
-        'max_rss_bytes': max_rss_bytes(),
         'resident_bytes': resident,  # before, after run, after backpropagate
         'forward_seconds': t1 - t0, 'backpropagate_seconds': t2 - t1,
         'hessian_vector_products': gradients.hessian_vector_products,
@@ -216,59 +201,22 @@ def profile_memory_worker(steps):
             'energy_check_interval': ENERGY_CHECK_INTERVAL}
 
 
-def langevin_memory_worker(checkpoints):
-    """ReversibleLangevin on the same system: buffers at each checkpoint."""
-    atoms = MEMORY_SYSTEM.atoms()
-    dyn = reversible_langevin(atoms, MEMORY_SYSTEM)
-    gc.collect()
-    rss_before, resident_before = max_rss_bytes(), resident_bytes()
-    points, done = [], 0
-    with tallied() as tally:
-        tracemalloc.start()
-        t0 = time.perf_counter()
-        for stop in checkpoints:
-            dyn.run(stop - done)
-            done = stop
-            current, peak = tracemalloc.get_traced_memory()
-            points.append({**buffer_sizes(dyn, stop),
-                           'traced_bytes': current,
-                           'traced_peak_bytes': peak,
-                           'resident_bytes': resident_bytes(),
-                           'max_rss_bytes': max_rss_bytes()})
-        seconds = time.perf_counter() - t0
-        tracemalloc.stop()
-    return {'kind': 'langevin', 'atoms': len(atoms),
-            'max_rss_before_bytes': rss_before,
-            'resident_before_bytes': resident_before, 'seconds': seconds,
-            'checkpoints': points, 'warnings': tally.summary()}
-
-
-WORKERS = {'nose': nose_memory_worker, 'profile': profile_memory_worker,
-           'langevin': lambda *steps: langevin_memory_worker(steps)}
+WORKERS = {'nose': nose_memory_worker, 'profile': profile_memory_worker}
 
 
 def measure_memory(lengths):
-    steps = lengths.memory_steps
-    # Longest first, so the two workers finish together.
-    jobs = [('nose', (steps[-1],)), ('langevin', steps)] + [
-        ('nose', (n,)) for n in reversed(steps[:-1])] + [
-        ('profile', (lengths.profile_steps,))]
-    raw = common.run_workers(Path(__file__),
-                             [(kind, *n) for kind, n in jobs], MEMORY_PARALLEL)
+    # Longest first, so the workers finish together.
+    jobs = [('nose', n) for n in reversed(lengths.memory_steps)] + [
+        ('profile', lengths.profile_steps)]
+    raw = common.run_workers(Path(__file__), jobs, MEMORY_PARALLEL)
     nose = sorted((r for r in raw if r['kind'] == 'nose'),
                   key=lambda r: r['steps'])
-    langevin = next(r for r in raw if r['kind'] == 'langevin')
-    for r in nose + langevin['checkpoints']:
-        r['trajectory_bytes'] = (TRAJECTORY_BYTES_PER_COORDINATE
-                                 * 3 * nose[0]['atoms'] * r['steps'])
     system = MEMORY_SYSTEM
     return {'system': system.label, 'calculator': system.calculator,
             'n_atoms': nose[0]['atoms'],
             'temperature_K': system.temperature_K,
             'timestep_fs': system.timestep_fs,
-            'friction_per_fs': FRICTION_PER_FS,
-            'parallel_workers': MEMORY_PARALLEL,
-            'nose': nose, 'langevin': langevin,
+            'parallel_workers': MEMORY_PARALLEL, 'nose': nose,
             'profile': next(r for r in raw if r['kind'] == 'profile')}
 
 
@@ -304,8 +252,8 @@ def run(quick):
                      'potential_goal_standard_errors': POTENTIAL_GOAL_SE,
                      'memory_goal_ratio': MEMORY_GOAL_RATIO,
                      'cost_goal_ratio': COST_GOAL_RATIO,
-                     'loss_seed': LOSS_SEED,
-                     **{f'lengths_{k}': v for k, v in asdict(lengths).items()},
+                     'lengths_equilibration': lengths.equilibration,
+                     'lengths_round_trip': lengths.round_trip,
                      'speed': asdict(speed)},
         'systems': systems_, 'memory': memory, 'speed': costs}
 

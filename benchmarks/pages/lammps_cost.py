@@ -1,8 +1,6 @@
 """ReversibleLammps, compiled and Python paths, against LAMMPS's fix nve.
 
-Measured by benchmarks/lammps_cost.py, whose docstring gives the method.
-Besides docs/benchmarks.md's section, its tables and values fill
-docs/lammps.md's cost and scaling sections.
+Measured by benchmarks/lammps_cost.py; the values also fill docs/lammps.md.
 """
 
 from __future__ import annotations
@@ -121,11 +119,12 @@ def _atoms(case):
 # -- the plot ------------------------------------------------------------------
 
 def plot(results, figures):
-    with figure(figures / PLOT, 2, (12, 5.5)) as (plt, fig, (left, right)):
+    """Exact over reference, CPU time per step of a long run, against the
+    number of atoms (where a step goes is the breakdown table)."""
+    with figure(figures / PLOT, 1, (7, 5.5)) as (plt, fig, ax):
         cases = results['cases']
-        names = exact_names(cases[0])
         colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
-        for k, (name, _) in enumerate(names):
+        for colour, (name, _) in zip(colours, exact_names(cases[0])):
             for ranks, marker in ((1, 'o'), (2, 's')):
                 for system, fill in (('argon', True), ('copper', False)):
                     chosen = sorted((c for c in cases if c['ranks'] == ranks
@@ -133,62 +132,31 @@ def plot(results, figures):
                                     key=lambda c: c['natoms'])
                     if not chosen:
                         continue
-                    left.plot([c['natoms'] for c in chosen],
-                              [long_ratio(c, name) for c in chosen],
-                              marker + '-',
-                              color=colours[k], lw=0.8,
-                              mfc=colours[k] if fill else 'none',
-                              label=f"{label(cases[0], name)}: "
-                                    f"{'Ar LJ' if system == 'argon' else 'Cu EAM'}"
-                                    f", {ranks} rank{'s' if ranks > 1 else ''}")
-        left.axhline(results['goal_ratio'], color='k', lw=0.8, ls=':',
-                     label=f"goal ≤ {results['goal_ratio']:g} "
-                           f"(N ≥ {results['goal_min_atoms']:,})")
-        left.axhline(1.0, color='grey', lw=0.5)
-        left.set_xscale('log')
-        left.set_xlabel('number of atoms')
-        left.set_ylabel('exact / fix nve, CPU time per step of a long run')
-        left.set_title('Time per step relative to fix nve')
-        left.legend(fontsize=6, ncol=2, loc='lower center',
-                    bbox_to_anchor=(0.5, -0.45))
-
-        # Per-step time of each case, every instance, stacked by where it
-        # goes, in units of fix nve's step.
-        instances = list(cases[0]['integrators'])
-        width = len(instances) + 1
-        ticks, top = [], 0.0
-        for i, c in enumerate(cases):
-            unit = c['median']['nve']['ms_per_step']
-            for j, name in enumerate(instances):
-                x = width * i + j
-                bottom = 0.0
-                for colour, (part, value) in zip(colours,
-                                                 breakdown(c, name).items()):
-                    right.bar(x, value / unit, bottom=bottom, color=colour,
-                              label=part if i == 0 and j == 0 else None,
-                              edgecolor='k' if j else None, linewidth=0.5,
-                              hatch='//' if j == 2 else None)
-                    bottom += value / unit
-                top = max(top, bottom)
-            ticks.append((width * i + (len(instances) - 1) / 2,
-                          c['label'].replace(', ', '\n')
-                          .replace(f" {c['natoms']}", f"\n{c['natoms']}")))
-        right.set_xticks([x for x, _ in ticks])
-        right.set_xticklabels([t for _, t in ticks], fontsize=5)
-        right.set_ylabel("time per step / fix nve's")
-        right.set_title('Where a step goes: ' + ', '.join(
-            label(cases[0], n) for n in instances) + ' (left to right)',
-            fontsize=9)
-        right.set_ylim(0, 1.3 * top)
-        right.legend(fontsize=7, loc='upper left', ncol=3)
+                    ax.plot([c['natoms'] for c in chosen],
+                            [long_ratio(c, name) for c in chosen],
+                            marker + '-', color=colour, lw=0.8,
+                            mfc=colour if fill else 'none',
+                            label=f"{label(cases[0], name)}: "
+                                  f"{'Ar LJ' if system == 'argon' else 'Cu EAM'}"
+                                  f", {ranks} rank{'s' if ranks > 1 else ''}")
+        ax.axhline(results['goal_ratio'], color='k', lw=0.8, ls=':',
+                   label=f"goal ≤ {results['goal_ratio']:g} "
+                         f"(N ≥ {results['goal_min_atoms']:,})")
+        ax.axhline(1.0, color='grey', lw=0.5)
+        ax.set_xscale('log')
+        ax.set_xlabel('number of atoms')
+        ax.set_ylabel('exact / fix nve, CPU time per step of a long run')
+        ax.set_title('Time per step relative to fix nve')
+        ax.legend(fontsize=6, ncol=2, loc='lower center',
+                  bbox_to_anchor=(0.5, -0.45))
 
 
 # -- tables and values ---------------------------------------------------------
 
 def goal_table(results):
     """Each exact integrator against its reference over the cases with at
-    least ``goal_min_atoms`` atoms: the ranges of the ratios."""
-    cases, first = goal_cases(results), results['cases'][0]
+    least ``goal_min_atoms`` atoms (all, in quick mode): the ratios' ranges."""
+    cases, first = goal_cases(results) or results['cases'], results['cases'][0]
     goals = results.get('goal_ratios', {'compiled': results['goal_ratio']})
     rows = []
     for name in (n for n in goals if n in first['integrators']):
@@ -373,30 +341,6 @@ def model_table(results):
          'MPI max (µs/call)', 'velocity quantum'], model_rows(results))
 
 
-def costs_table(results):
-    """docs/lammps.md's table: each case's ms per step and ratios."""
-    rows = []
-    for c in results['cases']:
-        m = c['median']
-        rows.append([c['label'].replace('LJ ', '').replace('EAM ', '')
-                     .replace(f"{c['natoms']}", _atoms(c)), load(c),
-                     _ms(m['nve']['ms_per_step']),
-                     _ms(m['compiled']['ms_per_step']),
-                     f"{ratio(c, 'compiled'):.3f} / "
-                     f"{ratio(c, 'compiled', cpu=True):.3f} / "
-                     f"**{long_ratio(c, 'compiled'):.3f}**",
-                     _ms(m['python']['ms_per_step']),
-                     f"{ratio(c, 'python'):.2f} / "
-                     f"{ratio(c, 'python', cpu=True):.2f} / "
-                     f"**{long_ratio(c, 'python'):.2f}**"])
-    return markdown_table(['case', 'load average', 'fix nve (ms/step)',
-                           'compiled (ms/step)',
-                           'compiled / fix nve: wall / CPU / CPU, long run',
-                           'Python (ms/step)',
-                           'Python / fix nve: wall / CPU / CPU, long run'],
-                          rows)
-
-
 def values(results):
     """The prose's numbers: ranges over cases, as text."""
     cases, goal = results['cases'], goal_cases(results)
@@ -451,11 +395,10 @@ def values(results):
 
 SPEC = Spec(
     'Exact runs inside LAMMPS',
-    blocks={'goal': block(goal_table),
-            'cost': lambda stored: markdown_table(
+    blocks={'costs-goal': block(goal_table),
+            'costs': lambda stored: markdown_table(
                 cost_header(stored['results']), cost_rows(stored['results'])),
             'breakdown': block(breakdown_table),
             'strong': block(strong_table), 'weak': block(weak_table),
-            'model': block(model_table),
-            'costs': block(costs_table), 'costs-goal': block(goal_table)},
+            'model': block(model_table)},
     plots=(plot,), values=values)

@@ -1,7 +1,8 @@
 """ReversibleNose against ASE's thermostats: sampling, exact reversal,
 memory against steps, cost per step.
 
-Measured by benchmarks/nose.py, whose docstring gives the method.
+Measured by benchmarks/nose.py and benchmarks/studies/nose_timestep.py,
+nose_chain.py.
 """
 
 from __future__ import annotations
@@ -136,25 +137,6 @@ MEMORY_COLUMNS = (
      '{forward_seconds:.1f} / {backpropagate_seconds:.1f}'))
 
 
-def comparison_table(results):
-    m = results['memory']
-    langevin = {c['steps']: c for c in m['langevin']['checkpoints']}
-
-    def held(key):
-        return lambda r: (size(langevin[r['steps']][key])
-                          if r['steps'] in langevin else '–')
-    return table((
-        ('steps', '{steps:,}'),
-        ('ReversibleNose: largest traced peak', lambda r: size(max(
-            r['forward_traced_peak_bytes'],
-            r['backpropagate_traced_peak_bytes']))),
-        ('ReversibleLangevin: buffer (nbytes)', held('nbytes')),
-        ('buffer allocated', held('allocated_bytes')),
-        ('ReversibleLangevin: traced memory held', held('traced_bytes')),
-        ('trajectory (x and p, float64)',
-         lambda r: size(r['trajectory_bytes']))), m['nose'])
-
-
 def last_decade(points, key):
     """Ratio of ``key`` at the last point to the one before."""
     return points[-1][key] / points[-2][key]
@@ -178,14 +160,6 @@ def memory_lines(results):
                    f"{hi['steps']:,} steps than at {nose[-2]['steps']:,} "
                    f"({grown / (hi['steps'] - nose[-2]['steps']):+.3f} bytes "
                    'per step).')
-    points = m['langevin']['checkpoints']
-    grown = points[-1]['nbytes'] - points[-2]['nbytes']
-    out.append(f"- ReversibleLangevin's buffer grows by "
-               f"{grown / (points[-1]['steps'] - points[-2]['steps']):.2f} "
-               'bytes per step.')
-    out.append(f"- ReversibleLangevin's buffer: "
-               f"×{last_decade(points, 'nbytes'):.2f} from "
-               f"{points[-2]['steps']:,} to {points[-1]['steps']:,} steps.")
     return '\n'.join(out)
 
 
@@ -212,15 +186,14 @@ def profile_lines(results):
 
 def memory_warning_lines(results):
     m = results['memory']
-    seen = sorted({w for r in m['nose'] + [m['langevin']]
-                   for w in r.get('warnings', ())})
+    seen = sorted({w for r in m['nose'] for w in r.get('warnings', ())})
     return ('Warnings in the memory workers, each with how often it came in '
             'its worker:\n\n'
             + '\n'.join(f'- `{w}`' for w in seen)) if seen else \
         'The memory workers gave no warning.'
 
 
-# -- the studies (benchmarks/nose.py --study timestep|chain) ----------------
+# -- the studies (benchmarks/studies/nose_timestep.py, nose_chain.py) -------
 
 def _mean_se(block, digits=2):
     return f"{block['mean']:.{digits}f} ± {block['standard_error']:.{digits}f}"
@@ -239,8 +212,8 @@ def timestep_block(stored):
     """docs/thermostats.md, "Large time steps": the measured table."""
     study = stored['results'].get('timestep')
     if study is None:
-        return ('Not measured yet: `python benchmarks/nose.py --study '
-                'timestep`.')
+        return ('Not measured yet: `python benchmarks/run_all.py --only '
+                'nose_timestep`.')
     cases = study['cases']
     by = {(c['kind'], c['timestep_fs']): c for c in cases}
     steps = sorted({c['timestep_fs'] for c in cases})
@@ -276,11 +249,15 @@ def timestep_block(stored):
 """
 
 
+NOT_MEASURED_CHAIN = ('Not measured yet: `python benchmarks/run_all.py '
+                      '--only nose_chain`.')
+
+
 def chain_block(stored):
     """docs/thermostats.md, "A chain of thermostats": the measured table."""
     study = stored['results'].get('chain')
     if study is None:
-        return 'Not measured yet: `python benchmarks/nose.py --study chain`.'
+        return NOT_MEASURED_CHAIN
     rows = []
     for c in study['cases']:
         if c.get('failure'):
@@ -316,7 +293,7 @@ def chain_stability_block(stored):
     """docs/thermostats.md, "A chain of thermostats": which runs lasted."""
     study = stored['results'].get('chain')
     if study is None or 'stability' not in study:
-        return 'Not measured yet: `python benchmarks/nose.py --study chain`.'
+        return NOT_MEASURED_CHAIN
     rows = []
     for c in study['stability']:
         rows.append([f"{c['system']} {c['n_atoms']}, {c['timestep_fs']:g} fs",
@@ -366,7 +343,6 @@ SPEC = Spec(
                                                      'ReversibleNose'),
             'memory': lambda stored: table(
                 MEMORY_COLUMNS, stored['results']['memory']['nose']),
-            'comparison': block(comparison_table),
             'memory-lines': block(memory_lines),
             'profile': block(profile_lines),
             'memory-warnings': block(memory_warning_lines),

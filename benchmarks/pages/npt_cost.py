@@ -1,7 +1,7 @@
 """Cost per step of ReversibleIsotropicNPT against ASE's IsotropicMTKNPT,
 and the profile of one case.
 
-Measured by benchmarks/npt_cost.py, whose docstring gives the method.
+Measured by benchmarks/npt_cost.py.
 """
 
 from __future__ import annotations
@@ -46,20 +46,18 @@ def profile_tables(results):
         run = p['runs'].get(key)
         if run is None:
             continue
-        for order, title in (('by_own_time', 'own time'),
-                             ('by_cumulative_time', 'cumulative time')):
-            rows = [[f"`{r['function']}`", f"{r['calls']:,}",
-                     f"{r['tottime'] * 1e6 / run['steps']:,.0f}",
-                     f"{r['cumtime'] * 1e6 / run['steps']:,.0f}",
-                     f"{100 * r['share']:.1f}%"] for r in run[order]]
-            parts.append(
-                f"{label}, {p['label'].split(',')[0]} {p['n_atoms']} atoms, "
-                f"{run['steps']} steps under cProfile "
-                f"({run['per_step_seconds'] * 1e6:,.0f} µs/step with the "
-                f"profiler), by {title}:\n\n"
-                + markdown_table(['function', 'calls', 'own µs/step',
-                                  'cumulative µs/step', 'share of the run'],
-                                 rows))
+        rows = [[f"`{r['function']}`", f"{r['calls']:,}",
+                 f"{r['tottime'] * 1e6 / run['steps']:,.0f}",
+                 f"{r['cumtime'] * 1e6 / run['steps']:,.0f}",
+                 f"{100 * r['share']:.1f}%"] for r in run['by_own_time']]
+        parts.append(
+            f"{label}, {p['label'].split(',')[0]} {p['n_atoms']} atoms, "
+            f"{run['steps']} steps under cProfile "
+            f"({run['per_step_seconds'] * 1e6:,.0f} µs/step with the "
+            "profiler), by own time:\n\n"
+            + markdown_table(['function', 'calls', 'own µs/step',
+                              'cumulative µs/step', 'share of the run'],
+                             rows))
     return '\n\n'.join(parts)
 
 

@@ -1,7 +1,8 @@
 """ReversibleIsotropicNPT against ASE's IsotropicMTKNPT: volume,
 compressibility, temperature, and the reversible run's round trip.
 
-Measured by benchmarks/npt_sampling.py, whose docstring gives the method.
+Measured by benchmarks/studies/npt_sampling.py, whose docstring gives the
+method.
 """
 
 from __future__ import annotations

@@ -21,10 +21,6 @@ THERMOSTATS = (('reversible_langevin', 'ReversibleLangevin'),
 BUSSI_PLOT = 'thermostat_bussi_kinetic_energy.png'
 BUSSI_THERMOSTATS = (('reversible_bussi', 'ReversibleBussi'),
                      ('ase_bussi', 'ASE Bussi'))
-BUSSI_SPEED_COLUMNS = (('reversible_bussi', 'ReversibleBussi'),
-                       ('ase_bussi', 'ASE Bussi'),
-                       ('reversible_langevin', 'ReversibleLangevin'),
-                       ('velocity_verlet', 'ASE VelocityVerlet'))
 SPEED_COLUMNS = (('reversible_langevin', 'ReversibleLangevin'),
                  ('ase_langevin', 'ASE Langevin'),
                  ('velocity_verlet', 'ASE VelocityVerlet'),
@@ -297,7 +293,7 @@ def bussi_round_trips(bussi):
 
 
 def bussi_speed_table(bussi):
-    return speed_table({'speed': bussi['speed']}, BUSSI_SPEED_COLUMNS,
+    return speed_table({'speed': bussi['speed']}, BUSSI_THERMOSTATS,
                        'ase_bussi')
 
 
@@ -326,8 +322,7 @@ def values(results):
         for s in results['systems']),
         'dof': results['systems'][0]['dof'],
         'load_start': load['start'][0], 'load_end': load['end'][0],
-        'load_before_cost': load['before_cost'][0],
-        'load_before_bussi': load.get('before_bussi', load['end'])[0]}
+        'load_before_cost': load['before_cost'][0]}
 
 
 SPEC = Spec(
@@ -339,9 +334,5 @@ SPEC = Spec(
             'buffer': block(buffer_table), 'memory': block(memory_table),
             'speed': block(speed_table),
             'forces-again': block(forces_again_lines),
-            'bussi-sampling': block(bussi_sampling_lines, 'bussi'),
-            'bussi-round-trips': block(bussi_round_trips, 'bussi'),
-            'bussi-buffer': block(bussi_buffer_table, 'bussi'),
-            'bussi-speed': block(bussi_speed_table, 'bussi'),
             'bussi': bussi_doc_block},
     plots=(plot,), values=values)
