@@ -27,13 +27,9 @@ from systems import (FRICTION_PER_FS, NOSE_SYSTEMS, SEED, START_FACTOR,
                      TDAMP_STEPS, THERMOSTAT_SPEED, THERMOSTATS, ase_langevin,
                      reversible_nose)
 
-from ase_reversible.md.nose.dynamics import ENERGY_CHECK_INTERVAL
-from ase_reversible.purity import SPOT_CHECK_INTERVAL
 
 #: Seed of the random loss gradient of the memory points.
 LOSS_SEED = 1
-#: Steps of the memory profile listed, the largest peaks.
-PROFILE_LARGEST = 12
 #: The goals the page judges against.
 TEMPERATURE_GOAL_PERCENT = 1.0
 KS_LEVEL = 0.01
@@ -51,13 +47,11 @@ class Lengths:
     equilibration: int
     round_trip: int          # forward steps, equilibration included
     memory_steps: tuple
-    profile_steps: int
 
 
 FULL = Lengths(equilibration=2000, round_trip=100_000,
-               memory_steps=(1000, 10_000, 100_000), profile_steps=4096)
-QUICK = Lengths(equilibration=200, round_trip=1000, memory_steps=(100, 1000),
-                profile_steps=1024)
+               memory_steps=(1000, 10_000, 100_000))
+QUICK = Lengths(equilibration=200, round_trip=1000, memory_steps=(100, 1000))
 #: Copper, asap3 EMT: 1000 and 4000 atoms.
 SPEED_CASES = ((SYSTEMS[1], (5, 5, 10)), (SYSTEMS[1], (10, 10, 10)))
 SPEED_CONTESTANTS = ('reversible_nose', 'ase_nose_hoover_chain',
@@ -157,7 +151,7 @@ def nose_memory_worker(steps):
     end = dyn.counts
     gx_nc, gp_nc = gradients
     return {
-        'kind': 'nose', 'steps': steps, 'atoms': len(atoms),
+        'steps': steps, 'atoms': len(atoms),
         'forward_traced_peak_bytes': forward_peak,
         'forward_traced_end_bytes': forward_current,
         'backpropagate_traced_peak_bytes': peak,
@@ -175,49 +169,17 @@ def nose_memory_worker(steps):
     }
 
 
-def profile_memory_worker(steps):
-    """The traced peak of every step of a ReversibleNose run: a rare
-    transient is in a run's peak only once the run met it."""
-    atoms = MEMORY_SYSTEM.atoms()
-    dyn = reversible_nose(atoms, MEMORY_SYSTEM)
-    peak = np.zeros(steps + 1, np.int64)
-
-    def observe():
-        peak[dyn.nsteps] = tracemalloc.get_traced_memory()[1]
-        tracemalloc.reset_peak()
-    dyn.attach(observe, interval=1)
-    gc.collect()
-    with tallied():
-        tracemalloc.start()
-        dyn.run(steps)
-        tracemalloc.stop()
-    peak = peak[1:]  # step 0 holds the constructor's leftovers
-    largest = np.argsort(peak, kind='stable')[::-1][:PROFILE_LARGEST]
-    return {'kind': 'profile', 'steps': steps, 'atoms': len(atoms),
-            'median_step_peak_bytes': float(np.median(peak)),
-            'largest': [{'step': int(i) + 1, 'peak_bytes': int(peak[i])}
-                        for i in sorted(largest)],
-            'spot_check_interval': SPOT_CHECK_INTERVAL,
-            'energy_check_interval': ENERGY_CHECK_INTERVAL}
-
-
-WORKERS = {'nose': nose_memory_worker, 'profile': profile_memory_worker}
-
-
 def measure_memory(lengths):
     # Longest first, so the workers finish together.
-    jobs = [('nose', n) for n in reversed(lengths.memory_steps)] + [
-        ('profile', lengths.profile_steps)]
-    raw = common.run_workers(Path(__file__), jobs, MEMORY_PARALLEL)
-    nose = sorted((r for r in raw if r['kind'] == 'nose'),
-                  key=lambda r: r['steps'])
+    raw = common.run_workers(Path(__file__), [
+        (n,) for n in reversed(lengths.memory_steps)], MEMORY_PARALLEL)
+    nose = sorted(raw, key=lambda r: r['steps'])
     system = MEMORY_SYSTEM
     return {'system': system.label, 'calculator': system.calculator,
             'n_atoms': nose[0]['atoms'],
             'temperature_K': system.temperature_K,
             'timestep_fs': system.timestep_fs,
-            'parallel_workers': MEMORY_PARALLEL, 'nose': nose,
-            'profile': next(r for r in raw if r['kind'] == 'profile')}
+            'parallel_workers': MEMORY_PARALLEL, 'nose': nose}
 
 
 def cost_case(system, repeat, settings):
@@ -259,5 +221,4 @@ def run(quick):
 
 
 if __name__ == '__main__' and sys.argv[1:2] == ['--memory-worker']:
-    print(json.dumps(WORKERS[sys.argv[2]](*map(int, sys.argv[3:]))),
-          flush=True)
+    print(json.dumps(nose_memory_worker(int(sys.argv[2]))), flush=True)

@@ -163,27 +163,6 @@ def memory_lines(results):
     return '\n'.join(out)
 
 
-def profile_lines(results):
-    prof = results['memory'].get('profile')
-    if not prof:
-        return ''
-    interval = prof['spot_check_interval']
-    largest = ', '.join(
-        f"{p['step']:,} ({size(p['peak_bytes'])}; mod {interval}: "
-        f"{p['step'] % interval})" for p in prof['largest'])
-    return (f"Which steps allocate most: a run of {prof['steps']:,} steps "
-            'with an observer that reads the traced peak after every step '
-            'and resets it. Median peak of a step '
-            f"{size(prof['median_step_peak_bytes'])}; the "
-            f"{len(prof['largest'])} largest, by step: {largest}. The "
-            'extended energy is checked every '
-            f"{prof['energy_check_interval']} steps and the force provider "
-            f'spot-checks purity every {interval} force calls '
-            '(`ase_reversible.purity.SpotCheck`); a peak such a step makes '
-            'is in the peak of a run only once the run is long enough to '
-            'contain it.')
-
-
 def memory_warning_lines(results):
     m = results['memory']
     seen = sorted({w for r in m['nose'] for w in r.get('warnings', ())})
@@ -344,7 +323,6 @@ SPEC = Spec(
             'memory': lambda stored: table(
                 MEMORY_COLUMNS, stored['results']['memory']['nose']),
             'memory-lines': block(memory_lines),
-            'profile': block(profile_lines),
             'memory-warnings': block(memory_warning_lines),
             'speed': lambda stored: speed_table(
                 stored['results'], SPEED_COLUMNS, 'ase_nose_hoover_chain'),

@@ -1,12 +1,6 @@
-"""Nosé-Hoover chains of ReversibleNose: stability, sampling, cost.
-
-    python benchmarks/run_all.py --only nose_chain   # ~13 minutes
-
-First, from the tests' round-trip systems (Cu 108, Ar 256) at tdamp 10 to
-100 steps, whether a chain of 3 runs 3,000 steps where the single
-thermostat does; then the sampling of copper and liquid argon with tchain
-1, 2 and 3, a round trip for tchain 3, and the cost per step.  Stored as
-``results['chain']`` of the nose section.
+"""Nosé-Hoover chains of ReversibleNose: stability, sampling, round trip,
+cost (``--only nose_chain``: ~13 minutes; stored as the nose section's
+'chain').
 """
 
 from __future__ import annotations
@@ -71,9 +65,8 @@ STABILITY_STEPS = 3000
 
 
 class ChainSampler(NoseSampler):
-    """NoseSampler, plus the range of every ``s_j`` and the internal
-    kinetic energy of the momenta half kicked, ``(p' + h F / 2) / s_1``
-    (what the velocity scheme's thermostat reads)."""
+    """NoseSampler with the range of every ``s_j`` and the internal kinetic
+    energy of the half-kicked momenta ``(p' + h F / 2) / s_1``."""
 
     def __init__(self, dyn, steps):
         super().__init__(dyn, steps)
@@ -152,10 +145,9 @@ def chain_case(system, tchain, scheme, lengths):
 
 
 def stability_case(system, tchain, tdamp_steps, steps):
-    """From the lattice with momenta at the system's temperature, the
-    thermostat at 0.6 times that (what equipartition leaves, about): does
-    the run last ``steps`` steps, and how far does the extended energy
-    move (kT)?"""
+    """Does a run from the lattice, the thermostat at 0.6 times the
+    momenta's temperature, last ``steps`` steps, and how far does the
+    extended energy move (kT)?"""
     atoms = system.atoms()
     h = system.timestep_fs * units.fs
     temperature_K = 0.6 * atoms.get_temperature()

@@ -1,14 +1,7 @@
-"""ReversibleIsotropicNPT against ASE's IsotropicMTKNPT: volume,
-compressibility and temperature sampled, and the reversible run taken back
-to its start.
-
-    python benchmarks/run_all.py --only npt_sampling           # hours
-    python benchmarks/run_all.py --quick --only npt_sampling   # < 60 s
-
-Copper (256 atoms, asap3 EMT, 300 K, 0 and 1 GPa) and liquid argon (256
-atoms, Lennard-Jones cut at 3 sigma, 100 K, 50 bar: T* = 0.84 and P* =
-0.12, started on fcc sites at the liquid's density rho* = 0.73), both
-integrators with tdamp = 100 dt and pdamp = 1000 dt from the same atoms.
+"""ReversibleIsotropicNPT against ASE's IsotropicMTKNPT on the cases of
+``systems.NPT_CASES``: volume, compressibility and temperature sampled, and
+the reversible run taken back to its start (``--only npt_sampling``:
+hours, < 60 s with ``--quick``).
 """
 
 from __future__ import annotations
@@ -29,8 +22,7 @@ from systems import (NPT_AR_CUTOFF, NPT_AR_EPSILON, NPT_AR_REDUCED_DENSITY,
                      PDAMP_NPT_STEPS, TDAMP_NPT_STEPS, npt_reversible_class)
 
 #: Blocks of the jackknife: few and long, as the piston's energy, which
-#: sets var(V), decorrelates over thousands of steps (in ASE's runs of Cu
-#: 256 its mean over 5,000-step windows ranged from 30 to 1,500 K).
+#: sets var(V), decorrelates over thousands of steps.
 BLOCKS = 10
 #: The goal judged on the page: mean temperature within this of the target.
 TEMPERATURE_GOAL_PERCENT = 1.0
@@ -43,17 +35,16 @@ class Lengths:
 
 
 FULL = Lengths(equilibration=10_000, total=100_000)
-#: The same atoms, few steps (asap3 needs the argon box wider than twice
-#: the cut-off: 256 atoms are the fewest at this density).
+#: The same atoms (256 argon atoms are the fewest asap3 takes), few steps.
 QUICK = Lengths(equilibration=100, total=600)
 
 
 # -- sampling ----------------------------------------------------------------
 
 class Sampler:
-    """Observer: volume and kinetic temperature after every step, indexed by
-    ``dyn.nsteps`` (0: before the first step); the scaled positions at two
-    steps, for the mean squared displacement."""
+    """Observer: volume, kinetic temperature and potential energy after
+    every step, indexed by ``dyn.nsteps``; the scaled positions at
+    ``marks``, for the mean squared displacement."""
 
     def __init__(self, dyn, steps, marks):
         self.dyn, self.atoms = dyn, dyn.atoms
@@ -94,10 +85,8 @@ def jackknife_compressibility(volume, kT, blocks=BLOCKS):
         leave_one_out[k] = rest.var() / (kT * rest.mean())
     error = math.sqrt((blocks - 1) / blocks
                       * ((leave_one_out - leave_one_out.mean())**2).sum())
-    # var(V) is the mean of (V - <V>)**2, whose correlations outlast V's
-    # own: V oscillates with the piston, (V - <V>)**2 follows the
-    # piston's energy, which changes slowly.  Its autocorrelation time
-    # gives a second error, independent of the blocks.
+    # (V - <V>)**2 follows the piston's slow energy, so its correlations
+    # outlast V's: its autocorrelation time gives a second error.
     square = (v - v.mean())**2
     g = integrated_time(square)
     error_g = kappa * math.sqrt(g * square.var() / len(v)) / square.mean()
@@ -136,7 +125,7 @@ def statistics_of(sampler, first, case, n_atoms):
 
 
 def exact_state(dyn):
-    """Every exact variable's integers, and the atoms' floats."""
+    """Every exact variable's integers and the atoms' floats."""
     atoms = dyn.atoms
     return {'engine': dyn.engine.snapshot(),
             'positions': atoms.get_positions(),
@@ -155,8 +144,7 @@ def compare(start, end):
 
 
 def buffers(dyn):
-    """The thermostat's information buffers (the side state a step
-    changes), empty where a dynamics keeps none."""
+    """The thermostat's information buffers (none for ASE's)."""
     step = getattr(dyn, 'friction_step', None)
     return list(step.buffers.values()) if step is not None else []
 
@@ -206,8 +194,7 @@ def run_one(case, name, lengths, repeat=None, round_trip=False):
 
 
 def compressibility_error(kappa):
-    """The larger of kappa_T's two errors (blocks, autocorrelation), per
-    GPa: the comparison must not rest on the more optimistic one."""
+    """The larger of kappa_T's two errors (blocks, autocorrelation), /GPa."""
     return max(kappa['standard_error_per_GPa'],
                kappa['standard_error_from_g_per_GPa'])
 
@@ -237,8 +224,8 @@ def compared(ours, theirs):
 
 
 def sampling_case(case, lengths, repeat=None, names=None):
-    """Both integrators on one case; the reversible one only where this
-    checkout has it (the record says so otherwise)."""
+    """Both integrators on one case (the reversible one where this checkout
+    has it)."""
     names = names or (('reversible_npt', 'ase_npt') if npt_reversible_class()
                       else ('ase_npt',))
     first = lengths.equilibration + 1
