@@ -91,7 +91,7 @@ def extrapolated(checkpoints, steps=EXTRAPOLATE_TO):
     allocated bytes: the stacks grow by doubling)."""
     a, b = checkpoints[-2], checkpoints[-1]
     out = {'steps': steps, 'extrapolated': True}
-    for key in ('bits', 'nbytes', 'trajectory_bytes'):
+    for key in ('nbytes', 'trajectory_bytes'):
         slope = (b[key] - a[key]) / (b['steps'] - a['steps'])
         out[key] = b[key] + slope * (steps - b['steps'])
     return out

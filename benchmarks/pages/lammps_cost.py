@@ -35,10 +35,9 @@ def label(case, name):
     return case['integrators'][name]['label']
 
 
-def ratio(case, name, reference=None, cpu=False):
-    m = case['median']
-    reference = reference or case['integrators'][name]['reference']
-    key = 'cpu_ms_per_step' if cpu else 'ms_per_step'
+def ratio(case, name, key='ms_per_step'):
+    """Exact over reference, medians over blocks of M steps."""
+    m, reference = case['median'], case['integrators'][name]['reference']
     return m[name][key] / m[reference][key]
 
 
@@ -49,12 +48,6 @@ def long_ratio(case, name, key='cpu'):
     reference = case['integrators'][name]['reference']
     return (m[name][f'{key}_ms_per_step']
             / m[reference][f'{key}_ms_per_step'])
-
-
-def loop_ratio(case, name):
-    m = case['median']
-    reference = case['integrators'][name]['reference']
-    return m[name]['loop_ms_per_step'] / m[reference]['loop_ms_per_step']
 
 
 def uses(results, use):
@@ -92,12 +85,6 @@ def load(case):
     return f'{before[0]:.1f}-{after[0]:.1f}'
 
 
-def loads(results):
-    values = [c['load_average'][i][0] for c in results['cases']
-              for i in (0, 1)]
-    return min(values), max(values)
-
-
 def _ms(value):
     return f'{value:.3g}' if abs(value) < 100 else f'{value:.0f}'
 
@@ -110,10 +97,6 @@ def _range(values, fmt):
     low, high = min(values), max(values)
     return fmt(low) if fmt(low) == fmt(high) else \
         f'{fmt(low)} to {fmt(high)}'
-
-
-def _atoms(case):
-    return f"{case['natoms']:,}"
 
 
 # -- the plot ------------------------------------------------------------------
@@ -167,9 +150,9 @@ def goal_table(results):
                 'reference']), f'{goals[name]:.2f}', len(cases),
             spread(lambda c: long_ratio(c, name)),
             max(cases, key=lambda c: long_ratio(c, name))['label'],
-            spread(lambda c: ratio(c, name, cpu=True)),
+            spread(lambda c: ratio(c, name, 'cpu_ms_per_step')),
             spread(lambda c: ratio(c, name)),
-            spread(lambda c: loop_ratio(c, name)),
+            spread(lambda c: ratio(c, name, 'loop_ms_per_step')),
             spread(lambda c: long_ratio(c, name, 'wall'))])
     return markdown_table(
         ['exact path', 'reference', 'goal (×)', 'cases',
@@ -200,7 +183,7 @@ def cost_rows(results):
             row += [f"{_ms(m[name]['ms_per_step'])} / "
                     f"{_ms(m[name]['cpu_ms_per_step'])}",
                     f'{ratio(c, name):.3f} / '
-                    f'{ratio(c, name, cpu=True):.3f}',
+                    f"{ratio(c, name, 'cpu_ms_per_step'):.3f}",
                     f'**{long_ratio(c, name):.3f}**']
         row.append(f"{max(m[n]['spread'] for n in c['integrators']):.0%}")
         rows.append(row)
@@ -350,7 +333,8 @@ def values(results):
     one = [c for c in single if c['natoms'] >= results['goal_min_atoms']] \
         or single
     two = [c for c in cases if c['ranks'] > 1]
-    out = {'loads': _range(loads(results), lambda v: f'{v:.1f}'),
+    out = {'loads': _range([c['load_average'][i][0] for c in cases
+                            for i in (0, 1)], lambda v: f'{v:.1f}'),
            'instances': ', '.join(f'`{label(cases[0], n)}`'
                                   for n in cases[0]['integrators']),
            'rounds': cases[0]['rounds'],

@@ -1,9 +1,8 @@
 """ReversibleLangevin against ASE's Langevin, ReversibleBussi against ASE's
 Bussi: sampling, exact reversal, information buffer, cost per step.
 
-Measured by benchmarks/thermostat.py, whose docstring gives the method.
-Besides docs/benchmarks.md's section, its blocks fill the Bussi numbers
-of docs/thermostats.md.
+Measured by benchmarks/thermostat.py; the Bussi block fills
+docs/thermostats.md.
 """
 
 from __future__ import annotations
@@ -180,38 +179,26 @@ def warning_lines(results, name='ReversibleLangevin'):
 
 
 def buffer_table(results):
-    rows = []
-    for s in results['systems']:
-        b = s['buffer']
-        for c in b['checkpoints']:
-            rows.append([
-                f"{s['system']} {s['n_atoms']}", f"{c['steps']:,}",
-                f"{c['bits_per_step_per_coordinate']:.6f}",
-                f"{b['minimum_bits_per_step_per_coordinate']:.6f}",
-                f'{bits_ratio(s, c):.4f}',
-                f"{8 * c['nbytes'] / (c['steps'] * 3 * s['n_atoms']):.4f}"])
-    return markdown_table(
-        ['system', 'steps', 'bits held / step / coordinate',
-         'minimum −log2(c)', 'ratio', 'memory (nbytes) in bits / step / '
-         'coordinate'], rows)
-
-
-def memory_table(results):
+    """Per checkpoint (and the extrapolated point): the bits held against
+    the minimum, the buffer's memory against a stored trajectory's."""
     rows = []
     for s in results['systems']:
         b = s['buffer']
         for c in b['checkpoints'] + [b['extrapolated']]:
-            mark = ' (extrapolated)' if c.get('extrapolated') else ''
+            held = 'bits_per_step_per_coordinate' in c
             rows.append([
-                f"{s['system']} {s['n_atoms']}", f"{c['steps']:,}{mark}",
-                size(c['bits'] / 8), size(c['nbytes']),
-                size(c['allocated_bytes']) if 'allocated_bytes' in c
-                else '–', size(c['trajectory_bytes']),
+                f"{s['system']} {s['n_atoms']}", f"{c['steps']:,}"
+                + (' (extrapolated)' if c.get('extrapolated') else ''),
+                f"{c['bits_per_step_per_coordinate']:.6f}" if held else '–',
+                f'{bits_ratio(s, c):.4f}' if held else '–',
+                size(c['nbytes']), size(c['allocated_bytes'])
+                if 'allocated_bytes' in c else '–',
+                size(c['trajectory_bytes']),
                 f"{c['trajectory_bytes'] / c['nbytes']:.0f}"])
     return markdown_table(
-        ['system', 'steps', 'information held', 'buffer memory (nbytes)',
-         'allocated', 'trajectory (x and p, float64)',
-         'trajectory / buffer'], rows)
+        ['system', 'steps', 'bits held / step / coordinate',
+         'ratio to −log2(c)', 'buffer memory (nbytes)', 'allocated',
+         'trajectory (x and p, float64)', 'trajectory / buffer'], rows)
 
 
 def forces_again_lines(results):
@@ -331,7 +318,7 @@ SPEC = Spec(
             'baoab': block(baoab_lines), 'potential': block(potential_lines),
             'round-trip': block(round_trip_table),
             'warnings': block(warning_lines),
-            'buffer': block(buffer_table), 'memory': block(memory_table),
+            'buffer': block(buffer_table),
             'speed': block(speed_table),
             'forces-again': block(forces_again_lines),
             'bussi': bussi_doc_block},
