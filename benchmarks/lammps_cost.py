@@ -30,25 +30,25 @@ GOAL_NVT_RATIO = 1.05
 #: exact ones measured against it (lammps_worker.INTEGRATORS).
 INTEGRATORS = ('nve', 'compiled', 'python', 'nvt', 'exact_nvt')
 
-#: (system, cells, ranks, steps per block, warm-up steps, what it serves).
+#: (system, cells, ranks, steps per block, warm-up steps).
 FULL_CASES = (
-    ('argon', (10, 10, 10), 1, 300, 100, ('size',)),
-    ('argon', (20, 20, 20), 1, 100, 50, ('size', 'strong')),
-    ('argon', (20, 20, 20), 2, 100, 50, ('strong',)),
-    ('argon', (30, 30, 15), 1, 60, 40, ('weak',)),
-    ('argon', (30, 30, 30), 1, 60, 40, ('size', 'strong')),
-    ('argon', (30, 30, 30), 2, 60, 40, ('strong', 'weak')),
-    ('argon', (40, 40, 40), 1, 20, 20, ('size',)),
-    ('copper', (20, 20, 20), 1, 100, 50, ('strong',)),
-    ('copper', (20, 20, 20), 2, 100, 50, ('strong',)),
-    ('copper', (30, 30, 30), 1, 50, 30, ('strong',)),
-    ('copper', (30, 30, 30), 2, 50, 30, ('strong',)),
+    ('argon', (10, 10, 10), 1, 300, 100),
+    ('argon', (20, 20, 20), 1, 100, 50),
+    ('argon', (20, 20, 20), 2, 100, 50),
+    ('argon', (30, 30, 15), 1, 60, 40),
+    ('argon', (30, 30, 30), 1, 60, 40),
+    ('argon', (30, 30, 30), 2, 60, 40),
+    ('argon', (40, 40, 40), 1, 20, 20),
+    ('copper', (20, 20, 20), 1, 100, 50),
+    ('copper', (20, 20, 20), 2, 100, 50),
+    ('copper', (30, 30, 30), 1, 50, 30),
+    ('copper', (30, 30, 30), 2, 50, 30),
 )
 QUICK_CASES = (
-    ('argon', (10, 10, 10), 1, 20, 20, ('size', 'strong')),
-    ('argon', (10, 10, 10), 2, 20, 20, ('strong',)),
-    ('copper', (10, 10, 10), 1, 20, 20, ('strong',)),
-    ('copper', (10, 10, 10), 2, 20, 20, ('strong',)),
+    ('argon', (10, 10, 10), 1, 20, 20),
+    ('argon', (10, 10, 10), 2, 20, 20),
+    ('copper', (10, 10, 10), 1, 20, 20),
+    ('copper', (10, 10, 10), 2, 20, 20),
 )
 FULL = {'rounds': 6, 'setups': 5, 'reduce_blocks': 5, 'reduce_calls': 1000}
 QUICK = {'rounds': 3, 'setups': 3, 'reduce_blocks': 3, 'reduce_calls': 1000}
@@ -122,7 +122,7 @@ def run(quick):
     settings = QUICK if quick else FULL
     cases = []
     with tempfile.TemporaryDirectory() as log_dir:
-        for system, cells, ranks, steps, warmup, uses in (
+        for system, cells, ranks, steps, warmup in (
                 QUICK_CASES if quick else FULL_CASES):
             case = {'system': system, 'cells': list(cells), 'ranks': ranks,
                     'integrators': list(INTEGRATORS), 'steps': steps,
@@ -136,7 +136,7 @@ def run(quick):
             measured['load_average'] = [load, os.getloadavg()]
             assert measured['natoms'] == natoms and measured['ranks'] == ranks
             cases.append({
-                'label': label, 'uses': list(uses), **case, **measured,
+                'label': label, **case, **measured,
                 'median': {name: per_step_medians(blocks) for name, blocks
                            in measured['blocks'].items()},
                 'long_run': {name: long_run_medians(

@@ -50,10 +50,6 @@ def long_ratio(case, name, key='cpu'):
             / m[reference][f'{key}_ms_per_step'])
 
 
-def uses(results, use):
-    return [c for c in results['cases'] if use in c['uses']]
-
-
 def goal_cases(results):
     return [c for c in results['cases']
             if c['natoms'] >= results['goal_min_atoms']]
@@ -205,8 +201,9 @@ def cost_header(results):
 
 
 def strong_rows(results):
+    """Each system and size measured on 1 and on more ranks."""
     strong = {}
-    for c in uses(results, 'strong'):
+    for c in results['cases']:
         strong.setdefault((c['system'], c['natoms']), {})[c['ranks']] = c
     rows = []
     for (system, natoms), by_ranks in strong.items():
@@ -224,18 +221,6 @@ def strong_rows(results):
             rows.append(row + [f"{ratio(one, n):.3f} → {ratio(c, n):.3f}"
                                for n, _ in exact_names(c)])
     return rows
-
-
-def weak_rows(results):
-    weak = sorted(uses(results, 'weak'), key=lambda c: c['ranks'])
-    if len(weak) < 2 or weak[0]['ranks'] != 1:
-        return []
-    one = weak[0]
-    return [[c['label'], f"{c['natoms'] // c['ranks']:,}"]
-            + [f"{one['median'][n]['ms_per_step'] / c['median'][n]['ms_per_step']:.0%}"
-               for n in c['integrators']]
-            + [f'{ratio(c, n):.3f}' for n, _ in exact_names(c)]
-            for c in weak]
 
 
 def model_numbers(case, name):
@@ -303,15 +288,6 @@ def strong_table(results):
                            for n in first['integrators']]
         + [f'{label(first, n)} / fix nve, 1 → R'
            for n, _ in exact_names(first)], strong_rows(results))
-
-
-def weak_table(results):
-    first = results['cases'][0]
-    return markdown_table(
-        ['case', 'atoms per rank'] + [f'{label(first, n)} efficiency'
-                                      for n in first['integrators']]
-        + [f'{label(first, n)} / fix nve' for n, _ in exact_names(first)],
-        weak_rows(results))
 
 
 def model_table(results):
@@ -383,6 +359,6 @@ SPEC = Spec(
             'costs': lambda stored: markdown_table(
                 cost_header(stored['results']), cost_rows(stored['results'])),
             'breakdown': block(breakdown_table),
-            'strong': block(strong_table), 'weak': block(weak_table),
+            'strong': block(strong_table),
             'model': block(model_table)},
     plots=(plot,), values=values)
