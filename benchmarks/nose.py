@@ -89,18 +89,15 @@ def sampling_system(system, lengths):
         -100 * thermostat['real_timestep_fs']['rms']**2
         * result['sampling']['reversible_nose']['mean_omega_squared_per_fs2']
         / 4)
-    return {**result,
-            'start_temperature_K': START_FACTOR * system.temperature_K,
-            'equilibration_steps': lengths.equilibration,
+    return {**result, 'equilibration_steps': lengths.equilibration,
             'thermostat': thermostat, 'round_trip': round_trip}
 
 
 # -- memory: one fresh process per point --------------------------------------
 
 class WarningTally:
-    """Stands in for ``warnings.showwarning``: counts the warnings by
-    category and keeps the first message of each, in constant memory (a
-    list of every warning would grow with the steps it measures)."""
+    """``warnings.showwarning`` counting the warnings by category, keeping
+    the first message of each (a list of all would grow with the steps)."""
 
     def __init__(self):
         self.count, self.first = {}, {}
@@ -117,7 +114,7 @@ class WarningTally:
 
 @contextlib.contextmanager
 def tallied():
-    """Every warning inside counted by a ``WarningTally`` (yielded)."""
+    """Every warning inside counted by the ``WarningTally`` yielded."""
     with warnings.catch_warnings():
         warnings.simplefilter('always')
         warnings.showwarning = tally = WarningTally()
@@ -182,13 +179,6 @@ def measure_memory(lengths):
             'parallel_workers': MEMORY_PARALLEL, 'nose': nose}
 
 
-def cost_case(system, repeat, settings):
-    result = speed_case(system, repeat, settings, SPEED_CONTESTANTS,
-                        THERMOSTATS, 'ase_nose_hoover_chain')
-    result['tdamp_fs'] = TDAMP_STEPS * system.timestep_fs
-    return result
-
-
 def run(quick):
     lengths = QUICK if quick else FULL
     speed = THERMOSTAT_SPEED[quick]
@@ -198,7 +188,8 @@ def run(quick):
     load['before_memory'] = os.getloadavg()
     memory = measure_memory(lengths)
     load['before_cost'] = os.getloadavg()
-    costs = [cost_case(s, r, speed)
+    costs = [speed_case(s, r, speed, SPEED_CONTESTANTS, THERMOSTATS,
+                        'ase_nose_hoover_chain')
              for s, r in (SPEED_CASES[:1] if quick else SPEED_CASES)]
     load['end'] = os.getloadavg()
     return {

@@ -97,9 +97,17 @@ def extrapolated(checkpoints, steps=EXTRAPOLATE_TO):
     return out
 
 
-def state_equal(a, b):
-    return bool(np.array_equal(a.ix_nc, b.ix_nc)
-                and np.array_equal(a.ip_nc, b.ip_nc))
+def round_trip(dyn, trip, steps, buffers, keys=()):
+    """The stored round trip: the integer state and buffers back at the
+    start, the times, the warnings, and ``trip``'s ``keys``."""
+    start, end = trip['start'], dyn.state
+    return {'steps_each_way': steps, 'moved': trip['moved'],
+            'state_equal': bool(np.array_equal(start.ix_nc, end.ix_nc)
+                                and np.array_equal(start.ip_nc, end.ip_nc)),
+            'buffer_empty': bool(buffers)
+            and all(b.is_empty() for b in buffers),
+            **{k: trip[k] for k in (*keys, 'forward_seconds', 'back_seconds',
+                                    'warnings')}}
 
 
 def sampling_system(system, lengths):
@@ -109,22 +117,16 @@ def sampling_system(system, lengths):
         lambda: reversible_langevin(atoms, system), KineticSampler,
         lengths.round_trip, lengths.checkpoints, buffer_sizes,
         snapshot=lambda dyn: dyn.state)
-    buffers = list(dyn.friction_step.buffers.values())
     checkpoints = trip['checkpoints']
-    round_trip = {
-        **{k: trip[k] for k in ('moved', 'positions_equal', 'momenta_equal')},
-        'steps_each_way': lengths.round_trip,
-        'state_equal': state_equal(dyn.state, trip['start']),
-        'buffer_empty': bool(buffers and all(b.is_empty() for b in buffers)),
-        'buffer_bits_after': dyn.buffer_bits, 'heat_after_eV': dyn.heat,
-        **{k: trip[k] for k in ('forward_seconds', 'back_seconds',
-                                'warnings')}}
     n = friction_ratio(math.exp(-FRICTION_PER_FS * system.timestep_fs))
     result = against_reference(
         system, lengths.equilibration + 1, ('reversible_langevin', sampler),
         'ase_langevin', ase_langevin, lengths.round_trip)
     return {**result, 'equilibration_steps': lengths.equilibration,
-            'round_trip': round_trip,
+            'round_trip': round_trip(
+                dyn, trip, lengths.round_trip,
+                list(dyn.friction_step.buffers.values()),
+                ('positions_equal', 'momenta_equal')),
             'buffer': {'ratio_numerator': n, 'ratio': n / 2**DIGIT_BITS,
                        'minimum_bits_per_step_per_coordinate':
                            -math.log2(n / 2**DIGIT_BITS),
@@ -183,18 +185,14 @@ def bussi_system(system, lengths):
         lambda: reversible_bussi(atoms, system), KineticSampler,
         lengths.round_trip, lengths.checkpoints, bussi_buffer,
         snapshot=lambda dyn: dyn.state)
-    (buffer,) = dyn.rescale_step.buffers.values()
     result = against_reference(
         system, lengths.equilibration + 1, ('reversible_bussi', ours),
         'ase_bussi', ase_bussi, lengths.round_trip)
     return {**result, 'taut_fs': TAUT_FS,
             'equilibration_steps': lengths.equilibration,
-            'round_trip': {
-                'steps_each_way': lengths.round_trip, 'moved': trip['moved'],
-                'state_equal': state_equal(dyn.state, trip['start']),
-                'buffer_empty': buffer.is_empty(),
-                **{k: trip[k] for k in ('forward_seconds', 'back_seconds',
-                                        'warnings')}},
+            'round_trip': round_trip(
+                dyn, trip, lengths.round_trip,
+                list(dyn.rescale_step.buffers.values())),
             'buffer_checkpoints': trip['checkpoints']}
 
 

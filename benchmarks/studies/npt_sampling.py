@@ -97,7 +97,7 @@ def jackknife_compressibility(volume, kT, blocks=BLOCKS):
             'standard_error_from_g_per_GPa': error_g * units.GPa}
 
 
-def statistics_of(sampler, first, case, n_atoms):
+def statistics_of(sampler, first, case):
     volume = sampler.volume[first:]
     temperature = sampler.temperature[first:]
     if not (np.all(np.isfinite(volume)) and np.all(np.isfinite(temperature))):
@@ -112,7 +112,6 @@ def statistics_of(sampler, first, case, n_atoms):
         'volume_A3': {**v, 'correlation_time_steps': g,
                       'block_length_over_correlation_time':
                           v['block_length'] / g},
-        'volume_per_atom_A3': v['mean'] / n_atoms,
         'compressibility': jackknife_compressibility(volume, kT),
         'temperature_K': {**block_mean(temperature),
                           'correlation_time_steps':
@@ -185,7 +184,6 @@ def run_one(case, name, lengths, repeat=None, round_trip=False):
             record['round_trip'] = {
                 'steps_each_way': lengths.total, 'moved': moved,
                 'cell_moved': cell_moved, 'equal': equal,
-                'exact': all(equal.values()),
                 'buffer_bits_at_turn': bits_at_turn,
                 'buffer_bits_after': buffer_bits(dyn),
                 'back_seconds': back}
@@ -235,10 +233,9 @@ def sampling_case(case, lengths, repeat=None, names=None):
             case, name, lengths, repeat,
             round_trip=case.round_trip and name == 'reversible_npt')
         n_atoms = len(sampler.atoms)
-        record.update(statistics_of(sampler, first, case, n_atoms))
+        record.update(statistics_of(sampler, first, case))
         runs[name], samplers[name] = record, sampler
     result = {**asdict(case), 'n_atoms': n_atoms,
-              'pressure_au': case.pressure_au,
               'calculator': runs[names[-1]]['calculator'],
               'equilibration_steps': lengths.equilibration,
               'total_steps': lengths.total, 'runs': runs}
