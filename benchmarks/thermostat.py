@@ -18,8 +18,7 @@ from ase.md.bussi import Bussi
 from harness import (BLOCKS, FORCE_EVERY, WINDOW_C, KineticSampler, against_reference,
                      speed_case, there_and_back)
 from systems import (FRICTION_PER_FS, SEED, THERMOSTAT_SPEED,
-                     THERMOSTAT_SYSTEMS, THERMOSTATS, ThermostatSystem,
-                     ase_langevin, reversible_langevin)
+                     THERMOSTAT_SYSTEMS, THERMOSTATS, ThermostatSystem)
 
 from ase_reversible import ReversibleBussi
 from ase_reversible.app.systems import argon_bulk
@@ -97,36 +96,40 @@ def extrapolated(checkpoints, steps=EXTRAPOLATE_TO):
     return out
 
 
-def round_trip(dyn, trip, steps, buffers, keys=()):
-    """The stored round trip: the integer state and buffers back at the
-    start, the times, the warnings, and ``trip``'s ``keys``."""
-    start, end = trip['start'], dyn.state
-    return {'steps_each_way': steps, 'moved': trip['moved'],
-            'state_equal': bool(np.array_equal(start.ix_nc, end.ix_nc)
-                                and np.array_equal(start.ip_nc, end.ip_nc)),
-            'buffer_empty': bool(buffers)
-            and all(b.is_empty() for b in buffers),
-            **{k: trip[k] for k in (*keys, 'forward_seconds', 'back_seconds',
-                                    'warnings')}}
+def sampled_round_trip(system, lengths, name, reference, buffer_at,
+                       buffers_of, keys=()):
+    """Integrator ``name`` there and back (``buffer_at(dyn, step)`` at the
+    checkpoints) against ASE's ``reference``: ``(dyn, trip, result)``, the
+    result holding the round trip (the integer state and ``buffers_of(dyn)``
+    back at the start, times, warnings, and ``trip``'s ``keys``)."""
+    atoms = system.atoms()
+    dyn, sampler, trip = there_and_back(
+        lambda: INTEGRATORS[name](atoms, system), KineticSampler,
+        lengths.round_trip, lengths.checkpoints, buffer_at,
+        snapshot=lambda dyn: dyn.state)
+    result = against_reference(
+        system, lengths.equilibration + 1, (name, sampler), reference,
+        INTEGRATORS[reference], lengths.round_trip)
+    start, end, buffers = trip['start'], dyn.state, buffers_of(dyn)
+    result.update(equilibration_steps=lengths.equilibration, round_trip={
+        'steps_each_way': lengths.round_trip, 'moved': trip['moved'],
+        'state_equal': bool(np.array_equal(start.ix_nc, end.ix_nc)
+                            and np.array_equal(start.ip_nc, end.ip_nc)),
+        'buffer_empty': bool(buffers) and all(b.is_empty() for b in buffers),
+        **{k: trip[k] for k in (*keys, 'forward_seconds', 'back_seconds',
+                                'warnings')}})
+    return dyn, trip, result
 
 
 def sampling_system(system, lengths):
     """ReversibleLangevin there and back against ASE's Langevin."""
-    atoms = system.atoms()
-    dyn, sampler, trip = there_and_back(
-        lambda: reversible_langevin(atoms, system), KineticSampler,
-        lengths.round_trip, lengths.checkpoints, buffer_sizes,
-        snapshot=lambda dyn: dyn.state)
+    dyn, trip, result = sampled_round_trip(
+        system, lengths, 'reversible_langevin', 'ase_langevin', buffer_sizes,
+        lambda dyn: list(dyn.friction_step.buffers.values()),
+        ('positions_equal', 'momenta_equal'))
     checkpoints = trip['checkpoints']
     n = friction_ratio(math.exp(-FRICTION_PER_FS * system.timestep_fs))
-    result = against_reference(
-        system, lengths.equilibration + 1, ('reversible_langevin', sampler),
-        'ase_langevin', ase_langevin, lengths.round_trip)
-    return {**result, 'equilibration_steps': lengths.equilibration,
-            'round_trip': round_trip(
-                dyn, trip, lengths.round_trip,
-                list(dyn.friction_step.buffers.values()),
-                ('positions_equal', 'momenta_equal')),
+    return {**result,
             'buffer': {'ratio_numerator': n, 'ratio': n / 2**DIGIT_BITS,
                        'minimum_bits_per_step_per_coordinate':
                            -math.log2(n / 2**DIGIT_BITS),
@@ -180,19 +183,10 @@ def bussi_buffer(dyn, steps):
 
 def bussi_system(system, lengths):
     """Both Bussi thermostats on ``system``; ours then runs back."""
-    atoms = system.atoms()
-    dyn, ours, trip = there_and_back(
-        lambda: reversible_bussi(atoms, system), KineticSampler,
-        lengths.round_trip, lengths.checkpoints, bussi_buffer,
-        snapshot=lambda dyn: dyn.state)
-    result = against_reference(
-        system, lengths.equilibration + 1, ('reversible_bussi', ours),
-        'ase_bussi', ase_bussi, lengths.round_trip)
+    _, trip, result = sampled_round_trip(
+        system, lengths, 'reversible_bussi', 'ase_bussi', bussi_buffer,
+        lambda dyn: list(dyn.rescale_step.buffers.values()))
     return {**result, 'taut_fs': TAUT_FS,
-            'equilibration_steps': lengths.equilibration,
-            'round_trip': round_trip(
-                dyn, trip, lengths.round_trip,
-                list(dyn.rescale_step.buffers.values())),
             'buffer_checkpoints': trip['checkpoints']}
 
 

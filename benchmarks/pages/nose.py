@@ -11,7 +11,7 @@ import numpy as np
 
 from . import Spec, block, figure, label, markdown_table, table
 from . import thermostat
-from .thermostat import (forces_again_lines, histograms, potential_lines,
+from .thermostat import (histograms, potential_lines,
                          sampling_table, size, speed_table, warning_lines,
                          yes)
 
@@ -21,8 +21,7 @@ PLOT_S = 'nose_thermostat_position.png'
 NOSE = ('reversible_nose', 'ReversibleNose')
 #: ReversibleNose in place of ReversibleLangevin, beside ASE's Langevin.
 THERMOSTATS = (NOSE, *thermostat.THERMOSTATS[1:])
-SPEED_COLUMNS = (NOSE, ('ase_nose_hoover_chain', 'ASE NoseHooverChainNVT'),
-                 *thermostat.SPEED_COLUMNS[1:])
+SPEED_COLUMNS = (NOSE, ('ase_nose_hoover_chain', 'ASE NoseHooverChainNVT'))
 COUNTS = ('position', 'momentum', 'thermostat_position',
           'thermostat_momentum', 'time')
 
@@ -326,7 +325,6 @@ SPEC = Spec(
             'memory-warnings': block(memory_warning_lines),
             'speed': lambda stored: speed_table(
                 stored['results'], SPEED_COLUMNS, 'ase_nose_hoover_chain'),
-            'forces-again': block(forces_again_lines),
             'timestep': timestep_block,
             'chain-stability': chain_stability_block,
             'chain': chain_block},

@@ -35,7 +35,7 @@ CHAIN_LENGTHS = (1, 2, 3)
 FULL = StudyLengths(equilibration=2000, sampled=60_000)
 QUICK = StudyLengths(equilibration=200, sampled=1000)
 SPEED_CONTESTANTS = ('reversible_nose', 'reversible_nose_tchain3',
-                     'ase_nose_hoover_chain', 'velocity_verlet')
+                     'ase_nose_hoover_chain')
 
 
 def liquid_argon(repeat, temperature_K):
