@@ -341,10 +341,6 @@ class NoseSampler(KineticSampler):
             self.extended[i] = self.dyn.get_conserved_energy()
 
 
-#: Steps between the stored values of ``s``.
-TRACE_EVERY = 100
-
-
 def nose_statistics(sampler, first, timestep_fs):
     """A ``NoseSampler``'s ``s``, real time step ``dt / s`` (fs) and extended
     energy (eV), from step ``first`` on."""
@@ -362,8 +358,6 @@ def nose_statistics(sampler, first, timestep_fs):
                              'max': float(timestep_fs / s.min()),
                              'rms': timestep_fs * math.sqrt(
                                  float(np.mean(1.0 / s**2)))},
-        's_trace_every': TRACE_EVERY,
-        's_trace': s_all[::TRACE_EVERY].tolist(),
         'extended_energy_eV': {
             'first': float(extended[0]), 'last': float(extended[-1]),
             'max_deviation': float(np.max(np.abs(extended - extended[0]))),

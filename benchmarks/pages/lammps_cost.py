@@ -245,8 +245,6 @@ def model_numbers(case, name):
         'run_cpu_ms': case['long_run'][name]['cpu_ms_per_run'],
         'reference_run_cpu_ms': case['long_run'][reference][
             'cpu_ms_per_run'],
-        'reference_ns_per_atom': 1e6 * ref['ms_per_step'] / per_rank,
-        'reference_cpu_ns_per_atom': 1e6 * ref['cpu_ms_per_step'] / per_rank,
         'extra_loop_ms': exact['loop_ms_per_step'] - ref['loop_ms_per_step'],
         'clean_per_step': exact['clean_per_step'],
         'clean': exact['clean_recomputations'],

@@ -7,16 +7,11 @@ nose_chain.py.
 
 from __future__ import annotations
 
-import numpy as np
-
-from . import Spec, block, figure, label, markdown_table, table
-from . import thermostat
-from .thermostat import (histograms, potential_lines,
-                         sampling_table, size, speed_table, warning_lines,
-                         yes)
+from . import Spec, block, markdown_table, table, thermostat
+from .thermostat import (histograms, potential_lines, sampling_table, size,
+                         speed_table, warning_lines, yes)
 
 PLOT = 'nose_kinetic_energy.png'
-PLOT_S = 'nose_thermostat_position.png'
 
 NOSE = ('reversible_nose', 'ReversibleNose')
 #: ReversibleNose in place of ReversibleLangevin, beside ASE's Langevin.
@@ -27,23 +22,7 @@ COUNTS = ('position', 'momentum', 'thermostat_position',
 
 
 def plot(results, figures):
-    systems = results['systems']
-    histograms(systems, THERMOSTATS, figures / PLOT)
-
-    with figure(figures / PLOT_S, 1, (8, 3.4)) as (plt, fig, ax):
-        for s, color in zip(systems, ('C0', 'C1')):
-            th = s['thermostat']
-            trace = np.asarray(th['s_trace'])
-            steps = np.arange(len(trace)) * th['s_trace_every']
-            ax.plot(steps * s['timestep_fs'] / 1000, trace, color=color, lw=0.6,
-                    label=f"{s['system']} {s['n_atoms']}, tdamp "
-                          f"{th['tdamp_fs']:g} fs")
-        first = systems[0]
-        ax.axvline(first['equilibration_steps'] * first['timestep_fs'] / 1000,
-                   color='k', lw=0.8, ls=':', label='end of equilibration')
-        label(ax, 'virtual time (ps)', 's (real step = dt / s)',
-              f"Nosé's s over the forward run, every "
-              f"{first['thermostat']['s_trace_every']} steps")
+    histograms(results['systems'], THERMOSTATS, figures / PLOT)
 
 
 # -- tables ------------------------------------------------------------------

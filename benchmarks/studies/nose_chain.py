@@ -120,7 +120,6 @@ def chain_case(system, tchain, scheme, lengths):
     edges = histogram_edges(dof, kT)
     displacement = atoms.get_positions() - x0_nc
     thermostat = nose_statistics(sampler, first, system.timestep_fs)
-    del thermostat['s_trace']
     half = copy.copy(sampler)
     half.kinetic = sampler.half_kinetic
     half_stats = canonical_statistics(half, first, dof, kT, edges, h)
