@@ -16,7 +16,7 @@ from harness import (Contestant, choose_steps, medians, per_step,
                      time_interleaved)
 from systems import NPT_CASES as CASES
 from systems import NPT_INTEGRATORS as INTEGRATORS
-from systems import THERMOSTAT_SPEED, npt_reversible_class
+from systems import THERMOSTAT_SPEED
 
 #: (case of systems.NPT_CASES, repeat) of the cost measurement.
 COST_CASES = ((CASES[0], (4, 4, 4)), (CASES[0], (5, 5, 5)),
@@ -30,11 +30,6 @@ PROFILE_CASE = 1
 PROFILE_STEPS, QUICK_PROFILE_STEPS = 400, 40
 #: Functions kept per profile listing.
 PROFILE_TOP = 15
-
-
-def contestant_names():
-    return (('reversible_npt', 'ase_npt') if npt_reversible_class()
-            else ('ase_npt',))
 
 
 def cost_case(case, repeat, settings, names):
@@ -54,15 +49,11 @@ def cost_case(case, repeat, settings, names):
         'timestep_fs': case.timestep_fs,
         'steps_per_block': steps, 'rounds': settings.rounds,
         **per_step(wall, cpu),
-    }
-    if 'reversible_npt' in median:
-        result['ratio'] = median['reversible_npt'] / median['ase_npt']
-        result['ratio_cpu'] = (median_cpu['reversible_npt']
-                               / median_cpu['ase_npt'])
+        'ratio': median['reversible_npt'] / median['ase_npt'],
+        'ratio_cpu': median_cpu['reversible_npt'] / median_cpu['ase_npt']}
     print(f"  {label:10s} N={result['n_atoms']:5d} S={steps:4d}  "
           + '  '.join(f'{k}={v * 1e6:.0f}µs' for k, v in median.items())
-          + (f"  ratio {result['ratio']:.3f}" if 'ratio' in result else ''),
-          flush=True)
+          + f"  ratio {result['ratio']:.3f}", flush=True)
     return result
 
 
@@ -101,7 +92,7 @@ def profile(case, repeat, steps, names):
 def run(quick):
     settings = THERMOSTAT_SPEED[quick]
     cases = QUICK_COST_CASES if quick else COST_CASES
-    names = contestant_names()
+    names = tuple(INTEGRATORS)
     load = {'start': os.getloadavg()}
     costs = [cost_case(case, repeat, settings, names)
              for case, repeat in cases]
@@ -112,9 +103,6 @@ def run(quick):
     load['end'] = os.getloadavg()
     return {'load_average': load,
             'settings': {**asdict(settings), 'ratio_goal': RATIO_GOAL},
-            'reversible_missing': (
-                None if 'reversible_npt' in names else
-                'ase_reversible has no ReversibleIsotropicNPT at this commit'),
             'costs': costs,
             'profile': {'label': case.label,
                         'n_atoms': costs[cases.index((case, repeat))][

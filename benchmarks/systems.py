@@ -20,8 +20,8 @@ from ase.md.velocitydistribution import Stationary
 from ase.md.verlet import VelocityVerlet
 from harness import Settings
 
-import ase_reversible
-from ase_reversible import ReversibleLangevin, ReversibleNose, ReversibleVerlet
+from ase_reversible import (ReversibleIsotropicNPT, ReversibleLangevin,
+                            ReversibleNose, ReversibleVerlet)
 from ase_reversible.app.systems import (AR_EPSILON, AR_RC, AR_SIGMA,
                                         argon_bulk, argon_lj, copper_bulk,
                                         thermalize)
@@ -335,14 +335,9 @@ NPT_CASES = (
 )
 
 
-def npt_reversible_class():
-    """ReversibleIsotropicNPT, or None where this checkout lacks it."""
-    return getattr(ase_reversible, 'ReversibleIsotropicNPT', None)
-
-
 def reversible_npt(atoms, case):
     h = case.timestep
-    return npt_reversible_class()(
+    return ReversibleIsotropicNPT(
         atoms, h, case.temperature_K, case.pressure_au, TDAMP_NPT_STEPS * h,
         PDAMP_NPT_STEPS * h, seed=NPT_SEED, force_noise=case.force_noise)
 

@@ -19,7 +19,7 @@ from ase import units
 from harness import WINDOW_C, block_mean, integrated_time, warning_lines
 from systems import (NPT_AR_CUTOFF, NPT_AR_EPSILON, NPT_AR_REDUCED_DENSITY,
                      NPT_AR_SIGMA, NPT_CASES, NPT_INTEGRATORS, NPT_SEED,
-                     PDAMP_NPT_STEPS, TDAMP_NPT_STEPS, npt_reversible_class)
+                     PDAMP_NPT_STEPS, TDAMP_NPT_STEPS)
 
 #: Blocks of the jackknife: few and long, as the piston's energy, which
 #: sets var(V), decorrelates over thousands of steps.
@@ -221,11 +221,8 @@ def compared(ours, theirs):
     }
 
 
-def sampling_case(case, lengths, repeat=None, names=None):
-    """Both integrators on one case (the reversible one where this checkout
-    has it)."""
-    names = names or (('reversible_npt', 'ase_npt') if npt_reversible_class()
-                      else ('ase_npt',))
+def sampling_case(case, lengths, repeat=None, names=tuple(NPT_INTEGRATORS)):
+    """Both integrators on one case."""
     first = lengths.equilibration + 1
     runs, samplers = {}, {}
     for name in names:
@@ -239,12 +236,7 @@ def sampling_case(case, lengths, repeat=None, names=None):
               'calculator': runs[names[-1]]['calculator'],
               'equilibration_steps': lengths.equilibration,
               'total_steps': lengths.total, 'runs': runs}
-    if 'reversible_npt' not in runs:
-        result['reversible_missing'] = (
-            'ase_reversible has no ReversibleIsotropicNPT at this commit')
-    else:
-        result['difference'] = compared(runs['reversible_npt'],
-                                        runs['ase_npt'])
+    result['difference'] = compared(runs['reversible_npt'], runs['ase_npt'])
     line = '  '.join(
         f"{k}: V {r['volume_A3']['mean']:.1f}±"
         f"{r['volume_A3']['standard_error']:.1f} "
