@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from . import Spec, block, markdown_table, table, thermostat
 from .thermostat import (histograms, potential_lines, sampling_table, size,
-                         speed_table, warning_lines, yes)
+                         speed_table, system, warning_lines, yes)
 
 PLOT = 'nose_kinetic_energy.png'
 
@@ -26,10 +26,6 @@ def plot(results, figures):
 
 
 # -- tables ------------------------------------------------------------------
-
-def system(s):
-    return f"{s['system']} {s['n_atoms']}"
-
 
 def meV_per_atom(s, energy, sign=''):
     return f"{1e3 * energy / s['n_atoms']:{sign}.3f}"

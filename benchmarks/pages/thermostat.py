@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from . import Spec, block, figure, markdown_table
+from . import Spec, block, figure, markdown_table, table
 
 PLOT = 'thermostat_kinetic_energy.png'
 
@@ -152,20 +152,21 @@ def baoab_lines(results):
         for r in [s['sampling']['reversible_langevin']])
 
 
-def round_trip_table(results):
-    rows = []
-    for s in results['systems']:
-        rt = s['round_trip']
-        rows.append([
-            f"{s['system']} {s['n_atoms']}", f"{rt['steps_each_way']:,}",
-            yes(rt['positions_equal']), yes(rt['momenta_equal']),
-            yes(rt['state_equal']), yes(rt['buffer_empty']),
-            f"{rt['forward_seconds']:.0f}", f"{rt['back_seconds']:.0f}",
-            f"{rt['forward_seconds'] + rt['back_seconds']:.0f}"])
-    return markdown_table(
-        ['system', 'steps each way', 'positions equal', 'momenta equal',
-         'integer state equal', 'buffer empty', 'forward (s)', 'back (s)',
-         'total (s)'], rows)
+def system(s):
+    return f"{s['system']} {s['n_atoms']}"
+
+
+ROUND_TRIP_COLUMNS = (
+    ('system', system), ('steps each way', '{round_trip[steps_each_way]:,}'),
+    *((header, lambda s, k=k: yes(s['round_trip'][k])) for header, k in (
+        ('positions equal', 'positions_equal'),
+        ('momenta equal', 'momenta_equal'),
+        ('integer state equal', 'state_equal'),
+        ('buffer empty', 'buffer_empty'))),
+    ('forward (s)', '{round_trip[forward_seconds]:.0f}'),
+    ('back (s)', '{round_trip[back_seconds]:.0f}'),
+    ('total (s)', lambda s: '{:.0f}'.format(
+        s['round_trip']['forward_seconds'] + s['round_trip']['back_seconds'])))
 
 
 def warning_lines(results, name='ReversibleLangevin'):
@@ -251,19 +252,19 @@ def bussi_sampling_lines(bussi):
     return '\n'.join(out)
 
 
+BUSSI_BUFFER_COLUMNS = (
+    ('system', '{system}'), ('steps', '{steps:,}'),
+    ('ratio bits', '{ratio_bits:,.0f}'),
+    ('coordinates: bits each', '{coordinate_bits_per_coordinate:+.2f}'),
+    ('stack pointers low / high',
+     '{lowest_stack_pointer} / {highest_stack_pointer}'),
+    ('memory', lambda c: size(c['nbytes'])))
+
+
 def bussi_buffer_table(bussi):
-    rows = []
-    for s in bussi['systems']:
-        for c in s['buffer_checkpoints']:
-            rows.append([f"{s['system']} {s['n_atoms']}", f"{c['steps']:,}",
-                         f"{c['ratio_bits']:,.0f}",
-                         f"{c['coordinate_bits_per_coordinate']:+.2f}",
-                         f"{c['lowest_stack_pointer']} / "
-                         f"{c['highest_stack_pointer']}",
-                         size(c['nbytes'])])
-    return markdown_table(
-        ['system', 'steps', 'ratio bits', 'coordinates: bits each',
-         'stack pointers low / high', 'memory'], rows)
+    return table(BUSSI_BUFFER_COLUMNS, [
+        {**c, 'system': system(s)} for s in bussi['systems']
+        for c in s['buffer_checkpoints']])
 
 
 def bussi_round_trips(bussi):
@@ -316,7 +317,8 @@ SPEC = Spec(
     'Thermostat: ReversibleLangevin against ASE Langevin',
     blocks={'sampling': block(sampling_table),
             'baoab': block(baoab_lines), 'potential': block(potential_lines),
-            'round-trip': block(round_trip_table),
+            'round-trip': lambda stored: table(
+                ROUND_TRIP_COLUMNS, stored['results']['systems']),
             'warnings': block(warning_lines),
             'buffer': block(buffer_table),
             'speed': block(speed_table),
