@@ -47,8 +47,7 @@ def example():
 
 class RssSampler:
     """The largest resident set size seen every ``interval`` seconds while
-    it runs: unlike ``ru_maxrss``, not hidden under a peak the imports
-    left behind."""
+    it runs (``ru_maxrss`` hides it under the imports' peak)."""
 
     def __init__(self, interval=0.01):
         import threading
@@ -74,8 +73,7 @@ class RssSampler:
 # -- gradients ----------------------------------------------------------------
 
 def equilibrated_liquid(fit, steps):
-    """32 argon atoms after ``steps`` NVT steps of the reference LJ, and the
-    reference's g(r) and VACF measured on NVE windows from there."""
+    """32 argon atoms after ``steps`` NVT steps of the reference LJ."""
     from ase_reversible import LennardJones, ReversibleLangevin
     from ase_reversible.core.record import INFO_KEY
     atoms = fit.liquid_argon(2)
@@ -99,8 +97,8 @@ class Window:
         self.target_rdf_b, self.target_vacf_k = target_rdf_b, target_vacf_k
 
     def losses(self, observed):
-        """``{name: (L, per-state dL/dx, dL/dp makers)}`` from the states
-        ``observed`` (a list of (x, p)), ordered by time."""
+        """``({loss name: L}, what the loss callbacks need)`` from the
+        states ``observed``, a list of (x, p) ordered by time."""
         fit = self.fit
         count = len(observed)
         mean_b = sum(self.rdf.values(x) for x, _ in observed) / count
