@@ -1,17 +1,11 @@
-"""Shared pieces of the measurements: thread settings, the package measured,
-the machine.
+"""Thread settings, the package measured, the machine.
 
-Import this module before numpy (every measurement script does): it pins
-BLAS to one thread.  Some numpy calls on the MD path go to OpenBLAS threads
-(np.vdot in Atoms.get_kinetic_energy, which MDLogger calls every step); on
-a busy machine every hand-off waits for a scheduler time slice,
-milliseconds that would swamp the per-step costs measured here.  Set the
-variables yourself to override.
-
-It also puts this checkout ahead of any installed ``ase_reversible``: the
-commit recorded beside the numbers must be the code that made them.
-Entries of PYTHONPATH stay ahead of it, which is how savings.py points its
-workers at other commits.
+Import this module before numpy: it pins BLAS to one thread (on a busy
+machine each hand-off to an OpenBLAS thread, e.g. np.vdot in MDLogger's
+kinetic energy, waits milliseconds for a time slice); set the variables to
+override.  It puts this checkout ahead of an installed ``ase_reversible``
+(the commit recorded must be the code measured), behind PYTHONPATH's
+entries (how savings.py points its workers at other commits).
 """
 
 from __future__ import annotations
@@ -21,8 +15,7 @@ import sys
 
 BLAS_THREAD_VARIABLES = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS',
                          'MKL_NUM_THREADS')
-#: The caller's environment: `nproc` honours OMP_NUM_THREADS, so the machine
-#: description must not see the value set here.
+#: The caller's environment (`nproc` honours OMP_NUM_THREADS).
 CALLER_ENVIRONMENT = dict(os.environ)
 for _name in BLAS_THREAD_VARIABLES:
     os.environ.setdefault(_name, '1')
@@ -91,8 +84,7 @@ def machine_info() -> dict:
 
 def run_workers(script, jobs, parallel=2) -> list:
     """``run_worker(script, ['--memory-worker', *job])`` of each job, at most
-    ``parallel`` at a time (they time nothing that is compared); the
-    results in the order of ``jobs``."""
+    ``parallel`` at a time; the results in the order of ``jobs``."""
     from concurrent.futures import ThreadPoolExecutor
     with ThreadPoolExecutor(parallel) as pool:
         return list(pool.map(
@@ -100,11 +92,9 @@ def run_workers(script, jobs, parallel=2) -> list:
 
 
 def run_worker(script, args) -> dict:
-    """Run ``python script *args`` in a fresh process (from the repository
-    root, this directory importable) and return the JSON object its last
-    line of output holds, with the process's wall time added as
-    ``'process_seconds'``.  A process of its own measures memory from a
-    clean start."""
+    """The JSON object of the last line ``python script *args`` prints in a
+    fresh process (memory from a clean start), with its wall time as
+    ``'process_seconds'``."""
     import json
     import time
     here = str(Path(__file__).resolve().parent)

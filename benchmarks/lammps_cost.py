@@ -1,15 +1,7 @@
 """ReversibleLammps, compiled and Python paths, against LAMMPS's own
 ``fix nve`` (and ``reversible nvt`` against ``fix nvt``), on 1 and 2 MPI
-ranks.
-
-    python benchmarks/run_all.py --only lammps_cost          # ~25 minutes
-    python benchmarks/run_all.py --quick --only lammps_cost  # < 40 s
-
-Each case is ``mpiexec -n R python lammps_worker.py``: one LAMMPS instance
-per integrator in one process, blocks of the same steps in rotating order,
-wall time between MPI barriers and the ranks' largest CPU time, LAMMPS's
-own log read back; then single-step blocks, ``run 0`` setups and the MPI
-maximum from Python.  Per-step times are medians over blocks.
+ranks, each case one ``mpiexec -n R python lammps_worker.py``
+(``--only lammps_cost``: ~25 minutes, < 40 s with ``--quick``).
 """
 
 from __future__ import annotations
@@ -38,25 +30,25 @@ GOAL_NVT_RATIO = 1.05
 #: exact ones measured against it (lammps_worker.INTEGRATORS).
 INTEGRATORS = ('nve', 'compiled', 'python', 'nvt', 'exact_nvt')
 
-#: (system, cells, ranks, steps per block, warm-up steps, what it serves).
+#: (system, cells, ranks, steps per block, warm-up steps).
 FULL_CASES = (
-    ('argon', (10, 10, 10), 1, 300, 100, ('size',)),
-    ('argon', (20, 20, 20), 1, 100, 50, ('size', 'strong')),
-    ('argon', (20, 20, 20), 2, 100, 50, ('strong',)),
-    ('argon', (30, 30, 15), 1, 60, 40, ('weak',)),
-    ('argon', (30, 30, 30), 1, 60, 40, ('size', 'strong')),
-    ('argon', (30, 30, 30), 2, 60, 40, ('strong', 'weak')),
-    ('argon', (40, 40, 40), 1, 20, 20, ('size',)),
-    ('copper', (20, 20, 20), 1, 100, 50, ('strong',)),
-    ('copper', (20, 20, 20), 2, 100, 50, ('strong',)),
-    ('copper', (30, 30, 30), 1, 50, 30, ('strong',)),
-    ('copper', (30, 30, 30), 2, 50, 30, ('strong',)),
+    ('argon', (10, 10, 10), 1, 300, 100),
+    ('argon', (20, 20, 20), 1, 100, 50),
+    ('argon', (20, 20, 20), 2, 100, 50),
+    ('argon', (30, 30, 15), 1, 60, 40),
+    ('argon', (30, 30, 30), 1, 60, 40),
+    ('argon', (30, 30, 30), 2, 60, 40),
+    ('argon', (40, 40, 40), 1, 20, 20),
+    ('copper', (20, 20, 20), 1, 100, 50),
+    ('copper', (20, 20, 20), 2, 100, 50),
+    ('copper', (30, 30, 30), 1, 50, 30),
+    ('copper', (30, 30, 30), 2, 50, 30),
 )
 QUICK_CASES = (
-    ('argon', (10, 10, 10), 1, 20, 20, ('size', 'strong')),
-    ('argon', (10, 10, 10), 2, 20, 20, ('strong',)),
-    ('copper', (10, 10, 10), 1, 20, 20, ('strong',)),
-    ('copper', (10, 10, 10), 2, 20, 20, ('strong',)),
+    ('argon', (10, 10, 10), 1, 20, 20),
+    ('argon', (10, 10, 10), 2, 20, 20),
+    ('copper', (10, 10, 10), 1, 20, 20),
+    ('copper', (10, 10, 10), 2, 20, 20),
 )
 FULL = {'rounds': 6, 'setups': 5, 'reduce_blocks': 5, 'reduce_calls': 1000}
 QUICK = {'rounds': 3, 'setups': 3, 'reduce_blocks': 3, 'reduce_calls': 1000}
@@ -86,9 +78,7 @@ def run_case(case, log_dir) -> dict:
 
 def per_step_medians(blocks) -> dict:
     """Medians over blocks of what a step costs, in ms, and the counts."""
-    def median(values):
-        return statistics.median(values)
-
+    median = statistics.median
     sections = sorted({k for b in blocks for k in b['breakdown_seconds']})
     steps = sum(b['steps'] for b in blocks)
     return {
@@ -98,9 +88,6 @@ def per_step_medians(blocks) -> dict:
                                          for b in blocks]),
         'loop_ms_per_step': 1e3 * median([b['loop_seconds'] / b['steps']
                                           for b in blocks]),
-        'outside_loop_ms_per_step': 1e3 * median(
-            [(b['wall_seconds'] - b['loop_seconds']) / b['steps']
-             for b in blocks]),
         'breakdown_ms_per_step': {
             s: 1e3 * median([b['breakdown_seconds'].get(s, 0.0) / b['steps']
                              for b in blocks]) for s in sections},
@@ -109,13 +96,9 @@ def per_step_medians(blocks) -> dict:
                    / median([b['wall_seconds'] / b['steps']
                              for b in blocks])),
         'steps': steps,
-        'runs_per_block': median([b['runs'] for b in blocks]),
         'clean_recomputations': sum(b['clean_recomputations']
                                     for b in blocks),
         'clean_per_step': sum(b['clean_recomputations'] for b in blocks)
-        / steps,
-        'sort_retries': sum(b['sort_retries'] for b in blocks),
-        'neighbor_builds_per_step': sum(b['neighbor_builds'] for b in blocks)
         / steps,
     }
 
@@ -139,7 +122,7 @@ def run(quick):
     settings = QUICK if quick else FULL
     cases = []
     with tempfile.TemporaryDirectory() as log_dir:
-        for system, cells, ranks, steps, warmup, uses in (
+        for system, cells, ranks, steps, warmup in (
                 QUICK_CASES if quick else FULL_CASES):
             case = {'system': system, 'cells': list(cells), 'ranks': ranks,
                     'integrators': list(INTEGRATORS), 'steps': steps,
@@ -153,7 +136,7 @@ def run(quick):
             measured['load_average'] = [load, os.getloadavg()]
             assert measured['natoms'] == natoms and measured['ranks'] == ranks
             cases.append({
-                'label': label, 'uses': list(uses), **case, **measured,
+                'label': label, **case, **measured,
                 'median': {name: per_step_medians(blocks) for name, blocks
                            in measured['blocks'].items()},
                 'long_run': {name: long_run_medians(

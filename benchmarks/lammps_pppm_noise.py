@@ -4,14 +4,11 @@ SHAKE (32,000 atoms, CHARMM, ``kspace_style pppm 1e-4``, real units).
 ``[mpiexec -n R] python benchmarks/lammps_pppm_noise.py [STEPS]
 [VELOCITY_QUANTUM]``
 
-Prints, on rank 0, the largest difference of any force component between
-two setups in a row at the same positions, between the last step of a
-run back and the setup before the run out (the same positions, reached
-exactly), and between setups before and after the run out and back; the
-clean recomputations' largest observed noise and the guard's bound.  A
-fine velocity quantum (default 2^-30 Å/fs) makes most steps recomputed,
-so the noise is sampled at each.  It saves the forces of the first setup
-as ``pppm-forces-R.npy`` to compare rank counts.
+Prints, on rank 0, the largest force difference between two setups at the
+same positions, between the run back's last step and the setup before the
+run out, and between setups before and after; the clean recomputations'
+largest noise and the guard's bound (a fine velocity quantum makes most
+steps recomputed).  Saves the setup's forces as ``pppm-forces-R.npy``.
 """
 
 import re

@@ -1,11 +1,10 @@
 """One case of benchmarks/lammps_cost.py, on every rank of ``mpiexec``.
 
 ``mpiexec -n R python lammps_worker.py CASE_JSON LOG_DIR``: one LAMMPS
-instance per integrator of ``INTEGRATORS`` named in the case, rotating
-blocks of the same steps, then a timed ``run 0`` setup on each and the
-exact integrator's MPI maximum; rank 0 prints one JSON line.  LOG_DIR
-receives a LAMMPS log per block, read back for the loop time, the timer
-breakdown and the neighbour-list builds.
+instance per integrator named in the case, rotating blocks of the same
+steps, single-step blocks, timed ``run 0`` setups and the MPI maximum from
+Python; rank 0 prints one JSON line.  Each block's LAMMPS log (in LOG_DIR)
+is read back for the loop time and the timer breakdown.
 """
 
 from __future__ import annotations
@@ -62,18 +61,10 @@ TIMER_SECTIONS = ('Pair', 'Bond', 'Kspace', 'Neigh', 'Comm', 'Output',
 
 @dataclass(frozen=True)
 class Integrator:
-    """How one instance of a case is integrated.
-
-    attach : callable
-        ``attach(lmp, case) -> (run, rev)``: defines the integrator on a
-        freshly built instance of ``case``; ``run(n)`` runs n steps, ``rev`` is the
-        :class:`ReversibleLammps` doing it (None for LAMMPS's own fixes).
-    reference : str or None
-        The LAMMPS integrator this one is measured against (a name of
-        ``INTEGRATORS``); None for a reference itself.
-    label : str
-        How tables name it.
-    """
+    """``attach(lmp, case) -> (run, rev)`` defines the integrator on a fresh
+    instance: ``run(n)`` runs n steps, ``rev`` is its ReversibleLammps
+    (None for LAMMPS's own fixes); ``reference`` names the entry of
+    ``INTEGRATORS`` it is measured against (None for a reference)."""
     attach: Callable
     reference: Optional[str]
     label: str
@@ -155,11 +146,10 @@ def start(case):
 
 
 def read_log(path: Path) -> dict:
-    """Loop time, steps, timer breakdown (average over ranks) and neighbour
-    builds of every run in a LAMMPS log, summed over its runs."""
+    """Loop time and timer breakdown (average over ranks) of a LAMMPS log,
+    summed over its runs."""
     text = path.read_text()
-    loops = re.findall(r'^Loop time of (\S+) on \d+ procs for (\d+) steps',
-                       text, re.M)
+    loops = re.findall(r'^Loop time of (\S+) on \d+ procs', text, re.M)
     breakdown = {}
     for name in TIMER_SECTIONS:
         for row in re.findall(rf'^{name}\s*\|([^\n]*)', text, re.M):
@@ -167,16 +157,8 @@ def read_log(path: Path) -> dict:
             # min | avg | max | %varavg | %total; Other has only avg.
             avg = float(cells[1]) if cells[1] else float(cells[0] or 0)
             breakdown[name] = breakdown.get(name, 0.0) + avg
-    return {
-        'runs': len(loops),
-        'loop_seconds': sum(float(t) for t, _ in loops),
-        'loop_steps': sum(int(n) for _, n in loops),
-        'breakdown_seconds': breakdown,
-        'neighbor_builds': sum(int(n) for n in re.findall(
-            r'^Neighbor list builds = (\d+)', text, re.M)),
-        'dangerous_builds': sum(int(n) for n in re.findall(
-            r'^Dangerous builds = (\d+)', text, re.M)),
-    }
+    return {'loop_seconds': sum(float(t) for t in loops),
+            'breakdown_seconds': breakdown}
 
 
 class Instance:
@@ -187,10 +169,8 @@ class Instance:
         self.lmp = start(case)
         self.run, self.rev = INTEGRATORS[name].attach(self.lmp, case)
 
-    def counts(self):
-        rev = self.rev
-        return (0, 0) if rev is None else (rev.clean_recomputations,
-                                           rev.sort_retries)
+    def clean(self):
+        return 0 if self.rev is None else self.rev.clean_recomputations
 
 
 def main(case, log_dir):
@@ -216,7 +196,7 @@ def main(case, log_dir):
         ranks), and on rank 0 its LAMMPS log read back."""
         path = log_dir / f'{instance.name}.log'
         instance.lmp.command(f'log {path}')
-        clean, retries = instance.counts()
+        clean = instance.clean()
         sync()
         started, cpu_started = time.perf_counter(), time.process_time()
         instance.run(steps)
@@ -224,17 +204,15 @@ def main(case, log_dir):
         sync()
         wall = time.perf_counter() - started
         instance.lmp.command('log none')
-        now = instance.counts()
         block = {'wall_seconds': wall,
                  'cpu_seconds': float(world.max(cpu)[0]), 'steps': steps,
-                 'clean_recomputations': now[0] - clean,
-                 'sort_retries': now[1] - retries}
+                 'clean_recomputations': instance.clean() - clean}
         if rank == 0:
             block.update(read_log(path))
         return block
 
-    warmup = {name: timed(instances[name], case['warmup_steps'])
-              for name in names}
+    for name in names:
+        timed(instances[name], case['warmup_steps'])
     blocks = {name: [] for name in names}
     for r in range(case['rounds']):
         # The order rotates: each instance leads in rounds/len(names).
@@ -279,25 +257,16 @@ def main(case, log_dir):
         'natoms': int(some.lmp.get_natoms()),
         'ranks': world.size,
         'lammps_version': int(some.lmp.version()),
-        'nlocal_rank0': int(some.lmp.extract_setting('nlocal')),
         'integrators': {name: {'label': INTEGRATORS[name].label,
                                'reference': INTEGRATORS[name].reference,
                                'path': paths.get(name)}
                         for name in names},
-        'exact': {i.name: {
-            'velocity_quantum': i.rev.velocity_quantum,
-            'position_quantum': i.rev.position_quantum,
-            'sort_bin': i.rev.sort_bin,
-            'force_noise': i.rev.force_noise,
-            'max_observed_noise': i.rev.max_observed_noise,
-            'noise_bound_at_max': i.rev.noise_bound_at_max} for i in exact},
-        'warmup': warmup,
+        'exact': {i.name: {'velocity_quantum': i.rev.velocity_quantum}
+                  for i in exact},
         'blocks': blocks,
         'single_step_blocks': single,
-        'setup_seconds': setup,
         'setup_median_seconds': {n: statistics.median(v)
                                  for n, v in setup.items()},
-        'reduce_seconds_per_call': reduce_per_call,
         'reduce_median_seconds_per_call': statistics.median(reduce_per_call),
     }
     for instance in instances.values():

@@ -1,13 +1,6 @@
 """ReversibleNose against ASE's thermostats: sampling, exact reversal,
-memory, cost per step.
-
-    python benchmarks/run_all.py --only nose           # 12-15 minutes
-    python benchmarks/run_all.py --quick --only nose   # ~15 s
-
-The momenta are drawn at ``START_FACTOR`` times the target on the bare
-lattice (equipartition halves it).  Memory points run one fresh process
-each (``--memory-worker``).  The time-step and chain studies are
-``studies/nose_timestep.py`` and ``studies/nose_chain.py``.
+memory (one fresh process per point, ``--memory-worker``), cost per step
+(``--only nose``: 12-15 minutes, ~15 s with ``--quick``).
 """
 
 from __future__ import annotations
@@ -27,21 +20,16 @@ from pathlib import Path
 
 import numpy as np
 from ase import units
-from harness import (BLOCKS, FORCE_EVERY, TRAJECTORY_BYTES_PER_COORDINATE,
-                     WINDOW_C, NoseSampler, against_reference, buffer_sizes,
-                     max_rss_bytes, nose_statistics, resident_bytes,
-                     speed_case, there_and_back)
+from harness import (BLOCKS, FORCE_EVERY, WINDOW_C, NoseSampler,
+                     against_reference, nose_statistics,
+                     resident_bytes, speed_case, there_and_back)
 from systems import (FRICTION_PER_FS, NOSE_SYSTEMS, SEED, START_FACTOR,
                      TDAMP_STEPS, THERMOSTAT_SPEED, THERMOSTATS, ase_langevin,
-                     reversible_langevin, reversible_nose)
+                     reversible_nose)
 
-from ase_reversible.md.nose.dynamics import ENERGY_CHECK_INTERVAL
-from ase_reversible.purity import SPOT_CHECK_INTERVAL
 
 #: Seed of the random loss gradient of the memory points.
 LOSS_SEED = 1
-#: Steps of the memory profile listed, the largest peaks.
-PROFILE_LARGEST = 12
 #: The goals the page judges against.
 TEMPERATURE_GOAL_PERCENT = 1.0
 KS_LEVEL = 0.01
@@ -59,17 +47,16 @@ class Lengths:
     equilibration: int
     round_trip: int          # forward steps, equilibration included
     memory_steps: tuple
-    profile_steps: int
 
 
 FULL = Lengths(equilibration=2000, round_trip=100_000,
-               memory_steps=(1000, 10_000, 100_000), profile_steps=4096)
-QUICK = Lengths(equilibration=200, round_trip=1000, memory_steps=(100, 1000),
-                profile_steps=1024)
+               memory_steps=(1000, 10_000, 100_000))
+QUICK = Lengths(equilibration=200, round_trip=1000, memory_steps=(100, 1000))
 #: Copper, asap3 EMT: 1000 and 4000 atoms.
 SPEED_CASES = ((SYSTEMS[1], (5, 5, 10)), (SYSTEMS[1], (10, 10, 10)))
-SPEED_CONTESTANTS = ('reversible_nose', 'ase_nose_hoover_chain',
-                     'ase_langevin', 'velocity_verlet', 'reversible_verlet')
+#: ASE Langevin, VelocityVerlet and ReversibleVerlet on Cu 4000 at 5 fs, and
+#: a repeated get_forces(), are in the thermostat section's cost table.
+SPEED_CONTESTANTS = ('reversible_nose', 'ase_nose_hoover_chain')
 
 
 def sampling_system(system, lengths):
@@ -103,18 +90,15 @@ def sampling_system(system, lengths):
         -100 * thermostat['real_timestep_fs']['rms']**2
         * result['sampling']['reversible_nose']['mean_omega_squared_per_fs2']
         / 4)
-    return {**result,
-            'start_temperature_K': START_FACTOR * system.temperature_K,
-            'equilibration_steps': lengths.equilibration,
+    return {**result, 'equilibration_steps': lengths.equilibration,
             'thermostat': thermostat, 'round_trip': round_trip}
 
 
 # -- memory: one fresh process per point --------------------------------------
 
 class WarningTally:
-    """Stands in for ``warnings.showwarning``: counts the warnings by
-    category and keeps the first message of each, in constant memory (a
-    list of every warning would grow with the steps it measures)."""
+    """``warnings.showwarning`` counting the warnings by category, keeping
+    the first message of each (a list of all would grow with the steps)."""
 
     def __init__(self):
         self.count, self.first = {}, {}
@@ -131,7 +115,7 @@ class WarningTally:
 
 @contextlib.contextmanager
 def tallied():
-    """Every warning inside counted by a ``WarningTally`` (yielded)."""
+    """Every warning inside counted by the ``WarningTally`` yielded."""
     with warnings.catch_warnings():
         warnings.simplefilter('always')
         warnings.showwarning = tally = WarningTally()
@@ -148,7 +132,6 @@ def nose_memory_worker(steps):
     grad_x, grad_p = (rng.standard_normal((len(atoms), 3)),
                       rng.standard_normal((len(atoms), 3)))
     gc.collect()
-    rss_before = max_rss_bytes()
     resident = [resident_bytes()]
     with tallied() as tally:
         tracemalloc.start()
@@ -156,27 +139,21 @@ def nose_memory_worker(steps):
         dyn.run(steps)
         t1 = time.perf_counter()
         forward_current, forward_peak = tracemalloc.get_traced_memory()
-        rss_forward = max_rss_bytes()
         resident.append(resident_bytes())
         tracemalloc.reset_peak()
         gradients = dyn.backpropagate(steps, grad_x, grad_p)
         t2 = time.perf_counter()
         current, peak = tracemalloc.get_traced_memory()
-        own = tracemalloc.get_tracemalloc_memory()
         tracemalloc.stop()
     resident.append(resident_bytes())
     end = dyn.counts
     gx_nc, gp_nc = gradients
     return {
-        'kind': 'nose', 'steps': steps, 'atoms': len(atoms),
+        'steps': steps, 'atoms': len(atoms),
         'forward_traced_peak_bytes': forward_peak,
         'forward_traced_end_bytes': forward_current,
         'backpropagate_traced_peak_bytes': peak,
         'backpropagate_traced_end_bytes': current,
-        'tracemalloc_own_bytes': own,
-        'max_rss_before_bytes': rss_before,
-        'max_rss_after_forward_bytes': rss_forward,
-        'max_rss_bytes': max_rss_bytes(),
         'resident_bytes': resident,  # before, after run, after backpropagate
         'forward_seconds': t1 - t0, 'backpropagate_seconds': t2 - t1,
         'hessian_vector_products': gradients.hessian_vector_products,
@@ -190,93 +167,17 @@ def nose_memory_worker(steps):
     }
 
 
-def profile_memory_worker(steps):
-    """The traced peak of every step of a ReversibleNose run: a rare
-    transient is in a run's peak only once the run met it."""
-    atoms = MEMORY_SYSTEM.atoms()
-    dyn = reversible_nose(atoms, MEMORY_SYSTEM)
-    peak = np.zeros(steps + 1, np.int64)
-
-    def observe():
-        peak[dyn.nsteps] = tracemalloc.get_traced_memory()[1]
-        tracemalloc.reset_peak()
-    dyn.attach(observe, interval=1)
-    gc.collect()
-    with tallied():
-        tracemalloc.start()
-        dyn.run(steps)
-        tracemalloc.stop()
-    peak = peak[1:]  # step 0 holds the constructor's leftovers
-    largest = np.argsort(peak, kind='stable')[::-1][:PROFILE_LARGEST]
-    return {'kind': 'profile', 'steps': steps, 'atoms': len(atoms),
-            'median_step_peak_bytes': float(np.median(peak)),
-            'largest': [{'step': int(i) + 1, 'peak_bytes': int(peak[i])}
-                        for i in sorted(largest)],
-            'spot_check_interval': SPOT_CHECK_INTERVAL,
-            'energy_check_interval': ENERGY_CHECK_INTERVAL}
-
-
-def langevin_memory_worker(checkpoints):
-    """ReversibleLangevin on the same system: buffers at each checkpoint."""
-    atoms = MEMORY_SYSTEM.atoms()
-    dyn = reversible_langevin(atoms, MEMORY_SYSTEM)
-    gc.collect()
-    rss_before, resident_before = max_rss_bytes(), resident_bytes()
-    points, done = [], 0
-    with tallied() as tally:
-        tracemalloc.start()
-        t0 = time.perf_counter()
-        for stop in checkpoints:
-            dyn.run(stop - done)
-            done = stop
-            current, peak = tracemalloc.get_traced_memory()
-            points.append({**buffer_sizes(dyn, stop),
-                           'traced_bytes': current,
-                           'traced_peak_bytes': peak,
-                           'resident_bytes': resident_bytes(),
-                           'max_rss_bytes': max_rss_bytes()})
-        seconds = time.perf_counter() - t0
-        tracemalloc.stop()
-    return {'kind': 'langevin', 'atoms': len(atoms),
-            'max_rss_before_bytes': rss_before,
-            'resident_before_bytes': resident_before, 'seconds': seconds,
-            'checkpoints': points, 'warnings': tally.summary()}
-
-
-WORKERS = {'nose': nose_memory_worker, 'profile': profile_memory_worker,
-           'langevin': lambda *steps: langevin_memory_worker(steps)}
-
-
 def measure_memory(lengths):
-    steps = lengths.memory_steps
-    # Longest first, so the two workers finish together.
-    jobs = [('nose', (steps[-1],)), ('langevin', steps)] + [
-        ('nose', (n,)) for n in reversed(steps[:-1])] + [
-        ('profile', (lengths.profile_steps,))]
-    raw = common.run_workers(Path(__file__),
-                             [(kind, *n) for kind, n in jobs], MEMORY_PARALLEL)
-    nose = sorted((r for r in raw if r['kind'] == 'nose'),
-                  key=lambda r: r['steps'])
-    langevin = next(r for r in raw if r['kind'] == 'langevin')
-    for r in nose + langevin['checkpoints']:
-        r['trajectory_bytes'] = (TRAJECTORY_BYTES_PER_COORDINATE
-                                 * 3 * nose[0]['atoms'] * r['steps'])
+    # Longest first, so the workers finish together.
+    raw = common.run_workers(Path(__file__), [
+        (n,) for n in reversed(lengths.memory_steps)], MEMORY_PARALLEL)
+    nose = sorted(raw, key=lambda r: r['steps'])
     system = MEMORY_SYSTEM
     return {'system': system.label, 'calculator': system.calculator,
             'n_atoms': nose[0]['atoms'],
             'temperature_K': system.temperature_K,
             'timestep_fs': system.timestep_fs,
-            'friction_per_fs': FRICTION_PER_FS,
-            'parallel_workers': MEMORY_PARALLEL,
-            'nose': nose, 'langevin': langevin,
-            'profile': next(r for r in raw if r['kind'] == 'profile')}
-
-
-def cost_case(system, repeat, settings):
-    result = speed_case(system, repeat, settings, SPEED_CONTESTANTS,
-                        THERMOSTATS, 'ase_nose_hoover_chain')
-    result['tdamp_fs'] = TDAMP_STEPS * system.timestep_fs
-    return result
+            'parallel_workers': MEMORY_PARALLEL, 'nose': nose}
 
 
 def run(quick):
@@ -288,7 +189,8 @@ def run(quick):
     load['before_memory'] = os.getloadavg()
     memory = measure_memory(lengths)
     load['before_cost'] = os.getloadavg()
-    costs = [cost_case(s, r, speed)
+    costs = [speed_case(s, r, speed, SPEED_CONTESTANTS, THERMOSTATS,
+                        'ase_nose_hoover_chain')
              for s, r in (SPEED_CASES[:1] if quick else SPEED_CASES)]
     load['end'] = os.getloadavg()
     return {
@@ -304,12 +206,11 @@ def run(quick):
                      'potential_goal_standard_errors': POTENTIAL_GOAL_SE,
                      'memory_goal_ratio': MEMORY_GOAL_RATIO,
                      'cost_goal_ratio': COST_GOAL_RATIO,
-                     'loss_seed': LOSS_SEED,
-                     **{f'lengths_{k}': v for k, v in asdict(lengths).items()},
+                     'lengths_equilibration': lengths.equilibration,
+                     'lengths_round_trip': lengths.round_trip,
                      'speed': asdict(speed)},
         'systems': systems_, 'memory': memory, 'speed': costs}
 
 
 if __name__ == '__main__' and sys.argv[1:2] == ['--memory-worker']:
-    print(json.dumps(WORKERS[sys.argv[2]](*map(int, sys.argv[3:]))),
-          flush=True)
+    print(json.dumps(nose_memory_worker(int(sys.argv[2]))), flush=True)

@@ -1,12 +1,6 @@
-"""Cost per step of ReversibleIsotropicNPT against ASE's IsotropicMTKNPT,
-and where the extra time goes.
-
-    python benchmarks/run_all.py --only npt_cost           # ~10 minutes
-    python benchmarks/run_all.py --quick --only npt_cost   # < 60 s
-
-The cases of npt_sampling (``systems.NPT_CASES``) at several sizes, timed
-in interleaved rounds; then one case profiled with ``cProfile``: the
-functions with the largest own and cumulative time, as shares of the run.
+"""Cost per step of ReversibleIsotropicNPT against ASE's IsotropicMTKNPT
+on the cases of npt_sampling at several sizes, and one case's cProfile
+(``--only npt_cost``: ~10 minutes, < 60 s with ``--quick``).
 """
 
 from __future__ import annotations
@@ -18,21 +12,17 @@ import os
 import pstats
 from dataclasses import asdict
 
-from harness import (Contestant, Settings, choose_steps, medians, per_step,
+from harness import (Contestant, choose_steps, medians, per_step,
                      time_interleaved)
 from systems import NPT_CASES as CASES
 from systems import NPT_INTEGRATORS as INTEGRATORS
-from systems import npt_reversible_class
+from systems import THERMOSTAT_SPEED
 
 #: (case of systems.NPT_CASES, repeat) of the cost measurement.
 COST_CASES = ((CASES[0], (4, 4, 4)), (CASES[0], (5, 5, 5)),
               (CASES[0], (8, 8, 8)), (CASES[2], (4, 4, 4)),
               (CASES[2], (6, 6, 6)))
 QUICK_COST_CASES = (COST_CASES[0], COST_CASES[3])
-FULL = Settings(rounds=9, block_seconds=0.5, min_steps=2, max_steps=2000,
-                warmup_steps=5)
-QUICK = Settings(rounds=3, block_seconds=0.05, min_steps=2, max_steps=200,
-                 warmup_steps=2)
 #: The goal judged on the page: ReversibleIsotropicNPT over ASE's.
 RATIO_GOAL = 1.1
 #: The profiled case (index into COST_CASES) and its steps per integrator.
@@ -40,11 +30,6 @@ PROFILE_CASE = 1
 PROFILE_STEPS, QUICK_PROFILE_STEPS = 400, 40
 #: Functions kept per profile listing.
 PROFILE_TOP = 15
-
-
-def contestant_names():
-    return (('reversible_npt', 'ase_npt') if npt_reversible_class()
-            else ('ase_npt',))
 
 
 def cost_case(case, repeat, settings, names):
@@ -64,28 +49,24 @@ def cost_case(case, repeat, settings, names):
         'timestep_fs': case.timestep_fs,
         'steps_per_block': steps, 'rounds': settings.rounds,
         **per_step(wall, cpu),
-    }
-    if 'reversible_npt' in median:
-        result['ratio'] = median['reversible_npt'] / median['ase_npt']
-        result['ratio_cpu'] = (median_cpu['reversible_npt']
-                               / median_cpu['ase_npt'])
+        'ratio': median['reversible_npt'] / median['ase_npt'],
+        'ratio_cpu': median_cpu['reversible_npt'] / median_cpu['ase_npt']}
     print(f"  {label:10s} N={result['n_atoms']:5d} S={steps:4d}  "
           + '  '.join(f'{k}={v * 1e6:.0f}µs' for k, v in median.items())
-          + (f"  ratio {result['ratio']:.3f}" if 'ratio' in result else ''),
-          flush=True)
+          + f"  ratio {result['ratio']:.3f}", flush=True)
     return result
 
 
-def listing(stats, key, total):
-    """The PROFILE_TOP functions by ``key`` ('tottime' or 'cumtime')."""
+def listing(stats, total):
+    """The PROFILE_TOP functions by own time."""
     rows = []
     for (file, line, function), (cc, nc, tt, ct, _) in stats.stats.items():
         rows.append({'function': f'{os.path.basename(file)}:{line}'
                                  f'({function})',
                      'calls': nc, 'tottime': tt, 'cumtime': ct})
-    rows.sort(key=lambda r: -r[key])
+    rows.sort(key=lambda r: -r['tottime'])
     for r in rows:
-        r['share'] = r[key] / total
+        r['share'] = r['tottime'] / total
     return rows[:PROFILE_TOP]
 
 
@@ -104,15 +85,14 @@ def profile(case, repeat, steps, names):
         total = stats.total_tt
         out[name] = {'steps': steps, 'seconds': total,
                      'per_step_seconds': total / steps,
-                     'by_own_time': listing(stats, 'tottime', total),
-                     'by_cumulative_time': listing(stats, 'cumtime', total)}
+                     'by_own_time': listing(stats, total)}
     return out
 
 
 def run(quick):
-    settings = QUICK if quick else FULL
+    settings = THERMOSTAT_SPEED[quick]
     cases = QUICK_COST_CASES if quick else COST_CASES
-    names = contestant_names()
+    names = tuple(INTEGRATORS)
     load = {'start': os.getloadavg()}
     costs = [cost_case(case, repeat, settings, names)
              for case, repeat in cases]
@@ -123,9 +103,6 @@ def run(quick):
     load['end'] = os.getloadavg()
     return {'load_average': load,
             'settings': {**asdict(settings), 'ratio_goal': RATIO_GOAL},
-            'reversible_missing': (
-                None if 'reversible_npt' in names else
-                'ase_reversible has no ReversibleIsotropicNPT at this commit'),
             'costs': costs,
             'profile': {'label': case.label,
                         'n_atoms': costs[cases.index((case, repeat))][

@@ -1,21 +1,14 @@
 """Run the benchmarks, then write ``docs/benchmarks.md`` with its plots.
 
-Usage (from the repository root)::
-
     python benchmarks/run_all.py                    # the default sections, ~75 min
     python benchmarks/run_all.py --quick            # small cases, a few minutes
-    python benchmarks/run_all.py --only step_cost   # one section (any of SECTIONS)
-    python benchmarks/run_all.py --only nose_chain  # a study (STUDIES)
-    python benchmarks/render.py                     # only render the stored results
+    python benchmarks/run_all.py --only step_cost   # sections or studies
 
-Each section is a script of this directory, or of ``studies/`` for those
-that take long, with ``run(quick) -> dict``: it measures and returns
-JSON-ready results, nothing else.  They are stored per section in
-``<out>/benchmarks/<name>.json`` with the command, date and machine; then
-``render.py`` rebuilds ``<out>/benchmarks.md`` and every plot from all
-stored sections, so ``--only`` refreshes one section and keeps the others.
-A study (``STUDIES``) is stored inside its section's results, with its own
-command, date and commit, and a run of the section keeps it.
+Each section is a script here (or in ``studies/``) whose ``run(quick)``
+returns JSON-ready results, stored in ``<out>/benchmarks/<name>.json`` with
+the command, date and machine; ``render.py`` then rebuilds the pages from
+every stored section.  A study is stored inside its section's results, and
+a run of the section keeps it.
 """
 
 from __future__ import annotations
@@ -36,19 +29,14 @@ import render
 sys.path.insert(1, str(Path(__file__).resolve().parent / 'studies'))
 
 SECTIONS = render.SECTIONS
-#: Measured by a plain run.  force_noise and long_reversal are diagnostics
-#: kept out of it (long_reversal takes about an hour with ASE's
-#: LennardJones), and so is npt_sampling (a 10^5-step run per integrator
-#: and case, and the round trip back); torch_products and training need
-#: the torch extra (training's 10^5-step memory point alone took 9
-#: minutes); --only runs them, and the page shows them once stored.
+#: Measured by a plain run; the others (diagnostics, hour-long runs, the
+#: torch extra) only by --only.
 DEFAULT_SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
                     'reversal_error', 'stress', 'gradient_accuracy',
                     'adjoint', 'thermostat', 'nose', 'npt_cost',
                     'lammps_cost', 'portable')
-#: Study -> (module, its function of ``quick``, section, key of the
-#: section's results it is stored as, and the key of its record there: None
-#: for beside the results, with the commit and the load before and after).
+#: Study -> (module, its function of ``quick``, section, key in the
+#: section's results, key of its record there: None for beside them).
 STUDIES = {'nose_timestep': ('nose_timestep', 'run', 'nose', 'timestep', None),
            'nose_chain': ('nose_chain', 'run', 'nose', 'chain', None),
            'training_memory': ('training', 'measure_memory', 'training',
@@ -77,8 +65,8 @@ def measure(name, quick, only, machine) -> dict:
 
 
 def stored_section(section, stored_dir):
-    """The stored JSON of ``section``: that in ``stored_dir``, else that
-    committed in docs/benchmarks/, else None."""
+    """``section``'s JSON in ``stored_dir``, else in docs/benchmarks/, else
+    None."""
     for directory in (stored_dir, common.DOCS / 'benchmarks'):
         path = directory / f'{section}.json'
         if path.exists():
@@ -87,8 +75,7 @@ def stored_section(section, stored_dir):
 
 
 def measure_study(name, quick, stored_dir, machine) -> tuple:
-    """Run one study; its section's name and stored JSON with the study's
-    results (and how they were made) in place."""
+    """Run one study: its section's name and stored JSON with it in place."""
     module, function, section, key, record_key = STUDIES[name]
     stored = stored_section(section, stored_dir)
     print(f'{name}:', flush=True)
@@ -123,8 +110,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     stored_dir = args.out / 'benchmarks'
     stored_dir.mkdir(parents=True, exist_ok=True)
-    # Taken before anything runs: the package is imported once, so the
-    # commit checked out now is the code every section measures.
+    # Before anything runs: the commit now is the code every section measures.
     machine = common.machine_info()
     for name in args.only or DEFAULT_SECTIONS:
         if name in STUDIES:

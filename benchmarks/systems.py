@@ -1,9 +1,5 @@
-"""Systems and calculators the benchmarks use beyond ase_reversible.app.systems.
-
-The standard argon and copper systems, the argon Lennard-Jones parameters
-and ``thermalize`` come from ``ase_reversible.app.systems``; what only the
-benchmarks need is built here, once.
-"""
+"""Systems and calculators only the benchmarks use (the standard ones are
+``ase_reversible.app.systems``'s)."""
 
 from __future__ import annotations
 
@@ -24,8 +20,8 @@ from ase.md.velocitydistribution import Stationary
 from ase.md.verlet import VelocityVerlet
 from harness import Settings
 
-import ase_reversible
-from ase_reversible import ReversibleLangevin, ReversibleNose, ReversibleVerlet
+from ase_reversible import (ReversibleIsotropicNPT, ReversibleLangevin,
+                            ReversibleNose, ReversibleVerlet)
 from ase_reversible.app.systems import (AR_EPSILON, AR_RC, AR_SIGMA,
                                         argon_bulk, argon_lj, copper_bulk,
                                         thermalize)
@@ -41,12 +37,9 @@ CU_RGL_LATTICE = 3.615
 
 
 def asap3_argon_lj(cutoff=AR_RC):
-    """A constructor of asap3's LennardJones with the argon parameters.
-
-    A partial rather than a calculator: asap3 calculators cannot be
-    pickled, their constructor with its arguments can (savings.py hands it
-    to worker processes that must not import this module).
-    """
+    """A constructor of asap3's LennardJones with the argon parameters: a
+    partial, as asap3 calculators cannot be pickled (savings.py hands it to
+    worker processes)."""
     return functools.partial(asap3.LennardJones, [18], [AR_EPSILON],
                              [AR_SIGMA], rCut=cutoff, modified=True)
 
@@ -99,20 +92,11 @@ def copper_bulk_contact(fraction):
 
 class CachedForces(Calculator):
     """A calculator whose force call costs next to nothing: zero forces and
-    energy, computed once, returned for any positions.
-
-    It still is a calculator behind ``atoms.get_forces``, with a cache as
-    cheap to check as asap3's: the stored results are reused while the
-    positions are bitwise those of the last calculation (the only thing the
-    integrators change), and "computed" again -- copied, nothing else --
-    when they are not.  ASE's own ``check_state`` would compare the whole
-    Atoms with ``np.allclose`` at ~0.2 ms a call and bury the integrators'
-    work under it.  With zero forces the atoms fly freely: the energy is
-    exactly conserved (the energy check never trips) and the positions
-    stay in range for the lengths of runs measured; numpy's arithmetic
-    costs the same whatever the values.  Declared pure, so
-    ReversibleVerlet's ``force_purity='auto'`` takes it as it is.
-    """
+    energy, "computed" (copied) again whenever the positions are not
+    bitwise those of the last call, a cache as cheap to check as asap3's
+    (ASE's ``check_state`` would bury the integrators' work at ~0.2 ms a
+    call).  The atoms fly freely, the energy is exactly conserved; declared
+    pure for ReversibleVerlet's ``force_purity='auto'``."""
 
     implemented_properties = ('energy', 'forces')
     forces_are_pure = True
@@ -137,16 +121,13 @@ class CachedForces(Calculator):
 
 class ResultCache:
     """An asap3 potential behind a cache of its last results: asap3's
-    LennardJones recomputes at unchanged positions for a free cluster
-    (work_precision's ``cache_check``), and ASE's VelocityVerlet asks
-    three times a step;
-    ASE's own ``check_state`` costs more than the force call here."""
+    LennardJones recomputes at unchanged positions for a free cluster, and
+    ASE's VelocityVerlet asks three times a step."""
 
     def __init__(self, inner):
         self.inner = inner
         self._mirror = None  # atoms carrying the inner calculator
-        # Forces and energy are separate computations of the bare
-        # potential, so each is computed only when asked for.
+        # Forces and energy are separate computations, each only when asked.
         self._forces_at = self._energy_at = None
         self._f_nc = self._energy = None
 
@@ -329,14 +310,12 @@ class NptCase:
         return self.pressure_GPa * units.GPa
 
     def atoms(self, repeat=None):
-        """The start both integrators share, with a fresh calculator:
-        (the calculator's label, atoms)."""
+        """(the calculator's label, the shared start with a fresh one)."""
         build, calculator = NPT_BUILDERS[self.system]
         atoms = thermalize(build(repeat or self.repeat), self.temperature_K,
                            NPT_SEED)
-        # ASE's chain thermostat scales every momentum by one factor, so a
-        # net momentum at the start stays: in a 40,000-step run of Cu 256
-        # without this, the centre of mass drifted 140 Å.
+        # ASE's chain thermostat keeps a net momentum of the start: the
+        # centre of mass of Cu 256 drifted 140 Å in 40,000 steps.
         Stationary(atoms)
         name, atoms.calc = calculator()
         return name, atoms
@@ -346,11 +325,8 @@ NPT_CASES = (
     NptCase('Cu fcc, 0 GPa', 'copper', (4, 4, 4), 300.0, 5.0, 0.0),
     NptCase('Cu fcc, 1 GPa', 'copper', (4, 4, 4), 300.0, 5.0, 1.0,
             round_trip=False),
-    # asap3's LennardJones in a moving cell: the spot check saw forces
-    # 1.85e-15 eV/Å off a fresh neighbour list's in a 600-step run, over
-    # the default guard, and asked for force_noise=3e-14; in the 10^5-step
-    # run with that, it saw 2.76e-14 eV/Å, more than half the bound, and
-    # advised 3.4e-13, which is given.
+    # asap3's LennardJones in a moving cell: a 10^5-step run saw 2.76e-14
+    # eV/Å of force noise against a bound of 3e-14 and advised 3.4e-13.
     NptCase('Ar liquid, 50 bar', 'argon', (4, 4, 4), 100.0, 10.0, 50e-4,
             force_noise=3.4e-13),
     # Half the time step: what of a difference at 5 fs is time-step error.
@@ -359,14 +335,9 @@ NPT_CASES = (
 )
 
 
-def npt_reversible_class():
-    """ReversibleIsotropicNPT, or None where this checkout lacks it."""
-    return getattr(ase_reversible, 'ReversibleIsotropicNPT', None)
-
-
 def reversible_npt(atoms, case):
     h = case.timestep
-    return npt_reversible_class()(
+    return ReversibleIsotropicNPT(
         atoms, h, case.temperature_K, case.pressure_au, TDAMP_NPT_STEPS * h,
         PDAMP_NPT_STEPS * h, seed=NPT_SEED, force_noise=case.force_noise)
 

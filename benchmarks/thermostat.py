@@ -1,12 +1,6 @@
 """ReversibleLangevin against ASE's Langevin, ReversibleBussi against ASE's
-Bussi: sampling, exact reversal, information buffer, cost per step.
-
-    python benchmarks/run_all.py --only thermostat           # ~9 minutes
-    python benchmarks/run_all.py --quick --only thermostat   # ~15 s
-
-Each reversible sampling run is the forward half of a round trip; the
-kinetic energy sampled is the internal one (both sides keep the centre of
-mass at rest), tested against Gamma((3N - 3) / 2, kT).
+Bussi: sampling, exact reversal, information buffer, cost per step
+(``--only thermostat``: ~9 minutes, ~15 s with ``--quick``).
 """
 
 from __future__ import annotations
@@ -21,12 +15,10 @@ import numpy as np
 from ase import units
 from ase.constraints import FixCom
 from ase.md.bussi import Bussi
-from harness import (BLOCKS, FORCE_EVERY, TRAJECTORY_BYTES_PER_COORDINATE,
-                     WINDOW_C, KineticSampler, against_reference,
-                     buffer_sizes, speed_case, there_and_back)
+from harness import (BLOCKS, FORCE_EVERY, WINDOW_C, KineticSampler, against_reference,
+                     speed_case, there_and_back)
 from systems import (FRICTION_PER_FS, SEED, THERMOSTAT_SPEED,
-                     THERMOSTAT_SYSTEMS, THERMOSTATS, ThermostatSystem,
-                     ase_langevin, reversible_langevin)
+                     THERMOSTAT_SYSTEMS, THERMOSTATS, ThermostatSystem)
 
 from ase_reversible import ReversibleBussi
 from ase_reversible.app.systems import argon_bulk
@@ -51,6 +43,8 @@ FULL = Lengths(equilibration=2000, round_trip=100_000,
 QUICK = Lengths(equilibration=200, round_trip=1000, checkpoints=(100, 1000))
 #: Steps the memory is extrapolated to.
 EXTRAPOLATE_TO = 1_000_000
+#: 8 bytes each for a position and a momentum per coordinate and step.
+TRAJECTORY_BYTES_PER_COORDINATE = 16
 
 SYSTEMS = THERMOSTAT_SYSTEMS
 #: (system, repeat) of the cost cases: Cu 500 and 4000, Ar 500 atoms.
@@ -77,45 +71,65 @@ INTEGRATORS = {**THERMOSTATS, 'reversible_bussi': reversible_bussi,
                'ase_bussi': ase_bussi}
 
 
+def buffer_sizes(dyn, steps):
+    """ReversibleLangevin's information buffer after ``steps`` steps."""
+    buffers = dyn.friction_step.buffers.values()
+    coordinates = 3 * len(dyn.atoms)
+    bits = dyn.buffer_bits
+    return {'steps': steps, 'bits': bits,
+            'bits_per_step_per_coordinate': bits / (steps * coordinates),
+            'nbytes': sum(b.nbytes for b in buffers),
+            'allocated_bytes': sum(b.state_k.nbytes + b.top_k.nbytes
+                                   + b.words_jk.nbytes for b in buffers),
+            'trajectory_bytes': TRAJECTORY_BYTES_PER_COORDINATE
+            * coordinates * steps}
+
+
 def extrapolated(checkpoints, steps=EXTRAPOLATE_TO):
     """Linear through the last two checkpoints, at ``steps`` (not the
     allocated bytes: the stacks grow by doubling)."""
     a, b = checkpoints[-2], checkpoints[-1]
     out = {'steps': steps, 'extrapolated': True}
-    for key in ('bits', 'nbytes', 'trajectory_bytes'):
+    for key in ('nbytes', 'trajectory_bytes'):
         slope = (b[key] - a[key]) / (b['steps'] - a['steps'])
         out[key] = b[key] + slope * (steps - b['steps'])
     return out
 
 
-def state_equal(a, b):
-    return bool(np.array_equal(a.ix_nc, b.ix_nc)
-                and np.array_equal(a.ip_nc, b.ip_nc))
+def sampled_round_trip(system, lengths, name, reference, buffer_at,
+                       buffers_of, keys=()):
+    """Integrator ``name`` there and back (``buffer_at(dyn, step)`` at the
+    checkpoints) against ASE's ``reference``: ``(dyn, trip, result)``, the
+    result holding the round trip (the integer state and ``buffers_of(dyn)``
+    back at the start, times, warnings, and ``trip``'s ``keys``)."""
+    atoms = system.atoms()
+    dyn, sampler, trip = there_and_back(
+        lambda: INTEGRATORS[name](atoms, system), KineticSampler,
+        lengths.round_trip, lengths.checkpoints, buffer_at,
+        snapshot=lambda dyn: dyn.state)
+    result = against_reference(
+        system, lengths.equilibration + 1, (name, sampler), reference,
+        INTEGRATORS[reference], lengths.round_trip)
+    start, end, buffers = trip['start'], dyn.state, buffers_of(dyn)
+    result.update(equilibration_steps=lengths.equilibration, round_trip={
+        'steps_each_way': lengths.round_trip, 'moved': trip['moved'],
+        'state_equal': bool(np.array_equal(start.ix_nc, end.ix_nc)
+                            and np.array_equal(start.ip_nc, end.ip_nc)),
+        'buffer_empty': bool(buffers) and all(b.is_empty() for b in buffers),
+        **{k: trip[k] for k in (*keys, 'forward_seconds', 'back_seconds',
+                                'warnings')}})
+    return dyn, trip, result
 
 
 def sampling_system(system, lengths):
     """ReversibleLangevin there and back against ASE's Langevin."""
-    atoms = system.atoms()
-    dyn, sampler, trip = there_and_back(
-        lambda: reversible_langevin(atoms, system), KineticSampler,
-        lengths.round_trip, lengths.checkpoints, buffer_sizes,
-        snapshot=lambda dyn: dyn.state)
-    buffers = list(dyn.friction_step.buffers.values())
+    dyn, trip, result = sampled_round_trip(
+        system, lengths, 'reversible_langevin', 'ase_langevin', buffer_sizes,
+        lambda dyn: list(dyn.friction_step.buffers.values()),
+        ('positions_equal', 'momenta_equal'))
     checkpoints = trip['checkpoints']
-    round_trip = {
-        **{k: trip[k] for k in ('moved', 'positions_equal', 'momenta_equal')},
-        'steps_each_way': lengths.round_trip,
-        'state_equal': state_equal(dyn.state, trip['start']),
-        'buffer_empty': bool(buffers and all(b.is_empty() for b in buffers)),
-        'buffer_bits_after': dyn.buffer_bits, 'heat_after_eV': dyn.heat,
-        **{k: trip[k] for k in ('forward_seconds', 'back_seconds',
-                                'warnings')}}
     n = friction_ratio(math.exp(-FRICTION_PER_FS * system.timestep_fs))
-    result = against_reference(
-        system, lengths.equilibration + 1, ('reversible_langevin', sampler),
-        'ase_langevin', ase_langevin, lengths.round_trip)
-    return {**result, 'equilibration_steps': lengths.equilibration,
-            'round_trip': round_trip,
+    return {**result,
             'buffer': {'ratio_numerator': n, 'ratio': n / 2**DIGIT_BITS,
                        'minimum_bits_per_step_per_coordinate':
                            -math.log2(n / 2**DIGIT_BITS),
@@ -145,20 +159,13 @@ BUSSI_SYSTEMS = (
 )
 
 
-@dataclass(frozen=True)
-class BussiLengths:
-    equilibration: int
-    steps: int  # forward steps, equilibration included
-    checkpoints: tuple
-
-
-BUSSI_FULL = BussiLengths(equilibration=1000, steps=21_000,
-                          checkpoints=(1000, 5000, 21_000))
-BUSSI_QUICK = BussiLengths(equilibration=200, steps=1000,
-                           checkpoints=(200, 1000))
+BUSSI_FULL = Lengths(equilibration=1000, round_trip=21_000,
+                     checkpoints=(1000, 5000, 21_000))
+BUSSI_QUICK = Lengths(equilibration=200, round_trip=1000,
+                      checkpoints=(200, 1000))
 BUSSI_SPEED_CASES = SPEED_CASES[:2]
-BUSSI_SPEED_CONTESTANTS = ('reversible_bussi', 'ase_bussi',
-                           'reversible_langevin', 'velocity_verlet')
+#: ReversibleLangevin and VelocityVerlet on these cases are in run()'s table.
+BUSSI_SPEED_CONTESTANTS = ('reversible_bussi', 'ase_bussi')
 
 
 def bussi_buffer(dyn, steps):
@@ -176,23 +183,10 @@ def bussi_buffer(dyn, steps):
 
 def bussi_system(system, lengths):
     """Both Bussi thermostats on ``system``; ours then runs back."""
-    atoms = system.atoms()
-    dyn, ours, trip = there_and_back(
-        lambda: reversible_bussi(atoms, system), KineticSampler,
-        lengths.steps, lengths.checkpoints, bussi_buffer,
-        snapshot=lambda dyn: dyn.state)
-    (buffer,) = dyn.rescale_step.buffers.values()
-    result = against_reference(
-        system, lengths.equilibration + 1, ('reversible_bussi', ours),
-        'ase_bussi', ase_bussi, lengths.steps)
+    _, trip, result = sampled_round_trip(
+        system, lengths, 'reversible_bussi', 'ase_bussi', bussi_buffer,
+        lambda dyn: list(dyn.rescale_step.buffers.values()))
     return {**result, 'taut_fs': TAUT_FS,
-            'equilibration_steps': lengths.equilibration,
-            'round_trip': {
-                'steps_each_way': lengths.steps, 'moved': trip['moved'],
-                'state_equal': state_equal(dyn.state, trip['start']),
-                'buffer_empty': buffer.is_empty(),
-                **{k: trip[k] for k in ('forward_seconds', 'back_seconds',
-                                        'warnings')}},
             'buffer_checkpoints': trip['checkpoints']}
 
 
@@ -200,7 +194,8 @@ def run_bussi(quick):
     lengths = BUSSI_QUICK if quick else BUSSI_FULL
     speed = THERMOSTAT_SPEED[quick]
     cases = BUSSI_SPEED_CASES[:1] if quick else BUSSI_SPEED_CASES
-    return {'lengths': asdict(lengths), 'taut_fs': TAUT_FS,
+    return {'lengths': {'equilibration': lengths.equilibration,
+                        'steps': lengths.round_trip}, 'taut_fs': TAUT_FS,
             'systems': [bussi_system(s, lengths) for s in BUSSI_SYSTEMS],
             'speed': [speed_case(s, r, speed, BUSSI_SPEED_CONTESTANTS,
                                  INTEGRATORS, 'ase_bussi') for s, r in cases]}
@@ -226,8 +221,7 @@ def run(quick):
                      'force_every': FORCE_EVERY,
                      'temperature_goal_percent': TEMPERATURE_GOAL_PERCENT,
                      'bits_goal_ratio': BITS_GOAL_RATIO,
-                     'trajectory_bytes_per_coordinate':
-                         TRAJECTORY_BYTES_PER_COORDINATE,
-                     **{f'lengths_{k}': v for k, v in asdict(lengths).items()},
+                     'lengths_equilibration': lengths.equilibration,
+                     'lengths_round_trip': lengths.round_trip,
                      'speed': asdict(speed)},
         'systems': systems_, 'speed': costs, 'bussi': bussi}

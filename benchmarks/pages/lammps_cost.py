@@ -1,8 +1,6 @@
 """ReversibleLammps, compiled and Python paths, against LAMMPS's fix nve.
 
-Measured by benchmarks/lammps_cost.py, whose docstring gives the method.
-Besides docs/benchmarks.md's section, its tables and values fill
-docs/lammps.md's cost and scaling sections.
+Measured by benchmarks/lammps_cost.py; the values also fill docs/lammps.md.
 """
 
 from __future__ import annotations
@@ -37,10 +35,9 @@ def label(case, name):
     return case['integrators'][name]['label']
 
 
-def ratio(case, name, reference=None, cpu=False):
-    m = case['median']
-    reference = reference or case['integrators'][name]['reference']
-    key = 'cpu_ms_per_step' if cpu else 'ms_per_step'
+def ratio(case, name, key='ms_per_step'):
+    """Exact over reference, medians over blocks of M steps."""
+    m, reference = case['median'], case['integrators'][name]['reference']
     return m[name][key] / m[reference][key]
 
 
@@ -51,16 +48,6 @@ def long_ratio(case, name, key='cpu'):
     reference = case['integrators'][name]['reference']
     return (m[name][f'{key}_ms_per_step']
             / m[reference][f'{key}_ms_per_step'])
-
-
-def loop_ratio(case, name):
-    m = case['median']
-    reference = case['integrators'][name]['reference']
-    return m[name]['loop_ms_per_step'] / m[reference]['loop_ms_per_step']
-
-
-def uses(results, use):
-    return [c for c in results['cases'] if use in c['uses']]
 
 
 def goal_cases(results):
@@ -94,12 +81,6 @@ def load(case):
     return f'{before[0]:.1f}-{after[0]:.1f}'
 
 
-def loads(results):
-    values = [c['load_average'][i][0] for c in results['cases']
-              for i in (0, 1)]
-    return min(values), max(values)
-
-
 def _ms(value):
     return f'{value:.3g}' if abs(value) < 100 else f'{value:.0f}'
 
@@ -114,18 +95,15 @@ def _range(values, fmt):
         f'{fmt(low)} to {fmt(high)}'
 
 
-def _atoms(case):
-    return f"{case['natoms']:,}"
-
-
 # -- the plot ------------------------------------------------------------------
 
 def plot(results, figures):
-    with figure(figures / PLOT, 2, (12, 5.5)) as (plt, fig, (left, right)):
+    """Exact over reference, CPU time per step of a long run, against the
+    number of atoms (where a step goes is the breakdown table)."""
+    with figure(figures / PLOT, 1, (7, 5.5)) as (plt, fig, ax):
         cases = results['cases']
-        names = exact_names(cases[0])
         colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
-        for k, (name, _) in enumerate(names):
+        for colour, (name, _) in zip(colours, exact_names(cases[0])):
             for ranks, marker in ((1, 'o'), (2, 's')):
                 for system, fill in (('argon', True), ('copper', False)):
                     chosen = sorted((c for c in cases if c['ranks'] == ranks
@@ -133,62 +111,31 @@ def plot(results, figures):
                                     key=lambda c: c['natoms'])
                     if not chosen:
                         continue
-                    left.plot([c['natoms'] for c in chosen],
-                              [long_ratio(c, name) for c in chosen],
-                              marker + '-',
-                              color=colours[k], lw=0.8,
-                              mfc=colours[k] if fill else 'none',
-                              label=f"{label(cases[0], name)}: "
-                                    f"{'Ar LJ' if system == 'argon' else 'Cu EAM'}"
-                                    f", {ranks} rank{'s' if ranks > 1 else ''}")
-        left.axhline(results['goal_ratio'], color='k', lw=0.8, ls=':',
-                     label=f"goal ≤ {results['goal_ratio']:g} "
-                           f"(N ≥ {results['goal_min_atoms']:,})")
-        left.axhline(1.0, color='grey', lw=0.5)
-        left.set_xscale('log')
-        left.set_xlabel('number of atoms')
-        left.set_ylabel('exact / fix nve, CPU time per step of a long run')
-        left.set_title('Time per step relative to fix nve')
-        left.legend(fontsize=6, ncol=2, loc='lower center',
-                    bbox_to_anchor=(0.5, -0.45))
-
-        # Per-step time of each case, every instance, stacked by where it
-        # goes, in units of fix nve's step.
-        instances = list(cases[0]['integrators'])
-        width = len(instances) + 1
-        ticks, top = [], 0.0
-        for i, c in enumerate(cases):
-            unit = c['median']['nve']['ms_per_step']
-            for j, name in enumerate(instances):
-                x = width * i + j
-                bottom = 0.0
-                for colour, (part, value) in zip(colours,
-                                                 breakdown(c, name).items()):
-                    right.bar(x, value / unit, bottom=bottom, color=colour,
-                              label=part if i == 0 and j == 0 else None,
-                              edgecolor='k' if j else None, linewidth=0.5,
-                              hatch='//' if j == 2 else None)
-                    bottom += value / unit
-                top = max(top, bottom)
-            ticks.append((width * i + (len(instances) - 1) / 2,
-                          c['label'].replace(', ', '\n')
-                          .replace(f" {c['natoms']}", f"\n{c['natoms']}")))
-        right.set_xticks([x for x, _ in ticks])
-        right.set_xticklabels([t for _, t in ticks], fontsize=5)
-        right.set_ylabel("time per step / fix nve's")
-        right.set_title('Where a step goes: ' + ', '.join(
-            label(cases[0], n) for n in instances) + ' (left to right)',
-            fontsize=9)
-        right.set_ylim(0, 1.3 * top)
-        right.legend(fontsize=7, loc='upper left', ncol=3)
+                    ax.plot([c['natoms'] for c in chosen],
+                            [long_ratio(c, name) for c in chosen],
+                            marker + '-', color=colour, lw=0.8,
+                            mfc=colour if fill else 'none',
+                            label=f"{label(cases[0], name)}: "
+                                  f"{'Ar LJ' if system == 'argon' else 'Cu EAM'}"
+                                  f", {ranks} rank{'s' if ranks > 1 else ''}")
+        ax.axhline(results['goal_ratio'], color='k', lw=0.8, ls=':',
+                   label=f"goal ≤ {results['goal_ratio']:g} "
+                         f"(N ≥ {results['goal_min_atoms']:,})")
+        ax.axhline(1.0, color='grey', lw=0.5)
+        ax.set_xscale('log')
+        ax.set_xlabel('number of atoms')
+        ax.set_ylabel('exact / fix nve, CPU time per step of a long run')
+        ax.set_title('Time per step relative to fix nve')
+        ax.legend(fontsize=6, ncol=2, loc='lower center',
+                  bbox_to_anchor=(0.5, -0.45))
 
 
 # -- tables and values ---------------------------------------------------------
 
 def goal_table(results):
     """Each exact integrator against its reference over the cases with at
-    least ``goal_min_atoms`` atoms: the ranges of the ratios."""
-    cases, first = goal_cases(results), results['cases'][0]
+    least ``goal_min_atoms`` atoms (all, in quick mode): the ratios' ranges."""
+    cases, first = goal_cases(results) or results['cases'], results['cases'][0]
     goals = results.get('goal_ratios', {'compiled': results['goal_ratio']})
     rows = []
     for name in (n for n in goals if n in first['integrators']):
@@ -199,9 +146,9 @@ def goal_table(results):
                 'reference']), f'{goals[name]:.2f}', len(cases),
             spread(lambda c: long_ratio(c, name)),
             max(cases, key=lambda c: long_ratio(c, name))['label'],
-            spread(lambda c: ratio(c, name, cpu=True)),
+            spread(lambda c: ratio(c, name, 'cpu_ms_per_step')),
             spread(lambda c: ratio(c, name)),
-            spread(lambda c: loop_ratio(c, name)),
+            spread(lambda c: ratio(c, name, 'loop_ms_per_step')),
             spread(lambda c: long_ratio(c, name, 'wall'))])
     return markdown_table(
         ['exact path', 'reference', 'goal (×)', 'cases',
@@ -232,7 +179,7 @@ def cost_rows(results):
             row += [f"{_ms(m[name]['ms_per_step'])} / "
                     f"{_ms(m[name]['cpu_ms_per_step'])}",
                     f'{ratio(c, name):.3f} / '
-                    f'{ratio(c, name, cpu=True):.3f}',
+                    f"{ratio(c, name, 'cpu_ms_per_step'):.3f}",
                     f'**{long_ratio(c, name):.3f}**']
         row.append(f"{max(m[n]['spread'] for n in c['integrators']):.0%}")
         rows.append(row)
@@ -254,8 +201,9 @@ def cost_header(results):
 
 
 def strong_rows(results):
+    """Each system and size measured on 1 and on more ranks."""
     strong = {}
-    for c in uses(results, 'strong'):
+    for c in results['cases']:
         strong.setdefault((c['system'], c['natoms']), {})[c['ranks']] = c
     rows = []
     for (system, natoms), by_ranks in strong.items():
@@ -273,18 +221,6 @@ def strong_rows(results):
             rows.append(row + [f"{ratio(one, n):.3f} → {ratio(c, n):.3f}"
                                for n, _ in exact_names(c)])
     return rows
-
-
-def weak_rows(results):
-    weak = sorted(uses(results, 'weak'), key=lambda c: c['ranks'])
-    if len(weak) < 2 or weak[0]['ranks'] != 1:
-        return []
-    one = weak[0]
-    return [[c['label'], f"{c['natoms'] // c['ranks']:,}"]
-            + [f"{one['median'][n]['ms_per_step'] / c['median'][n]['ms_per_step']:.0%}"
-               for n in c['integrators']]
-            + [f'{ratio(c, n):.3f}' for n, _ in exact_names(c)]
-            for c in weak]
 
 
 def model_numbers(case, name):
@@ -309,8 +245,6 @@ def model_numbers(case, name):
         'run_cpu_ms': case['long_run'][name]['cpu_ms_per_run'],
         'reference_run_cpu_ms': case['long_run'][reference][
             'cpu_ms_per_run'],
-        'reference_ns_per_atom': 1e6 * ref['ms_per_step'] / per_rank,
-        'reference_cpu_ns_per_atom': 1e6 * ref['cpu_ms_per_step'] / per_rank,
         'extra_loop_ms': exact['loop_ms_per_step'] - ref['loop_ms_per_step'],
         'clean_per_step': exact['clean_per_step'],
         'clean': exact['clean_recomputations'],
@@ -354,15 +288,6 @@ def strong_table(results):
            for n, _ in exact_names(first)], strong_rows(results))
 
 
-def weak_table(results):
-    first = results['cases'][0]
-    return markdown_table(
-        ['case', 'atoms per rank'] + [f'{label(first, n)} efficiency'
-                                      for n in first['integrators']]
-        + [f'{label(first, n)} / fix nve' for n, _ in exact_names(first)],
-        weak_rows(results))
-
-
 def model_table(results):
     return markdown_table(
         ['case', 'path', 'extra: wall / CPU (ms/step)',
@@ -371,30 +296,6 @@ def model_table(results):
          'extra, loop time (ms/step)', 'clean per step',
          'run 0: exact / fix nve (ms)', 'clean cost (ms/step)',
          'MPI max (µs/call)', 'velocity quantum'], model_rows(results))
-
-
-def costs_table(results):
-    """docs/lammps.md's table: each case's ms per step and ratios."""
-    rows = []
-    for c in results['cases']:
-        m = c['median']
-        rows.append([c['label'].replace('LJ ', '').replace('EAM ', '')
-                     .replace(f"{c['natoms']}", _atoms(c)), load(c),
-                     _ms(m['nve']['ms_per_step']),
-                     _ms(m['compiled']['ms_per_step']),
-                     f"{ratio(c, 'compiled'):.3f} / "
-                     f"{ratio(c, 'compiled', cpu=True):.3f} / "
-                     f"**{long_ratio(c, 'compiled'):.3f}**",
-                     _ms(m['python']['ms_per_step']),
-                     f"{ratio(c, 'python'):.2f} / "
-                     f"{ratio(c, 'python', cpu=True):.2f} / "
-                     f"**{long_ratio(c, 'python'):.2f}**"])
-    return markdown_table(['case', 'load average', 'fix nve (ms/step)',
-                           'compiled (ms/step)',
-                           'compiled / fix nve: wall / CPU / CPU, long run',
-                           'Python (ms/step)',
-                           'Python / fix nve: wall / CPU / CPU, long run'],
-                          rows)
 
 
 def values(results):
@@ -406,7 +307,8 @@ def values(results):
     one = [c for c in single if c['natoms'] >= results['goal_min_atoms']] \
         or single
     two = [c for c in cases if c['ranks'] > 1]
-    out = {'loads': _range(loads(results), lambda v: f'{v:.1f}'),
+    out = {'loads': _range([c['load_average'][i][0] for c in cases
+                            for i in (0, 1)], lambda v: f'{v:.1f}'),
            'instances': ', '.join(f'`{label(cases[0], n)}`'
                                   for n in cases[0]['integrators']),
            'rounds': cases[0]['rounds'],
@@ -451,11 +353,10 @@ def values(results):
 
 SPEC = Spec(
     'Exact runs inside LAMMPS',
-    blocks={'goal': block(goal_table),
-            'cost': lambda stored: markdown_table(
+    blocks={'costs-goal': block(goal_table),
+            'costs': lambda stored: markdown_table(
                 cost_header(stored['results']), cost_rows(stored['results'])),
             'breakdown': block(breakdown_table),
-            'strong': block(strong_table), 'weak': block(weak_table),
-            'model': block(model_table),
-            'costs': block(costs_table), 'costs-goal': block(goal_table)},
+            'strong': block(strong_table),
+            'model': block(model_table)},
     plots=(plot,), values=values)

@@ -1,56 +1,31 @@
 """ReversibleNose against ASE's thermostats: sampling, exact reversal,
 memory against steps, cost per step.
 
-Measured by benchmarks/nose.py, whose docstring gives the method.
+Measured by benchmarks/nose.py and benchmarks/studies/nose_timestep.py,
+nose_chain.py.
 """
 
 from __future__ import annotations
 
-import numpy as np
-
-from . import Spec, block, figure, label, markdown_table, table
-from . import thermostat
-from .thermostat import (forces_again_lines, histograms, potential_lines,
-                         sampling_table, size, speed_table, warning_lines,
-                         yes)
+from . import Spec, block, markdown_table, table, thermostat
+from .thermostat import (histograms, potential_lines, sampling_table, size,
+                         speed_table, system, warning_lines, yes)
 
 PLOT = 'nose_kinetic_energy.png'
-PLOT_S = 'nose_thermostat_position.png'
 
 NOSE = ('reversible_nose', 'ReversibleNose')
 #: ReversibleNose in place of ReversibleLangevin, beside ASE's Langevin.
 THERMOSTATS = (NOSE, *thermostat.THERMOSTATS[1:])
-SPEED_COLUMNS = (NOSE, ('ase_nose_hoover_chain', 'ASE NoseHooverChainNVT'),
-                 *thermostat.SPEED_COLUMNS[1:])
+SPEED_COLUMNS = (NOSE, ('ase_nose_hoover_chain', 'ASE NoseHooverChainNVT'))
 COUNTS = ('position', 'momentum', 'thermostat_position',
           'thermostat_momentum', 'time')
 
 
 def plot(results, figures):
-    systems = results['systems']
-    histograms(systems, THERMOSTATS, figures / PLOT)
-
-    with figure(figures / PLOT_S, 1, (8, 3.4)) as (plt, fig, ax):
-        for s, color in zip(systems, ('C0', 'C1')):
-            th = s['thermostat']
-            trace = np.asarray(th['s_trace'])
-            steps = np.arange(len(trace)) * th['s_trace_every']
-            ax.plot(steps * s['timestep_fs'] / 1000, trace, color=color, lw=0.6,
-                    label=f"{s['system']} {s['n_atoms']}, tdamp "
-                          f"{th['tdamp_fs']:g} fs")
-        first = systems[0]
-        ax.axvline(first['equilibration_steps'] * first['timestep_fs'] / 1000,
-                   color='k', lw=0.8, ls=':', label='end of equilibration')
-        label(ax, 'virtual time (ps)', 's (real step = dt / s)',
-              f"Nosé's s over the forward run, every "
-              f"{first['thermostat']['s_trace_every']} steps")
+    histograms(results['systems'], THERMOSTATS, figures / PLOT)
 
 
 # -- tables ------------------------------------------------------------------
-
-def system(s):
-    return f"{s['system']} {s['n_atoms']}"
-
 
 def meV_per_atom(s, energy, sign=''):
     return f"{1e3 * energy / s['n_atoms']:{sign}.3f}"
@@ -136,25 +111,6 @@ MEMORY_COLUMNS = (
      '{forward_seconds:.1f} / {backpropagate_seconds:.1f}'))
 
 
-def comparison_table(results):
-    m = results['memory']
-    langevin = {c['steps']: c for c in m['langevin']['checkpoints']}
-
-    def held(key):
-        return lambda r: (size(langevin[r['steps']][key])
-                          if r['steps'] in langevin else '–')
-    return table((
-        ('steps', '{steps:,}'),
-        ('ReversibleNose: largest traced peak', lambda r: size(max(
-            r['forward_traced_peak_bytes'],
-            r['backpropagate_traced_peak_bytes']))),
-        ('ReversibleLangevin: buffer (nbytes)', held('nbytes')),
-        ('buffer allocated', held('allocated_bytes')),
-        ('ReversibleLangevin: traced memory held', held('traced_bytes')),
-        ('trajectory (x and p, float64)',
-         lambda r: size(r['trajectory_bytes']))), m['nose'])
-
-
 def last_decade(points, key):
     """Ratio of ``key`` at the last point to the one before."""
     return points[-1][key] / points[-2][key]
@@ -178,49 +134,19 @@ def memory_lines(results):
                    f"{hi['steps']:,} steps than at {nose[-2]['steps']:,} "
                    f"({grown / (hi['steps'] - nose[-2]['steps']):+.3f} bytes "
                    'per step).')
-    points = m['langevin']['checkpoints']
-    grown = points[-1]['nbytes'] - points[-2]['nbytes']
-    out.append(f"- ReversibleLangevin's buffer grows by "
-               f"{grown / (points[-1]['steps'] - points[-2]['steps']):.2f} "
-               'bytes per step.')
-    out.append(f"- ReversibleLangevin's buffer: "
-               f"×{last_decade(points, 'nbytes'):.2f} from "
-               f"{points[-2]['steps']:,} to {points[-1]['steps']:,} steps.")
     return '\n'.join(out)
-
-
-def profile_lines(results):
-    prof = results['memory'].get('profile')
-    if not prof:
-        return ''
-    interval = prof['spot_check_interval']
-    largest = ', '.join(
-        f"{p['step']:,} ({size(p['peak_bytes'])}; mod {interval}: "
-        f"{p['step'] % interval})" for p in prof['largest'])
-    return (f"Which steps allocate most: a run of {prof['steps']:,} steps "
-            'with an observer that reads the traced peak after every step '
-            'and resets it. Median peak of a step '
-            f"{size(prof['median_step_peak_bytes'])}; the "
-            f"{len(prof['largest'])} largest, by step: {largest}. The "
-            'extended energy is checked every '
-            f"{prof['energy_check_interval']} steps and the force provider "
-            f'spot-checks purity every {interval} force calls '
-            '(`ase_reversible.purity.SpotCheck`); a peak such a step makes '
-            'is in the peak of a run only once the run is long enough to '
-            'contain it.')
 
 
 def memory_warning_lines(results):
     m = results['memory']
-    seen = sorted({w for r in m['nose'] + [m['langevin']]
-                   for w in r.get('warnings', ())})
+    seen = sorted({w for r in m['nose'] for w in r.get('warnings', ())})
     return ('Warnings in the memory workers, each with how often it came in '
             'its worker:\n\n'
             + '\n'.join(f'- `{w}`' for w in seen)) if seen else \
         'The memory workers gave no warning.'
 
 
-# -- the studies (benchmarks/nose.py --study timestep|chain) ----------------
+# -- the studies (benchmarks/studies/nose_timestep.py, nose_chain.py) -------
 
 def _mean_se(block, digits=2):
     return f"{block['mean']:.{digits}f} ± {block['standard_error']:.{digits}f}"
@@ -239,8 +165,8 @@ def timestep_block(stored):
     """docs/thermostats.md, "Large time steps": the measured table."""
     study = stored['results'].get('timestep')
     if study is None:
-        return ('Not measured yet: `python benchmarks/nose.py --study '
-                'timestep`.')
+        return ('Not measured yet: `python benchmarks/run_all.py --only '
+                'nose_timestep`.')
     cases = study['cases']
     by = {(c['kind'], c['timestep_fs']): c for c in cases}
     steps = sorted({c['timestep_fs'] for c in cases})
@@ -276,11 +202,15 @@ def timestep_block(stored):
 """
 
 
+NOT_MEASURED_CHAIN = ('Not measured yet: `python benchmarks/run_all.py '
+                      '--only nose_chain`.')
+
+
 def chain_block(stored):
     """docs/thermostats.md, "A chain of thermostats": the measured table."""
     study = stored['results'].get('chain')
     if study is None:
-        return 'Not measured yet: `python benchmarks/nose.py --study chain`.'
+        return NOT_MEASURED_CHAIN
     rows = []
     for c in study['cases']:
         if c.get('failure'):
@@ -316,7 +246,7 @@ def chain_stability_block(stored):
     """docs/thermostats.md, "A chain of thermostats": which runs lasted."""
     study = stored['results'].get('chain')
     if study is None or 'stability' not in study:
-        return 'Not measured yet: `python benchmarks/nose.py --study chain`.'
+        return NOT_MEASURED_CHAIN
     rows = []
     for c in study['stability']:
         rows.append([f"{c['system']} {c['n_atoms']}, {c['timestep_fs']:g} fs",
@@ -366,13 +296,10 @@ SPEC = Spec(
                                                      'ReversibleNose'),
             'memory': lambda stored: table(
                 MEMORY_COLUMNS, stored['results']['memory']['nose']),
-            'comparison': block(comparison_table),
             'memory-lines': block(memory_lines),
-            'profile': block(profile_lines),
             'memory-warnings': block(memory_warning_lines),
             'speed': lambda stored: speed_table(
                 stored['results'], SPEED_COLUMNS, 'ase_nose_hoover_chain'),
-            'forces-again': block(forces_again_lines),
             'timestep': timestep_block,
             'chain-stability': chain_stability_block,
             'chain': chain_block},

@@ -1,9 +1,8 @@
 """ReversibleLangevin against ASE's Langevin, ReversibleBussi against ASE's
 Bussi: sampling, exact reversal, information buffer, cost per step.
 
-Measured by benchmarks/thermostat.py, whose docstring gives the method.
-Besides docs/benchmarks.md's section, its blocks fill the Bussi numbers
-of docs/thermostats.md.
+Measured by benchmarks/thermostat.py; the Bussi block fills
+docs/thermostats.md.
 """
 
 from __future__ import annotations
@@ -12,7 +11,7 @@ import math
 
 import numpy as np
 
-from . import Spec, block, figure, markdown_table
+from . import Spec, block, figure, markdown_table, table
 
 PLOT = 'thermostat_kinetic_energy.png'
 
@@ -21,10 +20,6 @@ THERMOSTATS = (('reversible_langevin', 'ReversibleLangevin'),
 BUSSI_PLOT = 'thermostat_bussi_kinetic_energy.png'
 BUSSI_THERMOSTATS = (('reversible_bussi', 'ReversibleBussi'),
                      ('ase_bussi', 'ASE Bussi'))
-BUSSI_SPEED_COLUMNS = (('reversible_bussi', 'ReversibleBussi'),
-                       ('ase_bussi', 'ASE Bussi'),
-                       ('reversible_langevin', 'ReversibleLangevin'),
-                       ('velocity_verlet', 'ASE VelocityVerlet'))
 SPEED_COLUMNS = (('reversible_langevin', 'ReversibleLangevin'),
                  ('ase_langevin', 'ASE Langevin'),
                  ('velocity_verlet', 'ASE VelocityVerlet'),
@@ -157,20 +152,21 @@ def baoab_lines(results):
         for r in [s['sampling']['reversible_langevin']])
 
 
-def round_trip_table(results):
-    rows = []
-    for s in results['systems']:
-        rt = s['round_trip']
-        rows.append([
-            f"{s['system']} {s['n_atoms']}", f"{rt['steps_each_way']:,}",
-            yes(rt['positions_equal']), yes(rt['momenta_equal']),
-            yes(rt['state_equal']), yes(rt['buffer_empty']),
-            f"{rt['forward_seconds']:.0f}", f"{rt['back_seconds']:.0f}",
-            f"{rt['forward_seconds'] + rt['back_seconds']:.0f}"])
-    return markdown_table(
-        ['system', 'steps each way', 'positions equal', 'momenta equal',
-         'integer state equal', 'buffer empty', 'forward (s)', 'back (s)',
-         'total (s)'], rows)
+def system(s):
+    return f"{s['system']} {s['n_atoms']}"
+
+
+ROUND_TRIP_COLUMNS = (
+    ('system', system), ('steps each way', '{round_trip[steps_each_way]:,}'),
+    *((header, lambda s, k=k: yes(s['round_trip'][k])) for header, k in (
+        ('positions equal', 'positions_equal'),
+        ('momenta equal', 'momenta_equal'),
+        ('integer state equal', 'state_equal'),
+        ('buffer empty', 'buffer_empty'))),
+    ('forward (s)', '{round_trip[forward_seconds]:.0f}'),
+    ('back (s)', '{round_trip[back_seconds]:.0f}'),
+    ('total (s)', lambda s: '{:.0f}'.format(
+        s['round_trip']['forward_seconds'] + s['round_trip']['back_seconds'])))
 
 
 def warning_lines(results, name='ReversibleLangevin'):
@@ -184,38 +180,26 @@ def warning_lines(results, name='ReversibleLangevin'):
 
 
 def buffer_table(results):
-    rows = []
-    for s in results['systems']:
-        b = s['buffer']
-        for c in b['checkpoints']:
-            rows.append([
-                f"{s['system']} {s['n_atoms']}", f"{c['steps']:,}",
-                f"{c['bits_per_step_per_coordinate']:.6f}",
-                f"{b['minimum_bits_per_step_per_coordinate']:.6f}",
-                f'{bits_ratio(s, c):.4f}',
-                f"{8 * c['nbytes'] / (c['steps'] * 3 * s['n_atoms']):.4f}"])
-    return markdown_table(
-        ['system', 'steps', 'bits held / step / coordinate',
-         'minimum −log2(c)', 'ratio', 'memory (nbytes) in bits / step / '
-         'coordinate'], rows)
-
-
-def memory_table(results):
+    """Per checkpoint (and the extrapolated point): the bits held against
+    the minimum, the buffer's memory against a stored trajectory's."""
     rows = []
     for s in results['systems']:
         b = s['buffer']
         for c in b['checkpoints'] + [b['extrapolated']]:
-            mark = ' (extrapolated)' if c.get('extrapolated') else ''
+            held = 'bits_per_step_per_coordinate' in c
             rows.append([
-                f"{s['system']} {s['n_atoms']}", f"{c['steps']:,}{mark}",
-                size(c['bits'] / 8), size(c['nbytes']),
-                size(c['allocated_bytes']) if 'allocated_bytes' in c
-                else '–', size(c['trajectory_bytes']),
+                f"{s['system']} {s['n_atoms']}", f"{c['steps']:,}"
+                + (' (extrapolated)' if c.get('extrapolated') else ''),
+                f"{c['bits_per_step_per_coordinate']:.6f}" if held else '–',
+                f'{bits_ratio(s, c):.4f}' if held else '–',
+                size(c['nbytes']), size(c['allocated_bytes'])
+                if 'allocated_bytes' in c else '–',
+                size(c['trajectory_bytes']),
                 f"{c['trajectory_bytes'] / c['nbytes']:.0f}"])
     return markdown_table(
-        ['system', 'steps', 'information held', 'buffer memory (nbytes)',
-         'allocated', 'trajectory (x and p, float64)',
-         'trajectory / buffer'], rows)
+        ['system', 'steps', 'bits held / step / coordinate',
+         'ratio to −log2(c)', 'buffer memory (nbytes)', 'allocated',
+         'trajectory (x and p, float64)', 'trajectory / buffer'], rows)
 
 
 def forces_again_lines(results):
@@ -268,19 +252,19 @@ def bussi_sampling_lines(bussi):
     return '\n'.join(out)
 
 
+BUSSI_BUFFER_COLUMNS = (
+    ('system', '{system}'), ('steps', '{steps:,}'),
+    ('ratio bits', '{ratio_bits:,.0f}'),
+    ('coordinates: bits each', '{coordinate_bits_per_coordinate:+.2f}'),
+    ('stack pointers low / high',
+     '{lowest_stack_pointer} / {highest_stack_pointer}'),
+    ('memory', lambda c: size(c['nbytes'])))
+
+
 def bussi_buffer_table(bussi):
-    rows = []
-    for s in bussi['systems']:
-        for c in s['buffer_checkpoints']:
-            rows.append([f"{s['system']} {s['n_atoms']}", f"{c['steps']:,}",
-                         f"{c['ratio_bits']:,.0f}",
-                         f"{c['coordinate_bits_per_coordinate']:+.2f}",
-                         f"{c['lowest_stack_pointer']} / "
-                         f"{c['highest_stack_pointer']}",
-                         size(c['nbytes'])])
-    return markdown_table(
-        ['system', 'steps', 'ratio bits', 'coordinates: bits each',
-         'stack pointers low / high', 'memory'], rows)
+    return table(BUSSI_BUFFER_COLUMNS, [
+        {**c, 'system': system(s)} for s in bussi['systems']
+        for c in s['buffer_checkpoints']])
 
 
 def bussi_round_trips(bussi):
@@ -297,7 +281,7 @@ def bussi_round_trips(bussi):
 
 
 def bussi_speed_table(bussi):
-    return speed_table({'speed': bussi['speed']}, BUSSI_SPEED_COLUMNS,
+    return speed_table({'speed': bussi['speed']}, BUSSI_THERMOSTATS,
                        'ase_bussi')
 
 
@@ -326,22 +310,18 @@ def values(results):
         for s in results['systems']),
         'dof': results['systems'][0]['dof'],
         'load_start': load['start'][0], 'load_end': load['end'][0],
-        'load_before_cost': load['before_cost'][0],
-        'load_before_bussi': load.get('before_bussi', load['end'])[0]}
+        'load_before_cost': load['before_cost'][0]}
 
 
 SPEC = Spec(
     'Thermostat: ReversibleLangevin against ASE Langevin',
     blocks={'sampling': block(sampling_table),
             'baoab': block(baoab_lines), 'potential': block(potential_lines),
-            'round-trip': block(round_trip_table),
+            'round-trip': lambda stored: table(
+                ROUND_TRIP_COLUMNS, stored['results']['systems']),
             'warnings': block(warning_lines),
-            'buffer': block(buffer_table), 'memory': block(memory_table),
+            'buffer': block(buffer_table),
             'speed': block(speed_table),
             'forces-again': block(forces_again_lines),
-            'bussi-sampling': block(bussi_sampling_lines, 'bussi'),
-            'bussi-round-trips': block(bussi_round_trips, 'bussi'),
-            'bussi-buffer': block(bussi_buffer_table, 'bussi'),
-            'bussi-speed': block(bussi_speed_table, 'bussi'),
             'bussi': bussi_doc_block},
     plots=(plot,), values=values)

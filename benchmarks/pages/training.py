@@ -2,7 +2,7 @@
 float runs, memory against steps beside plain autograd, time of a
 gradient against the forward run.
 
-Measured by benchmarks/training.py, whose docstring gives the method.
+Measured by benchmarks/studies/training.py, whose docstring gives the method.
 """
 
 from __future__ import annotations

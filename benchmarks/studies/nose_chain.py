@@ -1,12 +1,6 @@
-"""Nosé-Hoover chains of ReversibleNose: stability, sampling, cost.
-
-    python benchmarks/run_all.py --only nose_chain   # ~13 minutes
-
-First, from the tests' round-trip systems (Cu 108, Ar 256) at tdamp 10 to
-100 steps, whether a chain of 3 runs 3,000 steps where the single
-thermostat does; then the sampling of copper and liquid argon with tchain
-1, 2 and 3, a round trip for tchain 3, and the cost per step.  Stored as
-``results['chain']`` of the nose section.
+"""Nosé-Hoover chains of ReversibleNose: stability, sampling, round trip,
+cost (``--only nose_chain``: ~13 minutes; stored as the nose section's
+'chain').
 """
 
 from __future__ import annotations
@@ -41,7 +35,7 @@ CHAIN_LENGTHS = (1, 2, 3)
 FULL = StudyLengths(equilibration=2000, sampled=60_000)
 QUICK = StudyLengths(equilibration=200, sampled=1000)
 SPEED_CONTESTANTS = ('reversible_nose', 'reversible_nose_tchain3',
-                     'ase_nose_hoover_chain', 'velocity_verlet')
+                     'ase_nose_hoover_chain')
 
 
 def liquid_argon(repeat, temperature_K):
@@ -71,9 +65,8 @@ STABILITY_STEPS = 3000
 
 
 class ChainSampler(NoseSampler):
-    """NoseSampler, plus the range of every ``s_j`` and the internal
-    kinetic energy of the momenta half kicked, ``(p' + h F / 2) / s_1``
-    (what the velocity scheme's thermostat reads)."""
+    """NoseSampler with the range of every ``s_j`` and the internal kinetic
+    energy of the half-kicked momenta ``(p' + h F / 2) / s_1``."""
 
     def __init__(self, dyn, steps):
         super().__init__(dyn, steps)
@@ -127,7 +120,6 @@ def chain_case(system, tchain, scheme, lengths):
     edges = histogram_edges(dof, kT)
     displacement = atoms.get_positions() - x0_nc
     thermostat = nose_statistics(sampler, first, system.timestep_fs)
-    del thermostat['s_trace']
     half = copy.copy(sampler)
     half.kinetic = sampler.half_kinetic
     half_stats = canonical_statistics(half, first, dof, kT, edges, h)
@@ -152,10 +144,9 @@ def chain_case(system, tchain, scheme, lengths):
 
 
 def stability_case(system, tchain, tdamp_steps, steps):
-    """From the lattice with momenta at the system's temperature, the
-    thermostat at 0.6 times that (what equipartition leaves, about): does
-    the run last ``steps`` steps, and how far does the extended energy
-    move (kT)?"""
+    """Does a run from the lattice, the thermostat at 0.6 times the
+    momenta's temperature, last ``steps`` steps, and how far does the
+    extended energy move (kT)?"""
     atoms = system.atoms()
     h = system.timestep_fs * units.fs
     temperature_K = 0.6 * atoms.get_temperature()

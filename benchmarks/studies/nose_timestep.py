@@ -1,11 +1,6 @@
-"""Nosé at large time steps: which momenta the thermostat holds at T.
-
-    python benchmarks/run_all.py --only nose_timestep   # ~14 minutes
-
-Au 256 (asap3 EMT), momenta drawn at 600 K, thermostats at 300 K with
-tdamp = 100 steps, at 2, 5, 10 and 20 fs: ReversibleNose's two schemes,
-the velocity scheme with a chain of 3, and ASE's NoseHooverChainNVT.
-Stored as ``results['timestep']`` of the nose section.
+"""Nosé at large time steps: which momenta the thermostat holds at T, for
+ReversibleNose's schemes and ASE's NoseHooverChainNVT (``--only
+nose_timestep``: ~14 minutes; stored as the nose section's 'timestep').
 """
 
 from __future__ import annotations
@@ -49,9 +44,9 @@ def gold_256():
 
 
 class StepSampler:
-    """Observer: the on-step kinetic temperature, that of the momenta half
-    kicked by the step's forces, ``(p' + h F / 2) / s`` (what the velocity
-    scheme's thermostat reads), and the potential energy."""
+    """Observer: the on-step kinetic temperature, that of the half-kicked
+    momenta ``(p' + h F / 2) / s`` (what the velocity scheme's thermostat
+    reads), and the potential energy."""
 
     def __init__(self, dyn, dof):
         self.dyn, self.atoms = dyn, dyn.atoms

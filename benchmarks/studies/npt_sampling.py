@@ -1,14 +1,7 @@
-"""ReversibleIsotropicNPT against ASE's IsotropicMTKNPT: volume,
-compressibility and temperature sampled, and the reversible run taken back
-to its start.
-
-    python benchmarks/run_all.py --only npt_sampling           # hours
-    python benchmarks/run_all.py --quick --only npt_sampling   # < 60 s
-
-Copper (256 atoms, asap3 EMT, 300 K, 0 and 1 GPa) and liquid argon (256
-atoms, Lennard-Jones cut at 3 sigma, 100 K, 50 bar: T* = 0.84 and P* =
-0.12, started on fcc sites at the liquid's density rho* = 0.73), both
-integrators with tdamp = 100 dt and pdamp = 1000 dt from the same atoms.
+"""ReversibleIsotropicNPT against ASE's IsotropicMTKNPT on the cases of
+``systems.NPT_CASES``: volume, compressibility and temperature sampled, and
+the reversible run taken back to its start (``--only npt_sampling``:
+hours, < 60 s with ``--quick``).
 """
 
 from __future__ import annotations
@@ -26,11 +19,10 @@ from ase import units
 from harness import WINDOW_C, block_mean, integrated_time, warning_lines
 from systems import (NPT_AR_CUTOFF, NPT_AR_EPSILON, NPT_AR_REDUCED_DENSITY,
                      NPT_AR_SIGMA, NPT_CASES, NPT_INTEGRATORS, NPT_SEED,
-                     PDAMP_NPT_STEPS, TDAMP_NPT_STEPS, npt_reversible_class)
+                     PDAMP_NPT_STEPS, TDAMP_NPT_STEPS)
 
 #: Blocks of the jackknife: few and long, as the piston's energy, which
-#: sets var(V), decorrelates over thousands of steps (in ASE's runs of Cu
-#: 256 its mean over 5,000-step windows ranged from 30 to 1,500 K).
+#: sets var(V), decorrelates over thousands of steps.
 BLOCKS = 10
 #: The goal judged on the page: mean temperature within this of the target.
 TEMPERATURE_GOAL_PERCENT = 1.0
@@ -43,17 +35,16 @@ class Lengths:
 
 
 FULL = Lengths(equilibration=10_000, total=100_000)
-#: The same atoms, few steps (asap3 needs the argon box wider than twice
-#: the cut-off: 256 atoms are the fewest at this density).
+#: The same atoms (256 argon atoms are the fewest asap3 takes), few steps.
 QUICK = Lengths(equilibration=100, total=600)
 
 
 # -- sampling ----------------------------------------------------------------
 
 class Sampler:
-    """Observer: volume and kinetic temperature after every step, indexed by
-    ``dyn.nsteps`` (0: before the first step); the scaled positions at two
-    steps, for the mean squared displacement."""
+    """Observer: volume, kinetic temperature and potential energy after
+    every step, indexed by ``dyn.nsteps``; the scaled positions at
+    ``marks``, for the mean squared displacement."""
 
     def __init__(self, dyn, steps, marks):
         self.dyn, self.atoms = dyn, dyn.atoms
@@ -94,10 +85,8 @@ def jackknife_compressibility(volume, kT, blocks=BLOCKS):
         leave_one_out[k] = rest.var() / (kT * rest.mean())
     error = math.sqrt((blocks - 1) / blocks
                       * ((leave_one_out - leave_one_out.mean())**2).sum())
-    # var(V) is the mean of (V - <V>)**2, whose correlations outlast V's
-    # own: V oscillates with the piston, (V - <V>)**2 follows the
-    # piston's energy, which changes slowly.  Its autocorrelation time
-    # gives a second error, independent of the blocks.
+    # (V - <V>)**2 follows the piston's slow energy, so its correlations
+    # outlast V's: its autocorrelation time gives a second error.
     square = (v - v.mean())**2
     g = integrated_time(square)
     error_g = kappa * math.sqrt(g * square.var() / len(v)) / square.mean()
@@ -108,7 +97,7 @@ def jackknife_compressibility(volume, kT, blocks=BLOCKS):
             'standard_error_from_g_per_GPa': error_g * units.GPa}
 
 
-def statistics_of(sampler, first, case, n_atoms):
+def statistics_of(sampler, first, case):
     volume = sampler.volume[first:]
     temperature = sampler.temperature[first:]
     if not (np.all(np.isfinite(volume)) and np.all(np.isfinite(temperature))):
@@ -123,7 +112,6 @@ def statistics_of(sampler, first, case, n_atoms):
         'volume_A3': {**v, 'correlation_time_steps': g,
                       'block_length_over_correlation_time':
                           v['block_length'] / g},
-        'volume_per_atom_A3': v['mean'] / n_atoms,
         'compressibility': jackknife_compressibility(volume, kT),
         'temperature_K': {**block_mean(temperature),
                           'correlation_time_steps':
@@ -136,7 +124,7 @@ def statistics_of(sampler, first, case, n_atoms):
 
 
 def exact_state(dyn):
-    """Every exact variable's integers, and the atoms' floats."""
+    """Every exact variable's integers and the atoms' floats."""
     atoms = dyn.atoms
     return {'engine': dyn.engine.snapshot(),
             'positions': atoms.get_positions(),
@@ -155,8 +143,7 @@ def compare(start, end):
 
 
 def buffers(dyn):
-    """The thermostat's information buffers (the side state a step
-    changes), empty where a dynamics keeps none."""
+    """The thermostat's information buffers (none for ASE's)."""
     step = getattr(dyn, 'friction_step', None)
     return list(step.buffers.values()) if step is not None else []
 
@@ -197,7 +184,6 @@ def run_one(case, name, lengths, repeat=None, round_trip=False):
             record['round_trip'] = {
                 'steps_each_way': lengths.total, 'moved': moved,
                 'cell_moved': cell_moved, 'equal': equal,
-                'exact': all(equal.values()),
                 'buffer_bits_at_turn': bits_at_turn,
                 'buffer_bits_after': buffer_bits(dyn),
                 'back_seconds': back}
@@ -206,8 +192,7 @@ def run_one(case, name, lengths, repeat=None, round_trip=False):
 
 
 def compressibility_error(kappa):
-    """The larger of kappa_T's two errors (blocks, autocorrelation), per
-    GPa: the comparison must not rest on the more optimistic one."""
+    """The larger of kappa_T's two errors (blocks, autocorrelation), /GPa."""
     return max(kappa['standard_error_per_GPa'],
                kappa['standard_error_from_g_per_GPa'])
 
@@ -236,11 +221,8 @@ def compared(ours, theirs):
     }
 
 
-def sampling_case(case, lengths, repeat=None, names=None):
-    """Both integrators on one case; the reversible one only where this
-    checkout has it (the record says so otherwise)."""
-    names = names or (('reversible_npt', 'ase_npt') if npt_reversible_class()
-                      else ('ase_npt',))
+def sampling_case(case, lengths, repeat=None, names=tuple(NPT_INTEGRATORS)):
+    """Both integrators on one case."""
     first = lengths.equilibration + 1
     runs, samplers = {}, {}
     for name in names:
@@ -248,19 +230,13 @@ def sampling_case(case, lengths, repeat=None, names=None):
             case, name, lengths, repeat,
             round_trip=case.round_trip and name == 'reversible_npt')
         n_atoms = len(sampler.atoms)
-        record.update(statistics_of(sampler, first, case, n_atoms))
+        record.update(statistics_of(sampler, first, case))
         runs[name], samplers[name] = record, sampler
     result = {**asdict(case), 'n_atoms': n_atoms,
-              'pressure_au': case.pressure_au,
               'calculator': runs[names[-1]]['calculator'],
               'equilibration_steps': lengths.equilibration,
               'total_steps': lengths.total, 'runs': runs}
-    if 'reversible_npt' not in runs:
-        result['reversible_missing'] = (
-            'ase_reversible has no ReversibleIsotropicNPT at this commit')
-    else:
-        result['difference'] = compared(runs['reversible_npt'],
-                                        runs['ase_npt'])
+    result['difference'] = compared(runs['reversible_npt'], runs['ase_npt'])
     line = '  '.join(
         f"{k}: V {r['volume_A3']['mean']:.1f}±"
         f"{r['volume_A3']['standard_error']:.1f} "

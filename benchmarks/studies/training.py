@@ -1,17 +1,8 @@
-"""Training through exact retraces (examples/fit_rdf.py): are the gradients
-right, what memory do they take, what do they cost.
-
-    python benchmarks/run_all.py --only training           # ~25 minutes (loaded)
-    python benchmarks/run_all.py --quick --only training   # ~1 minute
-    python benchmarks/run_all.py --only training_memory    # the memory alone
-
-Gradients: dL/dε and dL/dσ of three losses of an NVE window of liquid argon
-(g(r) through ``loss=``, the velocity autocorrelation through ``loss=``,
-the mean squared displacement through ``grad_positions``) against central
-differences of float runs.  Memory: one fresh process per point
-(``--memory-worker``), the example's epoch against plain PyTorch autograd
-through velocity Verlet.  Time: rounds of one epoch, forward and gradient,
-the atoms checked bit for bit back at the start.
+"""Training through exact retraces (examples/fit_rdf.py): gradients
+against central differences of float runs, memory (one fresh process per
+point, ``--memory-worker``) against plain PyTorch autograd, time of an
+epoch (``--only training``: ~25 minutes, ~1 with ``--quick``;
+``--only training_memory``: the memory alone).
 """
 
 from __future__ import annotations
@@ -56,8 +47,7 @@ def example():
 
 class RssSampler:
     """The largest resident set size seen every ``interval`` seconds while
-    it runs: unlike ``ru_maxrss``, not hidden under a peak the imports
-    left behind."""
+    it runs (``ru_maxrss`` hides it under the imports' peak)."""
 
     def __init__(self, interval=0.01):
         import threading
@@ -83,8 +73,7 @@ class RssSampler:
 # -- gradients ----------------------------------------------------------------
 
 def equilibrated_liquid(fit, steps):
-    """32 argon atoms after ``steps`` NVT steps of the reference LJ, and the
-    reference's g(r) and VACF measured on NVE windows from there."""
+    """32 argon atoms after ``steps`` NVT steps of the reference LJ."""
     from ase_reversible import LennardJones, ReversibleLangevin
     from ase_reversible.core.record import INFO_KEY
     atoms = fit.liquid_argon(2)
@@ -108,8 +97,8 @@ class Window:
         self.target_rdf_b, self.target_vacf_k = target_rdf_b, target_vacf_k
 
     def losses(self, observed):
-        """``{name: (L, per-state dL/dx, dL/dp makers)}`` from the states
-        ``observed`` (a list of (x, p)), ordered by time."""
+        """``({loss name: L}, what the loss callbacks need)`` from the
+        states ``observed``, a list of (x, p) ordered by time."""
         fit = self.fit
         count = len(observed)
         mean_b = sum(self.rdf.values(x) for x, _ in observed) / count
@@ -217,7 +206,6 @@ def measure_gradients(quick):
     window = Window(fit, atoms, steps, target_rdf_b, target_vacf_k)
     epsilon, sigma = fit.EPSILON, STUDENT_SIGMA
     values, grads, exact = window.reversible(epsilon, sigma)
-    float_values = window.floating(epsilon, sigma)
     checks = []
     for rel in FD_STEPS:
         for name, value in (('epsilon', epsilon), ('sigma', sigma)):
@@ -236,9 +224,7 @@ def measure_gradients(quick):
                                'relative_error': abs(fd - ours) / abs(ours)})
     return {'atoms': len(atoms), 'steps': steps, 'every': EVERY,
             'student': {'epsilon': epsilon, 'sigma': sigma, 'rc': FIXED_RC},
-            'loss_values': values, 'loss_values_float_run': float_values,
-            'exact_return': bool(exact), 'gradients': grads,
-            'checks': checks}
+            'exact_return': bool(exact), 'checks': checks}
 
 
 # -- memory --------------------------------------------------------------------
@@ -265,13 +251,10 @@ def memory_worker(kind, steps):
                         pretrain_steps=0)
         calc = LennardJones(epsilon=fit.EPSILON, sigma=STUDENT_SIGMA,
                             rc=MEMORY_RC)
-        loss, _, grads, exact, _ = fit.epoch(
-            atoms, calc, ('epsilon', 'sigma'), rdf, target_b, size, fit.SEED)
-        result.update(exact_return=bool(exact), loss=loss,
-                      gradients={k: float(v) for k, v in grads.items()})
+        fit.epoch(atoms, calc, ('epsilon', 'sigma'), rdf, target_b, size,
+                  fit.SEED)
     elif kind == 'autograd':
-        loss, grads = autograd_epoch(fit, atoms, rdf, target_b, steps)
-        result.update(loss=loss, gradients=grads)
+        autograd_epoch(fit, atoms, rdf, target_b, steps)
     else:
         raise ValueError(kind)
     sampler.__exit__()
@@ -345,10 +328,7 @@ def measure_memory(quick):
                 str(p['steps']): r2 + per_step * (p['steps'] - n2)
                 for p in rev},
             'reversible_largest_over_smallest':
-                rev[-1]['max_rss_bytes'] / rev[0]['max_rss_bytes'],
-            'reversible_growth_bytes': {
-                str(p['steps']): p['rss_peak_bytes'] - p['rss_before_bytes']
-                for p in rev if p.get('rss_peak_bytes') is not None}}
+                rev[-1]['max_rss_bytes'] / rev[0]['max_rss_bytes']}
 
 
 # -- time ----------------------------------------------------------------------
@@ -406,10 +386,8 @@ def measure_time(quick):
         forward, backward = forward[1:], backward[1:]  # the first warms up
         cases.append({
             'student': label, 'atoms': len(atoms), 'steps': steps,
-            'every': fit.FULL.every, 'window': fit.FULL.window,
             'parameters': int(sum(np.size(v) for v in
                                   calc.parameter_values(names).values())),
-            'rounds': rounds,
             'forward_seconds_median': statistics.median(forward),
             'gradient_seconds_median': statistics.median(backward),
             'ratio_median': statistics.median(
