@@ -26,7 +26,7 @@ pytestmark = pytest.mark.filterwarnings(
 OPTIMISATIONS = ['steer_argon', 'keyframe_chain', 'tune_nvt_radius']
 SCENES = ['ring_collapse', 'chaotic_chain']
 USER_SCRIPTS = ['argon_cluster', 'copper_surface', 'argon_nvt']
-TRAINING = ['fit_rdf']
+TRAINING = ['fit_rdf', 'fit_vacf']
 
 
 def load(name):
@@ -94,7 +94,7 @@ def test_user_script_quick_mode(name, tmp_path):
 
 
 @pytest.mark.parametrize('student', ['lj', 'mlp'])
-@pytest.mark.parametrize('name', tiered(TRAINING, quick=[]))
+@pytest.mark.parametrize('name', tiered(['fit_rdf'], quick=[]))
 def test_training_quick_mode(name, student, tmp_path):
     pytest.importorskip('torch', reason='the example computes g(r) in torch')
     result = load(name).main(out_dir=tmp_path, quick=True, student=student,
@@ -110,7 +110,7 @@ def test_training_quick_mode(name, student, tmp_path):
     assert result['sigma_final'] < result['sigma_initial']
 
 
-@pytest.mark.parametrize('name', tiered(TRAINING, quick=[]))
+@pytest.mark.parametrize('name', tiered(['fit_vacf'], quick=[]))
 def test_training_vacf_quick_mode(name, tmp_path):
     pytest.importorskip('torch', reason='the example imports torch')
     result = load(name).fit_vacf(out_dir=tmp_path, quick=True,
