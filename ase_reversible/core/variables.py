@@ -81,12 +81,20 @@ class ExactVariable:
         self._bounds = [_max_abs(counts, self._scratch), 0.0, 0.0]
         self._labels = [next(_labels), None, None]
         self._current = self._checkpoint = 0
+        self._spare = 1  # the buffer the next update from a checkpoint uses
         self.label = self._labels[0]
 
     @property
     def ints(self) -> np.ndarray:
         """The current counts as a new int64 array."""
         return self._counts[self._current].astype(np.int64)
+
+    @property
+    def counts(self) -> np.ndarray:
+        """The current counts, float64 whole numbers (not to be modified):
+        ``counts * (quantum * f)`` is bitwise ``floats * f`` (the quantum
+        is a power of two), without the pass that makes the image."""
+        return self._counts[self._current]
 
     @property
     def floats(self) -> np.ndarray:
@@ -135,14 +143,23 @@ class ExactVariable:
                 check_range(r, self.name + ' increment', self.quantum,
                             _STEP_ADVICE)
         current = self._current
-        spare = 3 - current - self._checkpoint if \
-            current != self._checkpoint else (current + 1) % 3
+        bound = self._bounds[current] + r_max
+        if current != self._checkpoint and bound < LIMIT:
+            # Nothing needs the current value back (a rollback returns to
+            # the checkpoint) and the sum cannot leave the range: added in
+            # place, so a step touches two buffers, not three.
+            spare = current
+        elif current != self._checkpoint:
+            spare = 3 - current - self._checkpoint
+        else:
+            spare = self._spare if self._spare != current else \
+                (current + 1) % 3
+            self._spare = current
         new = self._counts[spare]
         np.add(self._counts[current], r, out=new)
         # Whole numbers below 2**53 add exactly; a sum at or beyond it may
         # round, but never back below LIMIT (rounding is monotonic and
         # LIMIT a float), so the bound and the check below still see it.
-        bound = self._bounds[current] + r_max
         if not bound < LIMIT:
             bound = _max_abs(new, self._scratch)
             if not bound < LIMIT:

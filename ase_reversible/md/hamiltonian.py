@@ -65,8 +65,11 @@ class Hamiltonian:
     def set_dynamics(self, masses_n, project, purity):
         """New masses, constraints or force provider (re-prepare the plan)."""
         self.m_n1 = masses_n[:, None]
-        # Flat, for the kinetic energy: p / sqrt(m) squared and summed.
-        self._root_inverse_mass_k = np.repeat(1.0 / np.sqrt(masses_n), 3)
+        # Flat, for the kinetic energy: p / sqrt(m) squared and summed,
+        # from the counts with the power-of-two quantum folded in (bitwise
+        # the image's products, without the pass that makes the image).
+        self._root_inverse_mass_k = np.repeat(1.0 / np.sqrt(masses_n),
+                                              3) * self.p.quantum
         self._v_k = np.empty(3 * len(masses_n))
         self.project = project
         #: The FixCom balance of the rounded increments, or None.
@@ -118,7 +121,7 @@ class Hamiltonian:
     def momentum_square(self):
         """``sum p^2 / m`` (eV) of the momentum counts' exact image, in
         the same bits on every CPU (Nosé's thermostat is kicked by it)."""
-        v_k = np.multiply(self.p.floats.reshape(-1),
+        v_k = np.multiply(self.p.counts.reshape(-1),
                           self._root_inverse_mass_k, out=self._v_k)
         np.multiply(v_k, v_k, out=v_k)
         return float(np.sum(v_k))
@@ -165,10 +168,11 @@ class Drift(SubStep):
         self._moved = None  # (position labels before, after) the last drift
 
     def prepare(self, ch):
-        # Applied to the momenta's exact float image p = ip * qp.  Spread
-        # over the three columns: numpy multiplies arrays of one shape
-        # several times faster than it broadcasts a column (bitwise the
-        # same products).
+        # Applied to the momentum counts ip with the quantum folded in:
+        # ip * (qp * f) is bitwise (ip * qp) * f, qp being a power of two,
+        # and needs no pass to make the image ip * qp.  Spread over the
+        # three columns: numpy multiplies arrays of one shape several times
+        # faster than it broadcasts a column (bitwise the same products).
         s = self.system
         factor_n1 = ch / s.x.quantum / s.m_n1
         # max |y| is bounded by the momenta's bound times this, instead of
@@ -176,7 +180,8 @@ class Drift(SubStep):
         # lengthens no vector, so no component exceeds sqrt(3) times the
         # largest before it; the factor 2 covers that and the rounding of
         # the products, the 1 added in apply the rounding of y.
-        return (ch, np.repeat(factor_n1, self._y_nc.shape[1], axis=1),
+        return (ch, np.repeat(factor_n1 * s.p.quantum, self._y_nc.shape[1],
+                              axis=1),
                 2.0 * s.p.quantum * float(np.abs(factor_n1).max(initial=0.0)))
 
     def apply(self, prepared):
@@ -191,7 +196,7 @@ class Drift(SubStep):
         y_nc = self._y_nc
         if self._y_key != key:
             self._y_key = None  # y_nc is about to be overwritten
-            np.multiply(s.p.floats, factor_nc, out=y_nc)
+            np.multiply(s.p.counts, factor_nc, out=y_nc)
             if scale is not None:
                 y_nc *= scale
                 growth *= abs(scale)
