@@ -9,6 +9,7 @@ import warnings
 
 import numpy as np
 
+from ..core.codec import round_odd
 from ..core.quanta import MIN_MOMENTUM_BITS
 from ..purity.settings import guarded_momentum_quantum
 
@@ -71,7 +72,7 @@ class ExactGrid:
     def _snap_box(self):
         q = self.position_quantum
         lo, hi = self._box()
-        snapped_lo, snapped_hi = on_grid(lo, q), on_grid(hi, q)
+        snapped_lo, snapped_hi = snapped(lo, q), snapped(hi, q)
         if self.dimension == 2:  # z is 0 for every atom, and LAMMPS
             snapped_lo[2], snapped_hi[2] = lo[2], hi[2]  # keeps it so
         if np.array_equal(lo, snapped_lo) and np.array_equal(hi, snapped_hi):
@@ -89,13 +90,13 @@ class ExactGrid:
         nlocal = self.lmp.extract_setting('nlocal')
         moved = []
         q = self.position_quantum
-        for name, snap in (('x', lambda a: on_grid(a, q)),
+        for name, snap in (('x', lambda a: snapped(a, q)),
                            ('v', self._snapped_velocities)):
             a = self.lmp.numpy.extract_atom(name)[:nlocal]
-            snapped = snap(a)
-            off = np.any(snapped != a, axis=1)
-            change = float(np.abs(snapped - a).max(initial=0.0))
-            a[:] = snapped
+            on_grid = snap(a)
+            off = np.any(on_grid != a, axis=1)
+            change = float(np.abs(on_grid - a).max(initial=0.0))
+            a[:] = on_grid
             moved += [off.sum(), change]
         counts = self.world.sum(moved[0], moved[2])
         changes = self.world.max(moved[1], moved[3])
@@ -107,7 +108,7 @@ class ExactGrid:
 
     def _snapped_velocities(self, v):
         """Velocities ``v`` as the nearest the exact state can show."""
-        return on_grid(v, self.velocity_quantum)
+        return snapped(v, self.velocity_quantum)
 
     def _box(self):
         lo, hi, *_ = self.lmp.extract_box()
@@ -185,10 +186,10 @@ class ExactGrid:
         return power_above(wanted)
 
 
-def on_grid(values, quantum):
+def snapped(values, quantum):
     """``values`` moved to the nearest multiples of ``quantum`` (a power of
-    two: exact)."""
-    return np.rint(values / quantum) * quantum
+    two: exact), by the engine's one rounding rule."""
+    return round_odd(values / quantum) * quantum
 
 
 def power_above(value):

@@ -45,7 +45,7 @@ from ..errors import ImpureForcesError
 from ..purity.settings import extent_factor
 from .anchor import Anchor
 from .fixes import StepFixes, StepPath
-from .grid import ExactGrid, on_grid, power_above
+from .grid import ExactGrid, power_above, snapped
 from .mpi import World
 from .python_step import AMBIGUOUS, NOT_CANONICAL, PythonStep
 from .styles import check_styles, check_units, lammps_info
@@ -404,7 +404,7 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
         self._snap_atoms()
         if self._anchor_off_grid:
             anchor = self._anchor_views()[0]
-            anchor[:, :3] = on_grid(anchor[:, :3], self.position_quantum)
+            anchor[:, :3] = snapped(anchor[:, :3], self.position_quantum)
             anchor[:, 3:] = self._snapped_velocities(anchor[:, 3:])
             self._anchor_off_grid = False
         # Lists built at every step they may be needed, never incomplete:

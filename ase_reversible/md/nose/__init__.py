@@ -10,6 +10,5 @@ masses, the quanta, the degrees of freedom), :mod:`.system` the extended
 Hamiltonian and its sub-steps, :mod:`.dynamics` the integrator.
 """
 
-from .dynamics import ReversibleNose
-
-__all__ = ['ReversibleNose']
+# No __all__: the API pages document each object once, in its own module.
+from .dynamics import ReversibleNose  # noqa: F401

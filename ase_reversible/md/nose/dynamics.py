@@ -1,5 +1,5 @@
-"""ReversibleNose, the integrator: Nosé's thermostat (:mod:`.system`) run
-back exactly with no buffer."""
+"""ReversibleNose, the integrator: Nosé's thermostat
+(:mod:`~ase_reversible.md.nose.system`) run back exactly with no buffer."""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """ReversibleIsotropicNPT: the integrator (arguments, restarts, the change
-contract, gradients' mapping); the dynamics is in :mod:`.system` and
-:mod:`.friction`, the derivation in :mod:`ase_reversible.md.npt`."""
+contract, gradients' mapping); the dynamics is in
+:mod:`~ase_reversible.md.npt.system` and :mod:`.friction`, the derivation
+in :mod:`ase_reversible.md.npt`."""
 
 from __future__ import annotations
 

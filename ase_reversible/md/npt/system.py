@@ -10,7 +10,8 @@ import numpy as np
 from ase import units
 
 from ...adjoint.hessian import DEFAULT_FD_STEP
-from ...core.codec import encode, power_of_two_below, round_odd
+from ...core.codec import (encode, guard_band_crossed, power_of_two_below,
+                           round_odd)
 from ...core.plans import SubStep
 from ...core.portable import dot
 from ...core.variables import ExactVariable
@@ -406,12 +407,13 @@ class VirialKick(PistonPush):
             self._key = None
             kick = s.kick
             y_k = scale * self.push(clean=False)
+            r_k = round_odd(y_k)
             if s.purity.mode == 'guarded' and not kick.stress_is_clean():
                 bound = abs(scale) * virial_noise(
                     s.atoms, s.purity, kick.forces(), s.lam_value())
-                if np.abs(y_k - round_odd(y_k)).max() > 0.5 - bound:
-                    y_k = scale * self.push(clean=True)
-            self._r = round_odd(y_k)
+                if guard_band_crossed(y_k, r_k, bound):  # y_k: scratch
+                    r_k = round_odd(scale * self.push(clean=True))
+            self._r = r_k
             self._key = key
         s.p_lam.add_integers(self._r, float(np.abs(self._r).max()))
 
