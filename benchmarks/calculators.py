@@ -282,11 +282,9 @@ def step_cost(row, timestep, mode, settings):
     for c in contestants:
         c.runner.run(settings.warmup_steps)
     steps = choose_steps(contestants[0].runner.run, settings)
-    load_before = os.getloadavg()[0]
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
     median = medians(wall)
     return {'steps_per_block': steps, 'rounds': settings.rounds,
-            'load_average': [load_before, os.getloadavg()[0]],
             'repeated_call_in_force_calls': repeated_call_cost(
                 contestants[0].runner.atoms, 2 * settings.rounds + 1),
             'per_step_seconds': wall, 'per_step_cpu_seconds': cpu,

@@ -1,9 +1,9 @@
-"""What the portable arithmetic costs: the package's force calls and the
-kinetic energy with the kernels before and after, in one process.
+"""What the portable arithmetic costs: the package's force calls with the
+kernels before and after, in one process.
 
 The old kernels (numpy powers such as ``(sigma / r)**6``, ``einsum`` row
 sums) are swapped into the package's modules while an old calculator
-computes; ``momentum_square`` was a BLAS dot and is an ``np.sum``.
+computes.
 """
 
 from __future__ import annotations
@@ -154,29 +154,11 @@ def force_caller(atoms, calc):
     return call
 
 
-def momentum_square_callers(n_atoms):
-    """The old BLAS dot and the new ``np.sum`` of ``(p / sqrt m)**2``."""
-    rng = np.random.default_rng(0)
-    p_k = rng.normal(size=3 * n_atoms)
-    root_k = np.repeat(1.0 / np.sqrt(rng.uniform(1, 40, n_atoms)), 3)
-    v_k = np.empty_like(p_k)
-
-    def old():
-        np.multiply(p_k, root_k, out=v_k)
-        return float(np.dot(v_k, v_k))
-
-    def new():
-        np.multiply(p_k, root_k, out=v_k)
-        np.multiply(v_k, v_k, out=v_k)
-        return float(np.sum(v_k))
-    return {'old': old, 'new': new}
-
-
 def run(quick) -> dict:
     settings = QUICK if quick else FULL
     rounds, block = settings['rounds'], settings['block_seconds']
     load_before = os.getloadavg()[0]
-    forces, kinetic = [], []
+    forces = []
     for name, build, old, new in cases(settings):
         atoms = build()
         times = interleaved({'old': force_caller(atoms, old()),
@@ -188,10 +170,5 @@ def run(quick) -> dict:
         print(f"  {name} {len(atoms)} atoms: force call "
               f"{times['old'] * 1e3:.3f} -> {times['new'] * 1e3:.3f} ms",
               flush=True)
-    for n_atoms in (55, 1000, 10000):
-        times = interleaved(momentum_square_callers(n_atoms), rounds, block)
-        kinetic.append({'n_atoms': n_atoms, 'old_seconds': times['old'],
-                        'new_seconds': times['new']})
     return {'settings': settings, 'forces': forces,
-            'momentum_square': kinetic,
             'load_average': [load_before, os.getloadavg()[0]]}

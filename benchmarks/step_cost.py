@@ -293,25 +293,6 @@ def time_watch(dyn, steps, calls=WATCH_CALLS, blocks=WATCH_BLOCKS):
     return statistics.median(timed.seconds), statistics.median(per_call)
 
 
-def time_energy_check(dyn, steps):
-    """The energy check's cost (``InvariantCheck.check``, measurements
-    included) per step of a run of ``steps`` steps, its median call, and
-    the measurements made."""
-    engine = dyn.engine
-    invariant = engine.invariant
-    measured = invariant.measurements
-    engine.invariant = timed = Timed(invariant, 'check')
-    try:
-        dyn.run(steps)
-    finally:
-        engine.invariant = invariant
-    return {'energy_check_seconds_per_step': sum(timed.seconds) / steps,
-            'energy_check_median_call_seconds':
-                statistics.median(timed.seconds),
-            'energy_check_measurements': invariant.measurements - measured,
-            'energy_check_steps': steps}
-
-
 def benchmark(calc, repeat, names, settings, with_logger=False):
     """Time one case; returns a JSON-ready dict of raw and median results."""
     template = calc.build(repeat)
@@ -341,9 +322,7 @@ def benchmark(calc, repeat, names, settings, with_logger=False):
         by_name['force'].runner.atoms, min(steps, 20))
     in_step, in_loop = (time_watch(by_name['rv_observed'].runner, steps)
                         if 'rv_unwatched' in by_name else (None, None))
-    check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
-        **check,
         'calculator': calc.label, 'system': calc.system,
         'n_atoms': len(template), 'with_logger': with_logger,
         'steps_per_block': steps, 'rounds': settings.rounds,
@@ -381,9 +360,7 @@ def overhead(n_atoms, system, settings):
     steps = choose_steps(by_name['vv'].runner.run, settings)
     wall, cpu = time_interleaved(contestants, steps, settings.rounds)
     med = medians(wall)
-    check = time_energy_check(by_name['rv_velocity'].runner, steps)
     result = {
-        **check,
         'system': system, 'n_atoms': n_atoms,
         'steps_per_block': steps, 'rounds': settings.rounds,
         **per_step(wall, cpu),

@@ -1,7 +1,6 @@
 """Numerical stability: time steps past the stability limit, evaporating
-clusters, close contacts, diffusion over many cells, asap3 with atoms far
-apart (the scenes: docs/benchmarks.md).  Energies against the initial
-kinetic energy K0."""
+clusters, close contacts, diffusion over many cells (the scenes:
+docs/benchmarks.md).  Energies against the initial kinetic energy K0."""
 
 from __future__ import annotations
 
@@ -9,9 +8,6 @@ import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
 import inspect
 import json
-import resource
-import subprocess
-import sys
 import time
 import warnings
 
@@ -19,7 +15,6 @@ import numpy as np
 from ase import units
 from ase.cluster import Icosahedron
 from ase.md.verlet import VelocityVerlet
-from harness import max_rss_bytes
 from systems import (CALCULATORS, CU_BOND, argon_fluid, copper_bulk_contact,
                      pair)
 
@@ -34,10 +29,6 @@ from ase_reversible.app.systems import (AR_RC, AR_SIGMA, argon_cluster,
 
 #: Time step of every scene but the sweep, fs.
 DT_FS = 5
-
-#: Memory limit of the subprocess of scene (e): more than asap3 needs for
-#: atoms 1000 Å apart, small enough to be harmless on a shared machine.
-SUBPROCESS_MEMORY = 3 * 2**30
 
 
 # -- running ------------------------------------------------------------------
@@ -285,61 +276,6 @@ def diffusion(quick):
             in diffusion_cases(quick)]
 
 
-# -- (e) asap3 with atoms far apart -----------------------------------------
-
-def far_apart_worker(calculator, distance):
-    """One force call on Ar13 with atoms 1 and 2 moved by +-distance along
-    (1, 1, 1), in a process of its own limited to SUBPROCESS_MEMORY of
-    address space; prints the seconds and the peak RSS (MB)."""
-    resource.setrlimit(resource.RLIMIT_AS, (SUBPROCESS_MEMORY,) * 2)
-    atoms = far_apart_cluster(0.0)
-    atoms.calc = CALCULATORS[calculator]()
-    atoms.get_forces()
-    atoms.positions = far_apart_cluster(distance).positions
-    tic = time.perf_counter()
-    atoms.get_forces()
-    print(time.perf_counter() - tic, max_rss_bytes() / 2**20)
-
-
-def far_apart_cluster(distance):
-    atoms = argon_cluster(2, 40)
-    atoms.positions[1] += distance
-    atoms.positions[2] -= distance
-    return atoms
-
-
-def far_apart(quick):
-    """Two atoms of Ar13 moved by +-d along (1, 1, 1): one force call."""
-    atoms = argon_cluster(2, 40)
-    atoms.calc = CALCULATORS['ASE LJ']()
-    dyn = ReversibleVerlet(atoms, DT_FS * units.fs)
-    default_range = dyn.grid.position_range
-    cases = [('asap3 LJ', d) for d in ((100, 3000) if quick
-                                       else (100, 300, 1000, 2000, 3000))]
-    cases.append(('ASE LJ', 3000))
-    rows = []
-    for calc, distance in cases:
-        # A failed allocation in asap3 aborts the process: hence one of its
-        # own, and its exit code is the result.
-        done = subprocess.run(
-            [sys.executable, __file__, '--far-apart-worker', calc,
-             str(distance)], capture_output=True, text=True, timeout=300)
-        x_nc = far_apart_cluster(distance).positions
-        row = {'calculator': calc, 'distance': distance,
-               'spread': float(np.linalg.norm(x_nc[1] - x_nc[2])),
-               'x_max': float(np.abs(x_nc).max()),
-               'returncode': done.returncode}
-        if done.returncode == 0:
-            seconds, rss = map(float, done.stdout.split())
-            row |= {'seconds': seconds, 'max_rss_mb': rss}
-        else:
-            row['stderr'] = [line.strip() for line in
-                             done.stderr.strip().splitlines()[-1:]]
-        rows.append(row)
-    return {'default_position_range': default_range,
-            'memory_limit_gib': SUBPROCESS_MEMORY / 2**30, 'rows': rows}
-
-
 # -- section interface ------------------------------------------------------
 
 def _plain(value):
@@ -369,10 +305,6 @@ def run(quick):
             'energy_tolerance_temperature':
                 hamiltonian.ENERGY_TOLERANCE_TEMPERATURE},
         'sweeps': sweeps, 'evaporation': evaporation(quick),
-        'contacts': contacts(quick), 'diffusion': diffusion(quick),
-        'far_apart': far_apart(quick)}
+        'contacts': contacts(quick), 'diffusion': diffusion(quick)}
     return json.loads(json.dumps(_plain(results)))
 
-
-if __name__ == '__main__' and sys.argv[1:2] == ['--far-apart-worker']:
-    far_apart_worker(sys.argv[2], float(sys.argv[3]))

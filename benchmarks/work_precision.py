@@ -1,5 +1,5 @@
-"""Work against precision: run time to reach a given energy error, and
-convergence to 1e-11 under 'auto' (the method: docs/benchmarks.md)."""
+"""Work against precision: run time to reach a given energy error (the
+method: docs/benchmarks.md)."""
 
 from __future__ import annotations
 
@@ -16,9 +16,7 @@ import numpy as np
 import systems as bench_systems
 from systems import ResultCache
 from ase import units
-from ase.build import bulk
 from ase.md.verlet import VelocityVerlet
-from ase.neighborlist import neighbor_list
 from scipy.spatial.distance import pdist
 
 from ase_reversible import ReversibleVerlet, purity
@@ -113,8 +111,6 @@ class Settings:
     #: and calculator), up to `repeats` runs, and timed by the median.
     min_timed_seconds: float
     repeats: int
-    #: Length of the runs of the sampling check.
-    check_seconds: float
 
 
 def _ladder(quick, top=4096):
@@ -129,9 +125,9 @@ def _ladder(quick, top=4096):
 
 
 QUICK = Settings(_ladder(True), max_run_seconds=2.0, min_timed_seconds=0.1,
-                 repeats=3, check_seconds=0.2)
+                 repeats=3)
 FULL = Settings(_ladder(False), max_run_seconds=40.0, min_timed_seconds=0.3,
-                repeats=5, check_seconds=1.5)
+                repeats=5)
 
 
 # -- one run ---------------------------------------------------------------
@@ -166,15 +162,14 @@ def make_dynamics(method, atoms, dt):
                             force_noise=auto_force_noise(atoms))
 
 
-def measure(system, template, method, k, observe=True, samples=None):
+def measure(system, template, method, k):
     """Run ``method`` with ``k`` steps per sampling interval; the sampling
     observer's own time is subtracted (a 'position' sample costs a force
     call an unobserved run would not make)."""
     atoms = template.copy()
     atoms.calc = system.calc()
     dt_fs = system.interval_fs / k
-    if samples is None:
-        samples = round(system.simulated_fs / system.interval_fs)
+    samples = round(system.simulated_fs / system.interval_fs)
     n_steps = k * samples
     dyn = make_dynamics(method, atoms, dt_fs * units.fs)
     energies = []
@@ -189,8 +184,7 @@ def measure(system, template, method, k, observe=True, samples=None):
         spent[0] += time.perf_counter() - w
         spent[1] += time.process_time() - c
 
-    if observe:
-        dyn.attach(sample, interval=k)
+    dyn.attach(sample, interval=k)
     w, c = time.perf_counter(), time.process_time()
     failure = None
     try:
@@ -201,8 +195,6 @@ def measure(system, template, method, k, observe=True, samples=None):
     cpu = time.process_time() - c - spent[1]
     point = {'k': k, 'dt_fs': dt_fs, 'steps': n_steps, 'wall_s': wall,
              'cpu_s': cpu, 'sampling_wall_s': spent[0]}
-    if not observe:
-        return point
     point['widest_distance'] = widest[0] if system.free else None
     e = np.array(energies)
     if failure is None and len(e) == samples + 1 and np.isfinite(e).all():
@@ -302,173 +294,6 @@ def summarise(sweeps):
     return rows
 
 
-# -- checks ------------------------------------------------------------------
-
-def sampling_check(system, template, settings):
-    """Subtracted sampling time against runs with no observer, where
-    sampling is dearest: 'position' order 4, sampled every step, runs of
-    about ``check_seconds``."""
-    method = Method('position 4', 'position', 4)
-    probe = measure(system, template, method, 1, samples=4)
-    per_sample = max(probe['wall_s'] + probe['sampling_wall_s'], 1e-6) / 4
-    samples = max(4, round(settings.check_seconds / per_sample))
-    observed, unobserved = [], []
-    for _ in range(3):  # interleaved, so drifts of the load hit both alike
-        observed.append(measure(system, template, method, 1,
-                                samples=samples))
-        unobserved.append(measure(system, template, method, 1,
-                                  samples=samples, observe=False))
-    median = statistics.median
-    return {'method': method.label, 'dt_fs': system.interval_fs,
-            'steps': samples, 'repeats': len(observed),
-            'sampling_wall_s': median(q['sampling_wall_s']
-                                      for q in observed),
-            'subtracted_wall_s': median(q['wall_s'] for q in observed),
-            'unobserved_wall_s': median(q['wall_s'] for q in unobserved),
-            'subtracted_cpu_s': median(q['cpu_s'] for q in observed),
-            'unobserved_cpu_s': median(q['cpu_s'] for q in unobserved)}
-
-
-# -- convergence down to 1e-11 under 'auto' ---------------------------------
-
-#: The relative energy error the convergence sweeps must reach.
-CONVERGENCE_TARGET = 1e-11
-CONVERGENCE_ORDERS = (4, 6)
-#: Argon fcc at the Lennard-Jones minimum (nearest neighbours at
-#: 2**(1/6) sigma = 3.82 Å) and a cutoff halfway between its 2nd (5.40 Å)
-#: and 3rd (6.61 Å) neighbour shells, the widest gap after the first:
-#: cold enough that no pair comes near it (the closest approach is
-#: recorded), so the energy is smooth and only the integrator and the
-#: quantum limit the error.
-AR_CRYSTAL_LATTICE = 2 ** (1 / 6) * app_systems.AR_SIGMA * 2 ** 0.5
-AR_CRYSTAL_CUTOFF = 6.0
-AR_CRYSTAL_TEMPERATURE_K = 10.0
-
-
-def argon_crystal(repeat):
-    atoms = bulk('Ar', 'fcc', a=AR_CRYSTAL_LATTICE, cubic=True) * repeat
-    return app_systems.thermalize(atoms, AR_CRYSTAL_TEMPERATURE_K)
-
-
-@dataclass(frozen=True)
-class ConvergenceSystem:
-    key: str
-    label: str
-    build: Callable[[], object]
-    calc: Callable[[], object]
-    cutoff: float
-    temperature_K: float
-    interval_fs: float
-    simulated_fs: float
-    start_dt_fs: float
-
-
-def convergence_systems(quick):
-    shells, repeat, simulated = ((3, (3, 3, 3), 256.0) if quick
-                                 else (4, (4, 4, 4), 1024.0))
-    return [
-        ConvergenceSystem(
-            'argon_cluster', 'free Ar cluster', argon_cluster(shells),
-            raw_argon_lj, AR_CUTOFF, AR_TEMPERATURE_K, interval_fs=32.0,
-            simulated_fs=simulated, start_dt_fs=32.0),
-        ConvergenceSystem(
-            'argon_crystal', 'periodic Ar crystal',
-            functools.partial(argon_crystal, repeat),
-            bench_systems.asap3_argon_lj(AR_CRYSTAL_CUTOFF),
-            AR_CRYSTAL_CUTOFF, AR_CRYSTAL_TEMPERATURE_K, interval_fs=16.0,
-            simulated_fs=simulated, start_dt_fs=16.0),
-    ]
-
-
-def converge_once(system, template, order, scheme, dt_fs, **kwargs):
-    """One run under force_purity='auto' (the bare asap3 potential):
-    max relative energy error over the samples, and the closest any pair
-    came to the cutoff in them (Å, periodic images included)."""
-    atoms = template.copy()
-    atoms.calc = system.calc()
-    dyn = ReversibleVerlet(atoms, dt_fs * units.fs, order=order,
-                           scheme=scheme, energy_check=0, **kwargs)
-    e0 = atoms.get_total_energy()
-    errors, closest, spent = [], [math.inf], [0.0]
-
-    def sample():
-        t = time.perf_counter()
-        errors.append(abs(atoms.get_total_energy() - e0) / abs(e0))
-        d = neighbor_list('d', atoms, system.cutoff + 1.0)
-        closest[0] = min(closest[0],
-                         float(np.abs(d - system.cutoff).min(initial=1.0)))
-        spent[0] += time.perf_counter() - t
-
-    dyn.attach(sample, interval=round(system.interval_fs / dt_fs))
-    t0 = time.perf_counter()
-    dyn.run(round(system.simulated_fs / dt_fs))
-    return {'dt_fs': dt_fs, 'max_error': max(errors),
-            'momentum_quantum': dyn.grid.momentum_quantum,
-            'position_quantum': dyn.grid.position_quantum,
-            'mode': dyn.force_purity.mode,
-            'force_noise': dyn.force_purity.force_noise,
-            'clean_recomputations': getattr(dyn.force_purity,
-                                            'clean_recomputations', 0),
-            'closest_to_cutoff': closest[0],
-            'wall_s': time.perf_counter() - t0 - spent[0]}
-
-
-def converge(system, template, order, scheme, max_run_seconds):
-    """Halve the step from ``start_dt_fs`` until the error is below half
-    the target, stops falling (less than 2x over a halving, twice), or the
-    next run would take too long; then rerun the finest point with the
-    momentum quantum 2**-10 times finer, and with the position quantum
-    2**-8 times finer too, to tell which grid, if any, sets a floor."""
-    points, stop, dt = [], 'budget', system.start_dt_fs
-    while True:
-        point = converge_once(system, template, order, scheme, dt)
-        points.append(point)
-        if point['max_error'] <= CONVERGENCE_TARGET / 2:
-            stop = 'below target'
-            break
-        recent = [p['max_error'] for p in points[-3:]]
-        if len(recent) == 3 and max(recent[0] / recent[1],
-                                    recent[1] / recent[2]) < 2:
-            stop = 'floor'
-            break
-        if 2 * point['wall_s'] > max_run_seconds:
-            break
-        dt /= 2
-    last = points[-1]
-    fine = converge_once(system, template, order, scheme, last['dt_fs'],
-                         momentum_quantum=last['momentum_quantum'] * 2**-10)
-    both = converge_once(system, template, order, scheme, last['dt_fs'],
-                         momentum_quantum=last['momentum_quantum'] * 2**-10,
-                         position_quantum=last['position_quantum'] * 2**-8)
-    orders = [math.log2(a['max_error'] / b['max_error'])
-              for a, b in zip(points, points[1:])]
-    return {'order': order, 'scheme': scheme, 'stop': stop,
-            'points': points, 'observed_orders': orders, 'fine': fine,
-            'fine_both': both}
-
-
-def convergence(quick, settings):
-    out = {'target': CONVERGENCE_TARGET, 'systems': []}
-    for system in convergence_systems(quick):
-        template = system.build()
-        runs = []
-        for order in CONVERGENCE_ORDERS:
-            for scheme in ('velocity', 'position'):
-                print(f'  convergence {system.key}: {scheme} {order}',
-                      flush=True)
-                runs.append(converge(system, template, order, scheme,
-                                     settings.max_run_seconds))
-        out['systems'].append({
-            'key': system.key, 'label': system.label,
-            'atoms': len(template),
-            'formula': template.get_chemical_formula(),
-            'pbc': bool(template.pbc.any()), 'cutoff': system.cutoff,
-            'temperature_K': system.temperature_K,
-            'interval_fs': system.interval_fs,
-            'simulated_fs': system.simulated_fs, 'runs': runs})
-    return out
-
-
 # -- section API -------------------------------------------------------------
 
 def run(quick):
@@ -500,12 +325,10 @@ def run(quick):
             'simulated_fs': system.simulated_fs,
             'initial_energy_eV': e0,
             'sweeps': sweeps, 'summary': summarise(sweeps),
-            'sampling_check': sampling_check(system, template, settings),
         }
         if system.free:
             result['cutoff'] = AR_CUTOFF
             result['widest_distance'] = max(
                 p['widest_distance'] for s in sweeps for p in s['points'])
         out['systems'].append(result)
-    out['convergence'] = convergence(quick, settings)
     return out

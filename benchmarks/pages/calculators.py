@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import re
 
-from . import Spec, block, markdown_table
+from . import Spec, markdown_table
 
 #: Above this many force calls, a repeated get_forces() is a recomputation
 #: rather than a cache hit (these differ a hundredfold).
@@ -99,18 +99,8 @@ def row_cells(r):
             notes(r))
 
 
-def load_line(results):
-    loads = [x for r in results['rows'] if 'cost' in r
-             for x in r['cost'].get('load_average', ())]
-    if not loads:
-        return 'No timings in this run.'
-    return (f'The 1-minute load average of the machine was {min(loads):.1f} '
-            f'to {max(loads):.1f} around the timings.')
-
-
 SPEC = Spec('Calculators', blocks={
     'table': lambda stored: markdown_table(
         ('calculator', 'system', "force_purity='auto'", 'exact',
          'momentum quantum', 'per step / VelocityVerlet', 'notes'),
-        [row_cells(r) for r in stored['results']['rows']]),
-    'load': block(load_line)})
+        [row_cells(r) for r in stored['results']['rows']])})

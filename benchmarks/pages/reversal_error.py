@@ -7,15 +7,9 @@ import numpy as np
 from . import Spec, block, figure, markdown_table
 
 ERROR_PLOT = 'reversal_error.png'
-ENERGY_PLOT = 'reversal_energy.png'
 
 
 def plot(results, figures):
-    _plot_errors(results, figures)
-    _plot_energy(results, figures)
-
-
-def _plot_errors(results, figures):
     with figure(figures / ERROR_PLOT, 2, (10, 4)) as (plt, fig, axes):
         vv = results['velocity_verlet']['points']
         ours = results['reversible']['checkpoints']
@@ -53,45 +47,8 @@ def _plot_errors(results, figures):
                      'round trip')
 
 
-def _plot_energy(results, figures):
-    with figure(figures / ENERGY_PLOT, 1, (7, 3.4)) as (plt, fig, ax):
-        for key, label, color in (('velocity_verlet', 'VelocityVerlet', 'C3'),
-                                  ('reversible', 'ReversibleVerlet', 'C0')):
-            run = results[key]
-            e = np.asarray(run['energies'])
-            t_ns = (np.asarray(run['energy_steps'])
-                    * results['system']['timestep_fs'] * 1e-6)
-            ax.plot(t_ns, (e - e[0]) / abs(e[0]), lw=0.8, color=color,
-                    label=label)
-        ax.axhline(0, color='grey', lw=0.5)
-        ax.set_xlabel('time (ns)')
-        ax.set_ylabel('(E - E0) / |E0|')
-        ax.legend(loc='best')
-        ax.set_title(f"{results['final_steps']:,} steps forward, total energy "
-                     f"every {results['energy_every']} steps")
-
-
 def _g(x):
     return f'{x:.2g}' if x else '0'
-
-
-def markdown_energy(en) -> str:
-    rows = []
-    for key, label in (('reversible', 'ReversibleVerlet'),
-                       ('velocity_verlet', 'VelocityVerlet')):
-        e = en[key]
-        rows.append([label, _g(e['max_relative_deviation']),
-                     f"{e['mean_last_tenth'] - e['mean_first_tenth']:.2g}",
-                     f"{e['mean_shift_in_std']:.2g}",
-                     f"{e['drift_eV_per_ns']:.2g}"])
-    n = en['reversible']['samples_per_tenth']
-    return (f'E0 = {en["reversible"]["e0"]:.9g} eV (ReversibleVerlet), '
-            f'{en["velocity_verlet"]["e0"]:.9g} eV (VelocityVerlet). A tenth '
-            f'of the run is {n} samples.\n\n' + markdown_table(
-                ['integrator', 'max \\|E-E0\\|/\\|E0\\|',
-                 'mean(last tenth) - mean(first tenth) (eV)',
-                 'mean shift / first-tenth std', 'fitted drift (eV/ns)'],
-                rows))
 
 
 def errors_table(results) -> str:
@@ -135,6 +92,5 @@ def values(results):
 
 
 SPEC = Spec('Reversal error against steps',
-            blocks={'errors': block(errors_table),
-                    'energy': block(markdown_energy, 'energy')},
+            blocks={'errors': block(errors_table)},
             plots=(plot,), values=values)

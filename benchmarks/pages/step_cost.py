@@ -220,17 +220,6 @@ def checks_row(r):
             f'{100 * spread:.0f}%')
 
 
-def energy_check_row(r):
-    """The energy check's time per step, also in % of a Reversible
-    velocity step (the median step of the rounds, which includes it)."""
-    share = (100 * r['energy_check_seconds_per_step']
-             / r['median_seconds']['rv_velocity'])
-    return (r.get('calculator', r.get('system')), r['n_atoms'],
-            f"{us(r['energy_check_seconds_per_step'])} ({share:.2g}%)",
-            f"{1e6 * r['energy_check_median_call_seconds']:.2f}",
-            f"{r['energy_check_measurements']} / {r['energy_check_steps']}")
-
-
 SPEC = Spec(
     'Cost per step',
     blocks={'overhead': lambda stored: table(
@@ -245,11 +234,6 @@ SPEC = Spec(
                  'changes() in the steps (µs/call, % of step)',
                  'changes() in a tight loop (µs/call)', 'round spread'),
                 map(checks_row, stored['results']['step_cost'])),
-            'energy-check': lambda stored: markdown_table(
-                ('case', 'N', 'energy check (µs/step, % of step)',
-                 'median call (µs)', 'energy measurements / steps'),
-                map(energy_check_row, stored['results']['step_cost']
-                    + stored['results']['overhead'])),
             'logging': lambda stored: table(
                 LOGGING_COLUMNS, stored['results']['logging']),
             'cache': lambda stored: table(

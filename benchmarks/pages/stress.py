@@ -155,30 +155,6 @@ def contacts_table(rows):
          'exact'], table)
 
 
-def far_apart_table(result):
-    table = []
-    for r in result['rows']:
-        if r['returncode'] == 0:
-            what = (f'forces in {r["seconds"]:.3g} s, peak RSS '
-                    f'{r["max_rss_mb"]:.0f} MB')
-        else:
-            what = (f'**process aborted** (exit code {r["returncode"]}): '
-                    + ' '.join(r['stderr']))
-        table.append([r['calculator'], f'{r["distance"]:g}',
-                      f'{r["spread"]:.3g}', what])
-    return markdown_table(['calculator', 'd (Å)',
-                           'distance between them (Å)', 'result'], table)
-
-
-def values(results):
-    """The far-apart scene's first abort, for the prose."""
-    aborted = [r for r in results['far_apart']['rows']
-               if r['returncode'] != 0]
-    first = min(aborted, key=lambda r: r['distance']) if aborted else {}
-    return {'abort_spread': first.get('spread', float('nan')),
-            'abort_x_max': first.get('x_max', float('nan'))}
-
-
 SPEC = Spec(
     'Numerical stability under stress',
     blocks={'sweeps': block(sweep_tables, 'sweeps'),
@@ -191,6 +167,5 @@ SPEC = Spec(
             'diffusion': block(roaming_table(
                 ('max displacement (cells)', 'mean displacement (cells)'),
                 lambda r: (f'{r["max_cells"]:.3g}', f'{r["mean_cells"]:.3g}')),
-                'diffusion'),
-            'far-apart': block(far_apart_table, 'far_apart')},
-    plots=(plot,), values=values)
+                'diffusion')},
+    plots=(plot,))

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import math
-
-from . import Spec, block, markdown_table, pyplot
-
+from . import Spec, markdown_table, pyplot
 
 
 def plot_name(system):
@@ -80,55 +77,6 @@ def _time_cell(row, key):
     return f'{prefix}{row[key]:.3g} s'
 
 
-def _converged_to(run, target, slack=0.5):
-    """The smallest error reached while every halving so far showed at
-    least the nominal order minus ``slack``; None if the first halving
-    already fell short."""
-    points, reached = run['points'], None
-    for a, b, observed in zip(points, points[1:], run['observed_orders']):
-        if observed < run['order'] - slack:
-            break
-        reached = b['max_error']
-    return reached
-
-
-def convergence(c):
-    """Per system: what ran, and each method's halvings."""
-    target = c['target']
-    lines = []
-    for r in c['systems']:
-        closest = min(p['closest_to_cutoff'] for run in r['runs']
-                      for p in run['points'])
-        lines += [
-            f"**{r['label'][0].upper() + r['label'][1:]}**: {r['formula']} "
-            f"({r['atoms']} atoms{', periodic' if r['pbc'] else ''}), "
-            f"asap3 LennardJones with cutoff {r['cutoff']:g} Å, "
-            f"{r['temperature_K']:g} K, {r['simulated_fs']:g} fs sampled "
-            f"every {r['interval_fs']:g} fs; no sampled pair came closer "
-            f'than {closest:.2f} Å to the cutoff.', '']
-        table = []
-        for run in r['runs']:
-            first = run['points'][0]
-            reached = _converged_to(run, target)
-            both = run.get('fine_both')
-            table.append([
-                f"{run['scheme']} {run['order']}",
-                f"2^{math.log2(first['momentum_quantum']):.0f}"
-                + (f" / 2^{math.log2(first['position_quantum']):.0f}"
-                   if 'position_quantum' in first else ''),
-                ', '.join(f"{p['dt_fs']:g}" for p in run['points']),
-                ', '.join(_e(p['max_error']) for p in run['points']),
-                ', '.join(f'{o:.1f}' for o in run['observed_orders']),
-                _e(reached), _e(run['fine']['max_error']),
-                _e(both['max_error'] if both else None), run['stop']])
-        lines += [markdown_table(
-            ['method', 'quanta at the first step: momentum / position',
-             'dt (fs)', 'max error', 'observed order', 'nominal down to',
-             'finest step, fine p', 'finest step, fine p and x', 'stop'],
-            table), '']
-    return '\n'.join(lines)
-
-
 def summary(r):
     """The system, and each method's time to the target."""
     e0_atom = r['initial_energy_eV'] / r['atoms']
@@ -162,17 +110,6 @@ def summary(r):
     return '\n'.join(lines)
 
 
-def system_values(r):
-    """A system's results and the checks' derived numbers, for the prose."""
-    out = dict(r)
-    c = r.get('sampling_check')
-    if c:
-        out.update(
-            wall_gap=c['subtracted_wall_s'] / c['unobserved_wall_s'] - 1,
-            cpu_gap=c['subtracted_cpu_s'] / c['unobserved_cpu_s'] - 1)
-    return out
-
-
 def of_system(make, key):
     """A block of the system ``key`` (a line where this run has none)."""
     def markdown(stored):
@@ -184,10 +121,8 @@ def of_system(make, key):
 SPEC = Spec(
     'Work against precision',
     blocks={**{key: of_system(summary, key)
-               for key in ('argon_cluster', 'copper_crystal')},
-            'convergence': block(convergence, 'convergence')},
+               for key in ('argon_cluster', 'copper_crystal')}},
     plots=(plot,),
     values=lambda results: {
-        **{r['key']: system_values(r) for r in results['systems']},
-        'ladder_start': ', '.join(map(str, results['ladder'][:7])),
-        'half_convergence_target': results['convergence']['target'] / 2})
+        **{r['key']: r for r in results['systems']},
+        'ladder_start': ', '.join(map(str, results['ladder'][:7]))})
