@@ -1,5 +1,5 @@
 """ReversibleNose against ASE's thermostats: sampling, exact reversal,
-memory against steps, cost per step.
+cost per step.
 
 Measured by benchmarks/nose.py and benchmarks/studies/nose_timestep.py,
 nose_chain.py.
@@ -8,7 +8,7 @@ nose_chain.py.
 from __future__ import annotations
 
 from . import Spec, block, markdown_table, table, thermostat
-from .thermostat import (histograms, potential_lines, sampling_table, size,
+from .thermostat import (histograms, potential_lines, sampling_table,
                          speed_table, system, warning_lines, yes)
 
 PLOT = 'nose_kinetic_energy.png'
@@ -86,64 +86,6 @@ ROUND_TRIP_COLUMNS = (
     ('back (s)', '{round_trip[back_seconds]:.0f}'),
     ('total (s)', lambda s: '{:.0f}'.format(
         s['round_trip']['forward_seconds'] + s['round_trip']['back_seconds'])))
-
-
-def grown(r):
-    resident = r['resident_bytes']
-    return size(resident[-1] - resident[0]) if None not in resident else '–'
-
-
-MEMORY_COLUMNS = (
-    ('steps N', '{steps:,}'),
-    ('run(N): traced peak', lambda r: size(r['forward_traced_peak_bytes'])),
-    ('held after run', lambda r: size(r['forward_traced_end_bytes'])),
-    ('backpropagate(N): traced peak',
-     lambda r: size(r['backpropagate_traced_peak_bytes'])),
-    ('held after backpropagate',
-     lambda r: size(r['backpropagate_traced_end_bytes'])),
-    ('resident size, end − start', grown),
-    ('counts back at the start',
-     lambda r: yes(r['counts_equal_after_backpropagate'])),
-    ('Hessian-vector products', '{hessian_vector_products:,}'),
-    ('max |gradient|', lambda r: f"{r['gradient_max_abs']:.2g}"
-     + ('' if r['gradient_finite'] else ' (**not finite**)')),
-    ('run / backpropagate (s, traced)',
-     '{forward_seconds:.1f} / {backpropagate_seconds:.1f}'))
-
-
-def last_decade(points, key):
-    """Ratio of ``key`` at the last point to the one before."""
-    return points[-1][key] / points[-2][key]
-
-
-def memory_lines(results):
-    m = results['memory']
-    nose = m['nose']
-    lo, hi = nose[0], nose[-1]
-    out = []
-    for key, label in (('forward_traced_peak_bytes', 'run'),
-                       ('backpropagate_traced_peak_bytes', 'backpropagate')):
-        out.append(f"- {label}: traced peak ×{last_decade(nose, key):.3f} "
-                   f"from {nose[-2]['steps']:,} to {hi['steps']:,} steps, "
-                   f"×{hi[key] / lo[key]:.3f} from {lo['steps']:,}.")
-    for key, label in (('forward_traced_end_bytes', 'run'),
-                       ('backpropagate_traced_end_bytes', 'backpropagate')):
-        grown = hi[key] - nose[-2][key]
-        out.append(f'- held after {label}: {size(abs(grown))} '
-                   f"{'more' if grown >= 0 else 'less'} at "
-                   f"{hi['steps']:,} steps than at {nose[-2]['steps']:,} "
-                   f"({grown / (hi['steps'] - nose[-2]['steps']):+.3f} bytes "
-                   'per step).')
-    return '\n'.join(out)
-
-
-def memory_warning_lines(results):
-    m = results['memory']
-    seen = sorted({w for r in m['nose'] for w in r.get('warnings', ())})
-    return ('Warnings in the memory workers, each with how often it came in '
-            'its worker:\n\n'
-            + '\n'.join(f'- `{w}`' for w in seen)) if seen else \
-        'The memory workers gave no warning.'
 
 
 # -- the studies (benchmarks/studies/nose_timestep.py, nose_chain.py) -------
@@ -267,7 +209,6 @@ def values(results):
         'n_f': first['thermostat']['degrees_of_freedom'],
         'n_atoms': first['n_atoms'], 'dof': first['dof'],
         'load_start': load['start'][0], 'load_end': load['end'][0],
-        'load_before_memory': load['before_memory'][0],
         'load_before_cost': load['before_cost'][0]}
     if 'chain' in results:
         median = results['chain']['speed']['median_seconds']
@@ -294,10 +235,6 @@ SPEC = Spec(
                 ROUND_TRIP_COLUMNS, stored['results']['systems']),
             'warnings': lambda stored: warning_lines(stored['results'],
                                                      'ReversibleNose'),
-            'memory': lambda stored: table(
-                MEMORY_COLUMNS, stored['results']['memory']['nose']),
-            'memory-lines': block(memory_lines),
-            'memory-warnings': block(memory_warning_lines),
             'speed': lambda stored: speed_table(
                 stored['results'], SPEED_COLUMNS, 'ase_nose_hoover_chain'),
             'timestep': timestep_block,
