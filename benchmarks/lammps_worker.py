@@ -261,8 +261,6 @@ def main(case, log_dir):
                                'reference': INTEGRATORS[name].reference,
                                'path': paths.get(name)}
                         for name in names},
-        'exact': {i.name: {'velocity_quantum': i.rev.velocity_quantum}
-                  for i in exact},
         'blocks': blocks,
         'single_step_blocks': single,
         'setup_median_seconds': {n: statistics.median(v)
