@@ -126,8 +126,7 @@ def time_cached_queries(atoms, calls, rounds=3):
 def speed_case(system, repeat, settings, names, integrators, reference):
     """Interleaved per-step times of the integrators ``names`` (keys of
     ``integrators``, each ``(atoms, system) -> dynamics``) on
-    ``system.atoms(repeat)``, blocks sized on ``reference``; with
-    'velocity_verlet' among them, also what a repeated get_forces() costs."""
+    ``system.atoms(repeat)``, blocks sized on ``reference``."""
     template = system.atoms(repeat)
     contestants = []
     for name in names:
@@ -144,9 +143,6 @@ def speed_case(system, repeat, settings, names, integrators, reference):
               'temperature_K': system.temperature_K,
               'steps_per_block': steps, 'rounds': settings.rounds,
               **per_step(wall, cpu)}
-    if 'velocity_verlet' in by_name:
-        result['get_forces_again_seconds'], _ = time_cached_queries(
-            by_name['velocity_verlet'].runner.atoms, min(steps, 20))
     print(f'  {system.calculator:10s} N={len(template):5d} S={steps:4d}  '
           + '  '.join(f'{k}={v * 1e6:.0f}µs'
                       for k, v in result['median_seconds'].items()),

@@ -202,16 +202,6 @@ def buffer_table(results):
          'trajectory (x and p, float64)', 'trajectory / buffer'], rows)
 
 
-def forces_again_lines(results):
-    """What a repeated get_forces() cost, per case, in µs and in
-    VelocityVerlet steps."""
-    return '; '.join(
-        f"{r['calculator']} {r['n_atoms']}: "
-        f"{us(r['get_forces_again_seconds'])} µs "
-        f"({r['get_forces_again_seconds'] / r['median_seconds']['velocity_verlet']:.2f}"
-        " of a VelocityVerlet step)" for r in results['speed']) + '.'
-
-
 def speed_table(results, columns=SPEED_COLUMNS, base_key='ase_langevin'):
     base_label = dict(columns)[base_key]
     rows = []
@@ -322,6 +312,5 @@ SPEC = Spec(
             'warnings': block(warning_lines),
             'buffer': block(buffer_table),
             'speed': block(speed_table),
-            'forces-again': block(forces_again_lines),
             'bussi': bussi_doc_block},
     plots=(plot,), values=values)
