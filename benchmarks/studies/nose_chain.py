@@ -1,5 +1,5 @@
-"""Nosé-Hoover chains of ReversibleNose: stability, sampling, round trip,
-cost (``--only nose_chain``: ~13 minutes; stored as the nose section's
+"""Nosé-Hoover chains of ReversibleNose: stability, sampling, round trip
+(``--only nose_chain``: ~13 minutes; stored as the nose section's
 'chain').
 """
 
@@ -16,9 +16,9 @@ from ase import units
 from ase.build import bulk
 from ase.md.langevin import Langevin
 from harness import (NoseSampler, StudyLengths, canonical_statistics,
-                     histogram_edges, nose_statistics, speed_case)
+                     histogram_edges, nose_statistics)
 from systems import (CALCULATORS, NOSE_SYSTEMS, SEED, TDAMP_STEPS,
-                     THERMOSTAT_SPEED, THERMOSTAT_SYSTEMS, THERMOSTATS, tdamp)
+                     THERMOSTAT_SYSTEMS, tdamp)
 
 from ase_reversible import ReversibleNose
 from ase_reversible.app.systems import copper_bulk, thermalize
@@ -34,8 +34,6 @@ CHAIN_LENGTHS = (1, 2, 3)
 
 FULL = StudyLengths(equilibration=2000, sampled=60_000)
 QUICK = StudyLengths(equilibration=200, sampled=1000)
-SPEED_CONTESTANTS = ('reversible_nose', 'reversible_nose_tchain3',
-                     'ase_nose_hoover_chain')
 
 
 def liquid_argon(repeat, temperature_K):
@@ -179,9 +177,6 @@ def run(quick, scheme='velocity'):
                  for tchain in (1, 3)]
     cases = [chain_case(system, tchain, scheme, lengths)
              for system in SYSTEMS for tchain in CHAIN_LENGTHS]
-    cost = speed_case(NOSE_SYSTEMS[1], (5, 5, 10),
-                      THERMOSTAT_SPEED[quick],
-                      SPEED_CONTESTANTS, THERMOSTATS, 'ase_nose_hoover_chain')
     return {'lengths': asdict(lengths), 'tdamp_steps': TDAMP_STEPS,
             'ks_level': KS_LEVEL, 'chain_stiffness': CHAIN_STIFFNESS,
-            'stability': stability, 'cases': cases, 'speed': cost}
+            'stability': stability, 'cases': cases}
