@@ -127,37 +127,32 @@ def goal_table(results):
          'wall, long run (×)'], rows)
 
 
-def cost_rows(results):
-    rows = []
-    for c in results['cases']:
-        m = c['median']
-        row = [c['label'], c['steps'], load(c)] + [
-            f"{_ms(m[name]['ms_per_step'])} / "
-            f"{_ms(m[name]['cpu_ms_per_step'])}"
-            for name in reference_names(c)]
-        for name, _ in exact_names(c):
-            row += [f"{_ms(m[name]['ms_per_step'])} / "
-                    f"{_ms(m[name]['cpu_ms_per_step'])}",
-                    f'{ratio(c, name):.3f} / '
-                    f"{ratio(c, name, 'cpu_ms_per_step'):.3f}",
-                    f'**{long_ratio(c, name):.3f}**']
-        row.append(f"{max(m[n]['spread'] for n in c['integrators']):.0%}")
-        rows.append(row)
-    return rows
-
-
-def cost_header(results):
+def cost_table(results):
+    """Per case: each instance's wall / CPU ms per step; each exact path's
+    ratios to its reference; the worst block spread."""
     first = results['cases'][0]
     header = ['case', 'M (steps per block)', 'load average'] + [
         f'{label(first, name)}: wall / CPU (ms/step)'
         for name in reference_names(first)]
-    for name, reference in exact_names(results['cases'][0]):
-        header += [f'{label(results["cases"][0], name)}: wall / CPU '
-                   '(ms/step)',
-                   f'/ {label(results["cases"][0], reference)}: wall / CPU',
-                   f'/ {label(results["cases"][0], reference)}: CPU, '
-                   'long run']
-    return header + ['block spread']
+    for name, reference in exact_names(first):
+        ref = label(first, reference)
+        header += [f'{label(first, name)}: wall / CPU (ms/step)',
+                   f'/ {ref}: wall / CPU', f'/ {ref}: CPU, long run']
+
+    def wall_cpu(times):
+        return f"{_ms(times['ms_per_step'])} / {_ms(times['cpu_ms_per_step'])}"
+    rows = []
+    for c in results['cases']:
+        m = c['median']
+        row = [c['label'], c['steps'], load(c)] + [
+            wall_cpu(m[name]) for name in reference_names(c)]
+        for name, _ in exact_names(c):
+            row += [wall_cpu(m[name]), f'{ratio(c, name):.3f} / '
+                    f"{ratio(c, name, 'cpu_ms_per_step'):.3f}",
+                    f'**{long_ratio(c, name):.3f}**']
+        rows.append(row + [
+            f"{max(m[n]['spread'] for n in c['integrators']):.0%}"])
+    return markdown_table(header + ['block spread'], rows)
 
 
 def model_numbers(case, name):
@@ -229,6 +224,5 @@ def values(results):
 SPEC = Spec(
     'Exact runs inside LAMMPS',
     blocks={'costs-goal': block(goal_table),
-            'costs': lambda stored: markdown_table(
-                cost_header(stored['results']), cost_rows(stored['results']))},
+            'costs': block(cost_table)},
     plots=(plot,), values=values)
