@@ -144,15 +144,12 @@ def timestep_block(stored):
 """
 
 
-NOT_MEASURED_CHAIN = ('Not measured yet: `python benchmarks/run_all.py '
-                      '--only nose_chain`.')
-
-
 def chain_block(stored):
     """docs/thermostats.md, "A chain of thermostats": the measured table."""
     study = stored['results'].get('chain')
     if study is None:
-        return NOT_MEASURED_CHAIN
+        return ('Not measured yet: `python benchmarks/run_all.py --only '
+                'nose_chain`.')
     rows = []
     for c in study['cases']:
         if c.get('failure'):
@@ -182,21 +179,6 @@ def chain_block(stored):
 
 {_study_line(study)}
 """
-
-
-def chain_stability_block(stored):
-    """docs/thermostats.md, "A chain of thermostats": which runs lasted."""
-    study = stored['results'].get('chain')
-    if study is None or 'stability' not in study:
-        return NOT_MEASURED_CHAIN
-    rows = []
-    for c in study['stability']:
-        rows.append([f"{c['system']} {c['n_atoms']}, {c['timestep_fs']:g} fs",
-                     c['tdamp_steps'], c['tchain'],
-                     c['failure'] or f"ran {c['steps']:,} steps",
-                     f"{c['largest_change_kT']:.3g}"])
-    return markdown_table(['system', 'tdamp (steps)', 'tchain', 'outcome',
-                           'largest change of H (kT)'], rows)
 
 
 def values(results):
@@ -231,6 +213,5 @@ SPEC = Spec(
             'speed': lambda stored: speed_table(
                 stored['results'], SPEED_COLUMNS, 'ase_nose_hoover_chain'),
             'timestep': timestep_block,
-            'chain-stability': chain_stability_block,
             'chain': chain_block},
     plots=(plot,), values=values)
