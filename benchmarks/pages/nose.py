@@ -7,9 +7,10 @@ nose_chain.py.
 
 from __future__ import annotations
 
-from . import Spec, block, markdown_table, table, thermostat
-from .thermostat import (histograms, potential_lines, sampling_table,
-                         speed_table, system, warning_lines, yes)
+from . import Spec, markdown_table, table, thermostat
+from .thermostat import (histograms, offset_lines, potential_lines,
+                         sampling_table, speed_table, system, warning_lines,
+                         yes)
 
 PLOT = 'nose_kinetic_energy.png'
 
@@ -53,19 +54,6 @@ THERMOSTAT_COLUMNS = (
     ('last − first (meV/atom)', lambda s: meV_per_atom(
         s, s['thermostat']['extended_energy_eV']['last']
         - s['thermostat']['extended_energy_eV']['first'], '+')))
-
-
-def harmonic_lines(results):
-    return '\n'.join(
-        f"- {s['system']} ({s['timestep_fs']:g} fs, rms real step "
-        f"{s['thermostat']['real_timestep_fs']['rms']:.3f} fs): ⟨ω²⟩ = "
-        f"{r['mean_omega_squared_per_fs2']:.3g} / fs², estimate "
-        f"{s['thermostat']['harmonic_kinetic_offset_percent']:+.2f}%, "
-        f"measured {100 * (t['mean'] / s['temperature_K'] - 1):+.2f}"
-        f" ± {100 * t['standard_error'] / s['temperature_K']:.2f}%."
-        for s in results['systems']
-        for r in [s['sampling']['reversible_nose']]
-        for t in [r['temperature_K']])
 
 
 def equal(flags, key):
@@ -152,20 +140,16 @@ def chain_block(stored):
                 'nose_chain`.')
     rows = []
     for c in study['cases']:
+        head = [f"{c['system']} {c['n_atoms']}, {c['temperature_K']:g} K, "
+                f"{c['timestep_fs']:g} fs", c['tchain']]
+        s_ranges = ', '.join(f'{a:.2f}–{b:.2f}' for a, b in c['s_range'])
         if c.get('failure'):
-            rows.append([f"{c['system']} {c['n_atoms']}, "
-                         f"{c['temperature_K']:g} K, {c['timestep_fs']:g} fs",
-                         c['tchain'], c['failure'], '', '', '', '',
-                         ', '.join(f'{a:.2f}–{b:.2f}'
-                                   for a, b in c['s_range']), '', ''])
+            rows.append(head + [c['failure'], '', '', '', '', s_ranges, '', ''])
             continue
         ks = c['sampling']['ks']
         e = c['thermostat']['extended_energy_eV']
-        s_ranges = ', '.join(f'{a:.2f}–{b:.2f}' for a, b in c['s_range'])
         exact = c.get('round_trip_equal')
-        rows.append([
-            f"{c['system']} {c['n_atoms']}, {c['temperature_K']:g} K, "
-            f"{c['timestep_fs']:g} fs", c['tchain'],
+        rows.append(head + [
             _mean_se(c['sampling']['temperature_K']),
             f"{ks['p_value']:.2g}", f"{ks['shape_p_value']:.2g}",
             f"{c['half_kicked']['ks']['p_value']:.2g}",
@@ -203,7 +187,11 @@ SPEC = Spec(
                                                       THERMOSTATS),
             'thermostat': lambda stored: table(
                 THERMOSTAT_COLUMNS, stored['results']['systems']),
-            'harmonic': block(harmonic_lines),
+            'harmonic': lambda stored: offset_lines(
+                stored['results'], 'reversible_nose',
+                lambda s, r: s['thermostat']['harmonic_kinetic_offset_percent'],
+                'estimate', lambda s: ', rms real step '
+                f"{s['thermostat']['real_timestep_fs']['rms']:.3f} fs"),
             'potential': lambda stored: potential_lines(stored['results'],
                                                         'ReversibleNose'),
             'round-trip': lambda stored: table(
