@@ -74,8 +74,7 @@ def time_interleaved(contestants, steps, rounds):
     """Seconds per step of each contestant, the order rotated each round so
     that the machine's drifts hit all alike: ``(wall, cpu)``, each ``{name:
     [one value per round]}`` (CPU time shows what other processes took)."""
-    wall = {c.name: [] for c in contestants}
-    cpu = {c.name: [] for c in contestants}
+    wall, cpu = ({c.name: [] for c in contestants} for _ in range(2))
     for r in range(rounds):
         shift = r % len(contestants)
         for c in contestants[shift:] + contestants[:shift]:
@@ -193,11 +192,6 @@ def block_mean(x, blocks=BLOCKS):
             'blocks': blocks, 'block_length': length}
 
 
-def lag1(x):
-    x = np.asarray(x, float) - np.mean(x)
-    return float((x[1:] @ x[:-1]) / (x @ x))
-
-
 @dataclass(frozen=True)
 class StudyLengths:
     """Steps of a sampled run: ``equilibration`` steps, then ``sampled``."""
@@ -250,6 +244,7 @@ def canonical_statistics(sampler, first, dof, kT, edges, timestep):
     g = integrated_time(kinetic)
     stride = math.ceil(2 * g)
     thinned = kinetic[::stride]
+    d = np.asarray(thinned, float) - np.mean(thinned)  # for the lag-1 corr.
     ks = stats.kstest(thinned, 'gamma', args=(dof / 2, 0.0, kT))
     # The shape alone: the scale from the measured mean kinetic energy.
     ks_shape = stats.kstest(thinned, 'gamma',
@@ -269,7 +264,7 @@ def canonical_statistics(sampler, first, dof, kT, edges, timestep):
                                  integrated_time(potential)},
         'kinetic_correlation_time_steps': g,
         'ks': {'stride': stride, 'samples': len(thinned),
-               'lag1_of_thinned': lag1(thinned),
+               'lag1_of_thinned': float((d[1:] @ d[:-1]) / (d @ d)),
                'statistic': float(ks.statistic),
                'p_value': float(ks.pvalue),
                'shape_p_value': float(ks_shape.pvalue)},

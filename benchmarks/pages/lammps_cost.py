@@ -49,12 +49,6 @@ def goal_cases(results):
             if c['natoms'] >= results['goal_min_atoms']]
 
 
-def load(case):
-    """The 1-minute load average before and after the case, as text."""
-    before, after = case['load_average']
-    return f'{before[0]:.1f}-{after[0]:.1f}'
-
-
 def _ms(value):
     return f'{value:.3g}' if abs(value) < 100 else f'{value:.0f}'
 
@@ -144,7 +138,8 @@ def cost_table(results):
     rows = []
     for c in results['cases']:
         m = c['median']
-        row = [c['label'], c['steps'], load(c)] + [
+        before, after = c['load_average']  # 1-minute, around the case
+        row = [c['label'], c['steps'], f'{before[0]:.1f}-{after[0]:.1f}'] + [
             wall_cpu(m[name]) for name in reference_names(c)]
         for name, _ in exact_names(c):
             row += [wall_cpu(m[name]), f'{ratio(c, name):.3f} / '
