@@ -7,7 +7,8 @@ from __future__ import annotations
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
+from types import SimpleNamespace
 
 import numpy as np
 from ase import units
@@ -28,14 +29,9 @@ COST_GOAL_RATIO = 1.05
 SYSTEMS = NOSE_SYSTEMS
 
 
-@dataclass(frozen=True)
-class Lengths:
-    equilibration: int
-    round_trip: int          # forward steps, equilibration included
-
-
-FULL = Lengths(equilibration=2000, round_trip=100_000)
-QUICK = Lengths(equilibration=200, round_trip=1000)
+#: Steps of equilibration, and forward steps (equilibration included).
+FULL = SimpleNamespace(equilibration=2000, round_trip=100_000)
+QUICK = SimpleNamespace(equilibration=200, round_trip=1000)
 #: Copper, asap3 EMT: 1000 and 4000 atoms.
 SPEED_CASES = ((SYSTEMS[1], (5, 5, 10)), (SYSTEMS[1], (10, 10, 10)))
 #: ASE Langevin, VelocityVerlet and ReversibleVerlet on Cu 4000 at 5 fs, and
@@ -79,8 +75,7 @@ def sampling_system(system, lengths):
 
 
 def run(quick):
-    lengths = QUICK if quick else FULL
-    speed = THERMOSTAT_SPEED[quick]
+    lengths, speed = (QUICK if quick else FULL), THERMOSTAT_SPEED[quick]
     # The machine is shared: the load around each part goes with it.
     load = {'start': os.getloadavg()}
     systems_ = [sampling_system(s, lengths) for s in SYSTEMS]
