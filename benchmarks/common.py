@@ -91,19 +91,20 @@ def run_workers(script, jobs, parallel=2) -> list:
             lambda job: run_worker(script, ['--memory-worker', *job]), jobs))
 
 
-def run_worker(script, args) -> dict:
-    """The JSON object of the last line ``python script *args`` prints in a
-    fresh process (memory from a clean start), with its wall time as
-    ``'process_seconds'``."""
+def run_worker(script, args, launcher=(), timeout=None) -> dict:
+    """The JSON object of the last line ``[*launcher] python script *args``
+    prints in a fresh process (memory from a clean start), within
+    ``timeout`` seconds, with its wall time as ``'process_seconds'``."""
     import json
     import time
     here = str(Path(__file__).resolve().parent)
     path = os.pathsep.join(p for p in (here, os.environ.get('PYTHONPATH'))
                            if p)
     started = time.perf_counter()
-    proc = subprocess.run([sys.executable, str(script), *map(str, args)],
-                          capture_output=True, text=True, cwd=ROOT,
-                          env={**os.environ, 'PYTHONPATH': path})
+    proc = subprocess.run(
+        [*launcher, sys.executable, str(script), *map(str, args)],
+        capture_output=True, text=True, cwd=ROOT, timeout=timeout,
+        env={**os.environ, 'PYTHONPATH': path})
     if proc.returncode != 0:
         raise RuntimeError(f'worker {Path(script).name} {args} failed:\n'
                            + proc.stderr[-3000:])

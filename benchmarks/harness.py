@@ -74,8 +74,7 @@ def time_interleaved(contestants, steps, rounds):
     """Seconds per step of each contestant, the order rotated each round so
     that the machine's drifts hit all alike: ``(wall, cpu)``, each ``{name:
     [one value per round]}`` (CPU time shows what other processes took)."""
-    wall = {c.name: [] for c in contestants}
-    cpu = {c.name: [] for c in contestants}
+    wall, cpu = ({c.name: [] for c in contestants} for _ in range(2))
     for r in range(rounds):
         shift = r % len(contestants)
         for c in contestants[shift:] + contestants[:shift]:
@@ -126,8 +125,7 @@ def time_cached_queries(atoms, calls, rounds=3):
 def speed_case(system, repeat, settings, names, integrators, reference):
     """Interleaved per-step times of the integrators ``names`` (keys of
     ``integrators``, each ``(atoms, system) -> dynamics``) on
-    ``system.atoms(repeat)``, blocks sized on ``reference``; with
-    'velocity_verlet' among them, also what a repeated get_forces() costs."""
+    ``system.atoms(repeat)``, blocks sized on ``reference``."""
     template = system.atoms(repeat)
     contestants = []
     for name in names:
@@ -144,9 +142,6 @@ def speed_case(system, repeat, settings, names, integrators, reference):
               'temperature_K': system.temperature_K,
               'steps_per_block': steps, 'rounds': settings.rounds,
               **per_step(wall, cpu)}
-    if 'velocity_verlet' in by_name:
-        result['get_forces_again_seconds'], _ = time_cached_queries(
-            by_name['velocity_verlet'].runner.atoms, min(steps, 20))
     print(f'  {system.calculator:10s} N={len(template):5d} S={steps:4d}  '
           + '  '.join(f'{k}={v * 1e6:.0f}µs'
                       for k, v in result['median_seconds'].items()),
@@ -195,11 +190,6 @@ def block_mean(x, blocks=BLOCKS):
     return {'mean': float(x.mean()),
             'standard_error': float(means.std(ddof=1) / math.sqrt(blocks)),
             'blocks': blocks, 'block_length': length}
-
-
-def lag1(x):
-    x = np.asarray(x, float) - np.mean(x)
-    return float((x[1:] @ x[:-1]) / (x @ x))
 
 
 @dataclass(frozen=True)
@@ -254,6 +244,7 @@ def canonical_statistics(sampler, first, dof, kT, edges, timestep):
     g = integrated_time(kinetic)
     stride = math.ceil(2 * g)
     thinned = kinetic[::stride]
+    d = np.asarray(thinned, float) - np.mean(thinned)  # for the lag-1 corr.
     ks = stats.kstest(thinned, 'gamma', args=(dof / 2, 0.0, kT))
     # The shape alone: the scale from the measured mean kinetic energy.
     ks_shape = stats.kstest(thinned, 'gamma',
@@ -273,7 +264,7 @@ def canonical_statistics(sampler, first, dof, kT, edges, timestep):
                                  integrated_time(potential)},
         'kinetic_correlation_time_steps': g,
         'ks': {'stride': stride, 'samples': len(thinned),
-               'lag1_of_thinned': lag1(thinned),
+               'lag1_of_thinned': float((d[1:] @ d[:-1]) / (d @ d)),
                'statistic': float(ks.statistic),
                'p_value': float(ks.pvalue),
                'shape_p_value': float(ks_shape.pvalue)},

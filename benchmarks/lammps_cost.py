@@ -11,10 +11,8 @@ import common
 import json
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 WORKER = Path(__file__).resolve().parent / 'lammps_worker.py'
@@ -56,51 +54,31 @@ QUICK = {'rounds': 3, 'setups': 3, 'reduce_blocks': 3, 'reduce_calls': 1000}
 LABELS = {'argon': 'Ar LJ', 'copper': 'Cu EAM'}
 
 
-def mpiexec() -> Path:
-    """The mpiexec installed beside this Python (the mpich wheel's)."""
-    return Path(sys.executable).parent / 'mpiexec'
-
-
 def run_case(case, log_dir) -> dict:
-    ranks = case['ranks']
-    started = time.perf_counter()
-    proc = subprocess.run(
-        [str(mpiexec()), '-n', str(ranks), sys.executable, str(WORKER),
-         json.dumps(case), str(log_dir)],
-        capture_output=True, text=True, cwd=common.ROOT, timeout=1800)
-    if proc.returncode != 0:
-        raise RuntimeError(f'lammps_worker.py {case} on {ranks} ranks '
-                           f'failed:\n' + proc.stderr[-3000:])
-    result = json.loads(proc.stdout.strip().splitlines()[-1])
-    result['process_seconds'] = time.perf_counter() - started
-    return result
+    """One case in ``mpiexec -n R python lammps_worker.py`` (the mpiexec
+    installed beside this Python, the mpich wheel's)."""
+    return common.run_worker(
+        WORKER, [json.dumps(case), log_dir],
+        [str(Path(sys.executable).parent / 'mpiexec'), '-n',
+         str(case['ranks'])], timeout=1800)
 
 
 def per_step_medians(blocks) -> dict:
     """Medians over blocks of what a step costs, in ms, and the counts."""
-    median = statistics.median
-    sections = sorted({k for b in blocks for k in b['breakdown_seconds']})
+    def ms(seconds):
+        return 1e3 * statistics.median(seconds(b) / b['steps'] for b in blocks)
+    wall = [b['wall_seconds'] / b['steps'] for b in blocks]
     steps = sum(b['steps'] for b in blocks)
+    clean = sum(b['clean_recomputations'] for b in blocks)
     return {
-        'ms_per_step': 1e3 * median([b['wall_seconds'] / b['steps']
-                                     for b in blocks]),
-        'cpu_ms_per_step': 1e3 * median([b['cpu_seconds'] / b['steps']
-                                         for b in blocks]),
-        'loop_ms_per_step': 1e3 * median([b['loop_seconds'] / b['steps']
-                                          for b in blocks]),
+        **{f'{key}ms_per_step': ms(lambda b, k=key: b[f'{k or "wall_"}seconds'])
+           for key in ('', 'cpu_', 'loop_')},
         'breakdown_ms_per_step': {
-            s: 1e3 * median([b['breakdown_seconds'].get(s, 0.0) / b['steps']
-                             for b in blocks]) for s in sections},
-        'spread': ((max(b['wall_seconds'] / b['steps'] for b in blocks)
-                    - min(b['wall_seconds'] / b['steps'] for b in blocks))
-                   / median([b['wall_seconds'] / b['steps']
-                             for b in blocks])),
-        'steps': steps,
-        'clean_recomputations': sum(b['clean_recomputations']
-                                    for b in blocks),
-        'clean_per_step': sum(b['clean_recomputations'] for b in blocks)
-        / steps,
-    }
+            s: ms(lambda b, s=s: b['breakdown_seconds'].get(s, 0.0))
+            for s in sorted({k for b in blocks for k in b['breakdown_seconds']})},
+        'spread': (max(wall) - min(wall)) / statistics.median(wall),
+        'steps': steps, 'clean_recomputations': clean,
+        'clean_per_step': clean / steps}
 
 
 def long_run_medians(blocks, singles) -> dict:

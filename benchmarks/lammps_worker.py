@@ -22,7 +22,6 @@ from typing import Callable, Optional
 
 from ase_reversible.lammps import (ReversibleLammps, ReversibleLammpsNose,
                                    import_lammps)
-from ase_reversible.lammps.integrator import SORT_BIN_SPACING
 
 lammps = import_lammps()
 
@@ -80,18 +79,6 @@ def _lammps_fix(command):
     return attach
 
 
-def _nve_sorted_as_exact(lmp, case):
-    """fix nve on atoms sorted as the exact path sorts them at every setup
-    (bins of SORT_BIN_SPACING mean spacings): what the sort alone costs."""
-    box = lmp.extract_box()
-    volume = 1.0
-    for lo, hi in zip(box[0], box[1]):
-        volume *= hi - lo
-    spacing = (volume / lmp.get_natoms()) ** (1 / 3)
-    lmp.command(f'atom_modify sort 1000 {SORT_BIN_SPACING * spacing!r}')
-    return _lammps_fix('fix nve all nve')(lmp, case)
-
-
 def _reversible(path):
     def attach(lmp, case):
         rev = ReversibleLammps(lmp, path=path)
@@ -122,9 +109,6 @@ INTEGRATORS = {
     'nvt': Integrator(_lammps_fix('fix nvt all nvt temp {T} {T} {tdamp}'),
                       None, 'fix nvt'),
     'exact_nvt': Integrator(_reversible_nvt, 'nvt', 'reversible nvt'),
-    # A diagnostic, not in lammps_cost's default cases.
-    'nve_exact_sort': Integrator(_nve_sorted_as_exact, None,
-                                 "fix nve, exact path's sort"),
 }
 
 
@@ -261,8 +245,6 @@ def main(case, log_dir):
                                'reference': INTEGRATORS[name].reference,
                                'path': paths.get(name)}
                         for name in names},
-        'exact': {i.name: {'velocity_quantum': i.rev.velocity_quantum}
-                  for i in exact},
         'blocks': blocks,
         'single_step_blocks': single,
         'setup_median_seconds': {n: statistics.median(v)

@@ -1,57 +1,37 @@
 """ReversibleNose against ASE's thermostats: sampling, exact reversal,
-memory (one fresh process per point, ``--memory-worker``), cost per step
-(``--only nose``: 12-15 minutes, ~15 s with ``--quick``).
+cost per step (``--only nose``: 12-15 minutes, ~15 s with ``--quick``).
 """
 
 from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
-import contextlib
-import gc
-import json
 import os
-import sys
-import time
-import tracemalloc
-import warnings
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import asdict
+from types import SimpleNamespace
 
 import numpy as np
 from ase import units
 from harness import (BLOCKS, FORCE_EVERY, WINDOW_C, NoseSampler,
-                     against_reference, nose_statistics,
-                     resident_bytes, speed_case, there_and_back)
+                     against_reference, nose_statistics, speed_case,
+                     there_and_back)
 from systems import (FRICTION_PER_FS, NOSE_SYSTEMS, SEED, START_FACTOR,
                      TDAMP_STEPS, THERMOSTAT_SPEED, THERMOSTATS, ase_langevin,
                      reversible_nose)
 
 
-#: Seed of the random loss gradient of the memory points.
-LOSS_SEED = 1
 #: The goals the page judges against.
 TEMPERATURE_GOAL_PERCENT = 1.0
 KS_LEVEL = 0.01
 POTENTIAL_GOAL_SE = 2.0
-MEMORY_GOAL_RATIO = 1.1
 COST_GOAL_RATIO = 1.05
-MEMORY_PARALLEL = 2
 
 SYSTEMS = NOSE_SYSTEMS
-MEMORY_SYSTEM = SYSTEMS[0]
 
 
-@dataclass(frozen=True)
-class Lengths:
-    equilibration: int
-    round_trip: int          # forward steps, equilibration included
-    memory_steps: tuple
-
-
-FULL = Lengths(equilibration=2000, round_trip=100_000,
-               memory_steps=(1000, 10_000, 100_000))
-QUICK = Lengths(equilibration=200, round_trip=1000, memory_steps=(100, 1000))
+#: Steps of equilibration, and forward steps (equilibration included).
+FULL = SimpleNamespace(equilibration=2000, round_trip=100_000)
+QUICK = SimpleNamespace(equilibration=200, round_trip=1000)
 #: Copper, asap3 EMT: 1000 and 4000 atoms.
 SPEED_CASES = ((SYSTEMS[1], (5, 5, 10)), (SYSTEMS[1], (10, 10, 10)))
 #: ASE Langevin, VelocityVerlet and ReversibleVerlet on Cu 4000 at 5 fs, and
@@ -94,100 +74,11 @@ def sampling_system(system, lengths):
             'thermostat': thermostat, 'round_trip': round_trip}
 
 
-# -- memory: one fresh process per point --------------------------------------
-
-class WarningTally:
-    """``warnings.showwarning`` counting the warnings by category, keeping
-    the first message of each (a list of all would grow with the steps)."""
-
-    def __init__(self):
-        self.count, self.first = {}, {}
-
-    def __call__(self, message, category, *args, **kwargs):
-        name = category.__name__
-        self.count[name] = self.count.get(name, 0) + 1
-        self.first.setdefault(name, str(message))
-
-    def summary(self):
-        return sorted(f'{name} (x{n}): {self.first[name]}'
-                      for name, n in self.count.items())
-
-
-@contextlib.contextmanager
-def tallied():
-    """Every warning inside counted by the ``WarningTally`` yielded."""
-    with warnings.catch_warnings():
-        warnings.simplefilter('always')
-        warnings.showwarning = tally = WarningTally()
-        yield tally
-
-
-def nose_memory_worker(steps):
-    """One ReversibleNose point: run(N), then backpropagate(N) of a fixed
-    random loss gradient (finite-difference Hessian-vector products)."""
-    atoms = MEMORY_SYSTEM.atoms()
-    dyn = reversible_nose(atoms, MEMORY_SYSTEM)
-    start = dyn.counts
-    rng = np.random.default_rng(LOSS_SEED)
-    grad_x, grad_p = (rng.standard_normal((len(atoms), 3)),
-                      rng.standard_normal((len(atoms), 3)))
-    gc.collect()
-    resident = [resident_bytes()]
-    with tallied() as tally:
-        tracemalloc.start()
-        t0 = time.perf_counter()
-        dyn.run(steps)
-        t1 = time.perf_counter()
-        forward_current, forward_peak = tracemalloc.get_traced_memory()
-        resident.append(resident_bytes())
-        tracemalloc.reset_peak()
-        gradients = dyn.backpropagate(steps, grad_x, grad_p)
-        t2 = time.perf_counter()
-        current, peak = tracemalloc.get_traced_memory()
-        tracemalloc.stop()
-    resident.append(resident_bytes())
-    end = dyn.counts
-    gx_nc, gp_nc = gradients
-    return {
-        'steps': steps, 'atoms': len(atoms),
-        'forward_traced_peak_bytes': forward_peak,
-        'forward_traced_end_bytes': forward_current,
-        'backpropagate_traced_peak_bytes': peak,
-        'backpropagate_traced_end_bytes': current,
-        'resident_bytes': resident,  # before, after run, after backpropagate
-        'forward_seconds': t1 - t0, 'backpropagate_seconds': t2 - t1,
-        'hessian_vector_products': gradients.hessian_vector_products,
-        'counts_equal_after_backpropagate': all(
-            np.array_equal(end[k], start[k]) for k in start),
-        'gradient_finite': bool(np.isfinite(gx_nc).all()
-                                and np.isfinite(gp_nc).all()),
-        'gradient_max_abs': float(max(np.abs(gx_nc).max(),
-                                      np.abs(gp_nc).max())),
-        'warnings': tally.summary(),
-    }
-
-
-def measure_memory(lengths):
-    # Longest first, so the workers finish together.
-    raw = common.run_workers(Path(__file__), [
-        (n,) for n in reversed(lengths.memory_steps)], MEMORY_PARALLEL)
-    nose = sorted(raw, key=lambda r: r['steps'])
-    system = MEMORY_SYSTEM
-    return {'system': system.label, 'calculator': system.calculator,
-            'n_atoms': nose[0]['atoms'],
-            'temperature_K': system.temperature_K,
-            'timestep_fs': system.timestep_fs,
-            'parallel_workers': MEMORY_PARALLEL, 'nose': nose}
-
-
 def run(quick):
-    lengths = QUICK if quick else FULL
-    speed = THERMOSTAT_SPEED[quick]
+    lengths, speed = (QUICK if quick else FULL), THERMOSTAT_SPEED[quick]
     # The machine is shared: the load around each part goes with it.
     load = {'start': os.getloadavg()}
     systems_ = [sampling_system(s, lengths) for s in SYSTEMS]
-    load['before_memory'] = os.getloadavg()
-    memory = measure_memory(lengths)
     load['before_cost'] = os.getloadavg()
     costs = [speed_case(s, r, speed, SPEED_CONTESTANTS, THERMOSTATS,
                         'ase_nose_hoover_chain')
@@ -204,13 +95,8 @@ def run(quick):
                      'temperature_goal_percent': TEMPERATURE_GOAL_PERCENT,
                      'ks_level': KS_LEVEL,
                      'potential_goal_standard_errors': POTENTIAL_GOAL_SE,
-                     'memory_goal_ratio': MEMORY_GOAL_RATIO,
                      'cost_goal_ratio': COST_GOAL_RATIO,
                      'lengths_equilibration': lengths.equilibration,
                      'lengths_round_trip': lengths.round_trip,
                      'speed': asdict(speed)},
-        'systems': systems_, 'memory': memory, 'speed': costs}
-
-
-if __name__ == '__main__' and sys.argv[1:2] == ['--memory-worker']:
-    print(json.dumps(nose_memory_worker(int(sys.argv[2]))), flush=True)
+        'systems': systems_, 'speed': costs}

@@ -1,5 +1,5 @@
 """Cost per step of ReversibleIsotropicNPT against ASE's IsotropicMTKNPT
-on the cases of npt_sampling at several sizes, and one case's cProfile
+on the cases of npt_sampling at several sizes
 (``--only npt_cost``: ~10 minutes, < 60 s with ``--quick``).
 """
 
@@ -7,9 +7,7 @@ from __future__ import annotations
 
 import common  # noqa: F401  (first: pins BLAS threads before numpy)
 
-import cProfile
 import os
-import pstats
 from dataclasses import asdict
 
 from harness import (Contestant, choose_steps, medians, per_step,
@@ -25,11 +23,6 @@ COST_CASES = ((CASES[0], (4, 4, 4)), (CASES[0], (5, 5, 5)),
 QUICK_COST_CASES = (COST_CASES[0], COST_CASES[3])
 #: The goal judged on the page: ReversibleIsotropicNPT over ASE's.
 RATIO_GOAL = 1.1
-#: The profiled case (index into COST_CASES) and its steps per integrator.
-PROFILE_CASE = 1
-PROFILE_STEPS, QUICK_PROFILE_STEPS = 400, 40
-#: Functions kept per profile listing.
-PROFILE_TOP = 15
 
 
 def cost_case(case, repeat, settings, names):
@@ -57,38 +50,6 @@ def cost_case(case, repeat, settings, names):
     return result
 
 
-def listing(stats, total):
-    """The PROFILE_TOP functions by own time."""
-    rows = []
-    for (file, line, function), (cc, nc, tt, ct, _) in stats.stats.items():
-        rows.append({'function': f'{os.path.basename(file)}:{line}'
-                                 f'({function})',
-                     'calls': nc, 'tottime': tt, 'cumtime': ct})
-    rows.sort(key=lambda r: -r['tottime'])
-    for r in rows:
-        r['share'] = r['tottime'] / total
-    return rows[:PROFILE_TOP]
-
-
-def profile(case, repeat, steps, names):
-    """cProfile of ``steps`` steps of each integrator (after a warm-up)."""
-    out = {}
-    for name in names:
-        _, atoms = case.atoms(repeat)
-        dyn = INTEGRATORS[name](atoms, case)
-        dyn.run(5)
-        profiler = cProfile.Profile()
-        profiler.enable()
-        dyn.run(steps)
-        profiler.disable()
-        stats = pstats.Stats(profiler)
-        total = stats.total_tt
-        out[name] = {'steps': steps, 'seconds': total,
-                     'per_step_seconds': total / steps,
-                     'by_own_time': listing(stats, total)}
-    return out
-
-
 def run(quick):
     settings = THERMOSTAT_SPEED[quick]
     cases = QUICK_COST_CASES if quick else COST_CASES
@@ -96,15 +57,8 @@ def run(quick):
     load = {'start': os.getloadavg()}
     costs = [cost_case(case, repeat, settings, names)
              for case, repeat in cases]
-    load['before_profile'] = os.getloadavg()
-    case, repeat = cases[0] if quick else cases[PROFILE_CASE]
-    profiled = profile(case, repeat,
-                       QUICK_PROFILE_STEPS if quick else PROFILE_STEPS, names)
     load['end'] = os.getloadavg()
     return {'load_average': load,
             'settings': {**asdict(settings), 'ratio_goal': RATIO_GOAL},
-            'costs': costs,
-            'profile': {'label': case.label,
-                        'n_atoms': costs[cases.index((case, repeat))][
-                            'n_atoms'], 'runs': profiled}}
+            'costs': costs}
 

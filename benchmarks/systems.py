@@ -232,7 +232,6 @@ THERMOSTATS = {
     'reversible_langevin': reversible_langevin,
     'ase_langevin': ase_langevin,
     'reversible_nose': reversible_nose,
-    'reversible_nose_tchain3': functools.partial(reversible_nose, tchain=3),
     'ase_nose_hoover_chain': ase_nose_hoover_chain,
     'velocity_verlet': lambda atoms, system: VelocityVerlet(
         atoms, system.timestep_fs * units.fs),

@@ -5,15 +5,9 @@ Measured by benchmarks/lammps_cost.py; the values also fill docs/lammps.md.
 
 from __future__ import annotations
 
-import math
-
 from . import Spec, block, figure, markdown_table
 
 PLOT = 'lammps_cost.png'
-
-#: Timer sections shown, in LAMMPS's order; the rest go to 'other'.
-SHOWN_SECTIONS = ('Pair', 'Neigh', 'Comm', 'Modify')
-
 
 # -- what a case measured ----------------------------------------------------
 
@@ -55,38 +49,8 @@ def goal_cases(results):
             if c['natoms'] >= results['goal_min_atoms']]
 
 
-def median_block(blocks):
-    """The block of median wall time per step (the lower one of two)."""
-    ordered = sorted(blocks, key=lambda b: b['wall_seconds'] / b['steps'])
-    return ordered[(len(ordered) - 1) // 2]
-
-
-def breakdown(case, name):
-    """ms per step of the median block of ``name``: LAMMPS's timer sections,
-    the rest of its loop, and the time outside the loop (each run's setup,
-    the Python around it); they add up to the block's wall time."""
-    block = median_block(case['blocks'][name])
-    per_step = 1e3 / block['steps']
-    parts = block['breakdown_seconds']
-    shown = {s: per_step * parts.get(s, 0.0) for s in SHOWN_SECTIONS}
-    shown['other'] = per_step * block['loop_seconds'] - sum(shown.values())
-    shown['outside loop'] = per_step * (block['wall_seconds']
-                                        - block['loop_seconds'])
-    return shown
-
-
-def load(case):
-    """The 1-minute load average before and after the case, as text."""
-    before, after = case['load_average']
-    return f'{before[0]:.1f}-{after[0]:.1f}'
-
-
 def _ms(value):
     return f'{value:.3g}' if abs(value) < 100 else f'{value:.0f}'
-
-
-def _power_of_two(value):
-    return f'2^{math.frexp(value)[1] - 1}'
 
 
 def _range(values, fmt):
@@ -99,7 +63,7 @@ def _range(values, fmt):
 
 def plot(results, figures):
     """Exact over reference, CPU time per step of a long run, against the
-    number of atoms (where a step goes is the breakdown table)."""
+    number of atoms."""
     with figure(figures / PLOT, 1, (7, 5.5)) as (plt, fig, ax):
         cases = results['cases']
         colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
@@ -157,86 +121,41 @@ def goal_table(results):
          'wall, long run (×)'], rows)
 
 
-def breakdown_table(results):
-    cases = results['cases']
-    return markdown_table(
-        ['case', 'integrator'] + list(breakdown(cases[0], 'nve')) + ['total'],
-        [[c['label'], label(c, name)]
-         + [_ms(v) for v in breakdown(c, name).values()]
-         + [_ms(sum(breakdown(c, name).values()))]
-         for c in cases for name in c['integrators']])
-
-
-def cost_rows(results):
-    rows = []
-    for c in results['cases']:
-        m = c['median']
-        row = [c['label'], c['steps'], load(c)] + [
-            f"{_ms(m[name]['ms_per_step'])} / "
-            f"{_ms(m[name]['cpu_ms_per_step'])}"
-            for name in reference_names(c)]
-        for name, _ in exact_names(c):
-            row += [f"{_ms(m[name]['ms_per_step'])} / "
-                    f"{_ms(m[name]['cpu_ms_per_step'])}",
-                    f'{ratio(c, name):.3f} / '
-                    f"{ratio(c, name, 'cpu_ms_per_step'):.3f}",
-                    f'**{long_ratio(c, name):.3f}**']
-        row.append(f"{max(m[n]['spread'] for n in c['integrators']):.0%}")
-        rows.append(row)
-    return rows
-
-
-def cost_header(results):
+def cost_table(results):
+    """Per case: each instance's wall / CPU ms per step; each exact path's
+    ratios to its reference; the worst block spread."""
     first = results['cases'][0]
     header = ['case', 'M (steps per block)', 'load average'] + [
         f'{label(first, name)}: wall / CPU (ms/step)'
         for name in reference_names(first)]
-    for name, reference in exact_names(results['cases'][0]):
-        header += [f'{label(results["cases"][0], name)}: wall / CPU '
-                   '(ms/step)',
-                   f'/ {label(results["cases"][0], reference)}: wall / CPU',
-                   f'/ {label(results["cases"][0], reference)}: CPU, '
-                   'long run']
-    return header + ['block spread']
+    for name, reference in exact_names(first):
+        ref = label(first, reference)
+        header += [f'{label(first, name)}: wall / CPU (ms/step)',
+                   f'/ {ref}: wall / CPU', f'/ {ref}: CPU, long run']
 
-
-def strong_rows(results):
-    """Each system and size measured on 1 and on more ranks."""
-    strong = {}
-    for c in results['cases']:
-        strong.setdefault((c['system'], c['natoms']), {})[c['ranks']] = c
+    def wall_cpu(times):
+        return f"{_ms(times['ms_per_step'])} / {_ms(times['cpu_ms_per_step'])}"
     rows = []
-    for (system, natoms), by_ranks in strong.items():
-        if 1 not in by_ranks or len(by_ranks) < 2:
-            continue
-        one = by_ranks[1]
-        for ranks, c in sorted(by_ranks.items()):
-            if ranks == 1:
-                continue
-            row = [one['label'].split(',')[0], ranks]
-            for name in c['integrators']:
-                speedup = (one['median'][name]['ms_per_step']
-                           / c['median'][name]['ms_per_step'])
-                row.append(f'{speedup:.2f} ({speedup / ranks:.0%})')
-            rows.append(row + [f"{ratio(one, n):.3f} → {ratio(c, n):.3f}"
-                               for n, _ in exact_names(c)])
-    return rows
+    for c in results['cases']:
+        m = c['median']
+        before, after = c['load_average']  # 1-minute, around the case
+        row = [c['label'], c['steps'], f'{before[0]:.1f}-{after[0]:.1f}'] + [
+            wall_cpu(m[name]) for name in reference_names(c)]
+        for name, _ in exact_names(c):
+            row += [wall_cpu(m[name]), f'{ratio(c, name):.3f} / '
+                    f"{ratio(c, name, 'cpu_ms_per_step'):.3f}",
+                    f'**{long_ratio(c, name):.3f}**']
+        rows.append(row + [
+            f"{max(m[n]['spread'] for n in c['integrators']):.0%}"])
+    return markdown_table(header + ['block spread'], rows)
 
 
 def model_numbers(case, name):
     """The exact path ``name``'s costs in ``case``, for the scaling model."""
-    m = case['median']
     reference = case['integrators'][name]['reference']
-    exact, ref = m[name], m[reference]
     per_rank = case['natoms'] / case['ranks']
     setup = case['setup_median_seconds']
     return {
-        'extra_ms': exact['ms_per_step'] - ref['ms_per_step'],
-        'extra_cpu_ms': exact['cpu_ms_per_step'] - ref['cpu_ms_per_step'],
-        'extra_ns_per_atom': 1e6 * (exact['ms_per_step']
-                                    - ref['ms_per_step']) / per_rank,
-        'extra_cpu_ns_per_atom': 1e6 * (exact['cpu_ms_per_step']
-                                        - ref['cpu_ms_per_step']) / per_rank,
         'long_extra_cpu_ns_per_atom': 1e6 * (
             case['long_run'][name]['cpu_ms_per_step']
             - case['long_run'][reference]['cpu_ms_per_step']) / per_rank,
@@ -245,57 +164,8 @@ def model_numbers(case, name):
         'run_cpu_ms': case['long_run'][name]['cpu_ms_per_run'],
         'reference_run_cpu_ms': case['long_run'][reference][
             'cpu_ms_per_run'],
-        'extra_loop_ms': exact['loop_ms_per_step'] - ref['loop_ms_per_step'],
-        'clean_per_step': exact['clean_per_step'],
-        'clean': exact['clean_recomputations'],
-        'steps': exact['steps'],
-        'setup_ms': 1e3 * setup[name],
-        'reference_setup_ms': 1e3 * setup[reference],
-        'setup_in_steps': 1e3 * setup[name] / ref['ms_per_step'],
-        'clean_ms_per_step': 1e3 * setup[name] * exact['clean_per_step'],
-        'reduce_us': 1e6 * case['reduce_median_seconds_per_call'],
-        'velocity_quantum': case['exact'][name]['velocity_quantum'],
-    }
-
-
-def model_rows(results):
-    rows = []
-    for c in results['cases']:
-        for name, _ in exact_names(c):
-            n = model_numbers(c, name)
-            rows.append([
-                c['label'], label(c, name),
-                f"{_ms(n['extra_ms'])} / {_ms(n['extra_cpu_ms'])}",
-                f"{n['extra_ns_per_atom']:.0f} / "
-                f"{n['extra_cpu_ns_per_atom']:.0f} / "
-                f"{n['long_extra_cpu_ns_per_atom']:.0f}",
-                f"{n['run_cpu_ms']:.0f} / {n['reference_run_cpu_ms']:.0f}",
-                f"{n['extra_loop_ms']:.3g}",
-                f"{n['clean_per_step']:.4f} ({n['clean']}/{n['steps']})",
-                f"{n['setup_ms']:.0f} / {n['reference_setup_ms']:.0f}",
-                f"{n['clean_ms_per_step']:.2g}",
-                f"{n['reduce_us']:.1f}" if c['ranks'] > 1 else '-',
-                _power_of_two(n['velocity_quantum'])])
-    return rows
-
-
-def strong_table(results):
-    first = results['cases'][0]
-    return markdown_table(
-        ['system', 'R'] + [f'{label(first, n)} speed-up'
-                           for n in first['integrators']]
-        + [f'{label(first, n)} / fix nve, 1 → R'
-           for n, _ in exact_names(first)], strong_rows(results))
-
-
-def model_table(results):
-    return markdown_table(
-        ['case', 'path', 'extra: wall / CPU (ms/step)',
-         'extra: wall / CPU / CPU of a long run (ns per atom of a rank)',
-         'CPU of a run besides its steps: exact / fix nve (ms)',
-         'extra, loop time (ms/step)', 'clean per step',
-         'run 0: exact / fix nve (ms)', 'clean cost (ms/step)',
-         'MPI max (µs/call)', 'velocity quantum'], model_rows(results))
+        'setup_in_steps': 1e3 * setup[name]
+        / case['median'][reference]['ms_per_step']}
 
 
 def values(results):
@@ -313,7 +183,6 @@ def values(results):
                                   for n in cases[0]['integrators']),
            'rounds': cases[0]['rounds'],
            'lammps_version': cases[0]['lammps_version'],
-           'reduce_calls': cases[0]['reduce_calls'],
            'sizes': _range([c['natoms'] for c in one], lambda n: f'{n:,}'),
            'modify': _range([c['median']['compiled']['breakdown_ms_per_step']
                              .get('Modify', 0.0)
@@ -334,10 +203,6 @@ def values(results):
             [c['median'][n]['breakdown_ms_per_step']['Pair']
              / c['median']['nve']['breakdown_ms_per_step']['Pair'] - 1
              for c in (goal or cases)], lambda e: f'{e:+.0%}')
-        out[f'pair_all_{n}'] = _range(
-            [c['median'][n]['breakdown_ms_per_step']['Pair']
-             / c['median']['nve']['breakdown_ms_per_step']['Pair'] - 1
-             for c in cases], lambda e: f'{e:+.0%}')
         numbers = [model_numbers(c, n) for c in one]
         out[f'extra_{n}'] = _range(
             [x['long_extra_cpu_ns_per_atom'] for x in numbers],
@@ -354,9 +219,5 @@ def values(results):
 SPEC = Spec(
     'Exact runs inside LAMMPS',
     blocks={'costs-goal': block(goal_table),
-            'costs': lambda stored: markdown_table(
-                cost_header(stored['results']), cost_rows(stored['results'])),
-            'breakdown': block(breakdown_table),
-            'strong': block(strong_table),
-            'model': block(model_table)},
+            'costs': block(cost_table)},
     plots=(plot,), values=values)

@@ -1,5 +1,5 @@
 """ReversibleNose against ASE's thermostats: sampling, exact reversal,
-memory against steps, cost per step.
+cost per step.
 
 Measured by benchmarks/nose.py and benchmarks/studies/nose_timestep.py,
 nose_chain.py.
@@ -7,9 +7,10 @@ nose_chain.py.
 
 from __future__ import annotations
 
-from . import Spec, block, markdown_table, table, thermostat
-from .thermostat import (histograms, potential_lines, sampling_table, size,
-                         speed_table, system, warning_lines, yes)
+from . import Spec, markdown_table, table, thermostat
+from .thermostat import (histograms, offset_lines, potential_lines,
+                         sampling_table, speed_table, system, warning_lines,
+                         yes)
 
 PLOT = 'nose_kinetic_energy.png'
 
@@ -55,19 +56,6 @@ THERMOSTAT_COLUMNS = (
         - s['thermostat']['extended_energy_eV']['first'], '+')))
 
 
-def harmonic_lines(results):
-    return '\n'.join(
-        f"- {s['system']} ({s['timestep_fs']:g} fs, rms real step "
-        f"{s['thermostat']['real_timestep_fs']['rms']:.3f} fs): ⟨ω²⟩ = "
-        f"{r['mean_omega_squared_per_fs2']:.3g} / fs², estimate "
-        f"{s['thermostat']['harmonic_kinetic_offset_percent']:+.2f}%, "
-        f"measured {100 * (t['mean'] / s['temperature_K'] - 1):+.2f}"
-        f" ± {100 * t['standard_error'] / s['temperature_K']:.2f}%."
-        for s in results['systems']
-        for r in [s['sampling']['reversible_nose']]
-        for t in [r['temperature_K']])
-
-
 def equal(flags, key):
     return yes(flags[key]) if key in flags else '–'
 
@@ -86,64 +74,6 @@ ROUND_TRIP_COLUMNS = (
     ('back (s)', '{round_trip[back_seconds]:.0f}'),
     ('total (s)', lambda s: '{:.0f}'.format(
         s['round_trip']['forward_seconds'] + s['round_trip']['back_seconds'])))
-
-
-def grown(r):
-    resident = r['resident_bytes']
-    return size(resident[-1] - resident[0]) if None not in resident else '–'
-
-
-MEMORY_COLUMNS = (
-    ('steps N', '{steps:,}'),
-    ('run(N): traced peak', lambda r: size(r['forward_traced_peak_bytes'])),
-    ('held after run', lambda r: size(r['forward_traced_end_bytes'])),
-    ('backpropagate(N): traced peak',
-     lambda r: size(r['backpropagate_traced_peak_bytes'])),
-    ('held after backpropagate',
-     lambda r: size(r['backpropagate_traced_end_bytes'])),
-    ('resident size, end − start', grown),
-    ('counts back at the start',
-     lambda r: yes(r['counts_equal_after_backpropagate'])),
-    ('Hessian-vector products', '{hessian_vector_products:,}'),
-    ('max |gradient|', lambda r: f"{r['gradient_max_abs']:.2g}"
-     + ('' if r['gradient_finite'] else ' (**not finite**)')),
-    ('run / backpropagate (s, traced)',
-     '{forward_seconds:.1f} / {backpropagate_seconds:.1f}'))
-
-
-def last_decade(points, key):
-    """Ratio of ``key`` at the last point to the one before."""
-    return points[-1][key] / points[-2][key]
-
-
-def memory_lines(results):
-    m = results['memory']
-    nose = m['nose']
-    lo, hi = nose[0], nose[-1]
-    out = []
-    for key, label in (('forward_traced_peak_bytes', 'run'),
-                       ('backpropagate_traced_peak_bytes', 'backpropagate')):
-        out.append(f"- {label}: traced peak ×{last_decade(nose, key):.3f} "
-                   f"from {nose[-2]['steps']:,} to {hi['steps']:,} steps, "
-                   f"×{hi[key] / lo[key]:.3f} from {lo['steps']:,}.")
-    for key, label in (('forward_traced_end_bytes', 'run'),
-                       ('backpropagate_traced_end_bytes', 'backpropagate')):
-        grown = hi[key] - nose[-2][key]
-        out.append(f'- held after {label}: {size(abs(grown))} '
-                   f"{'more' if grown >= 0 else 'less'} at "
-                   f"{hi['steps']:,} steps than at {nose[-2]['steps']:,} "
-                   f"({grown / (hi['steps'] - nose[-2]['steps']):+.3f} bytes "
-                   'per step).')
-    return '\n'.join(out)
-
-
-def memory_warning_lines(results):
-    m = results['memory']
-    seen = sorted({w for r in m['nose'] for w in r.get('warnings', ())})
-    return ('Warnings in the memory workers, each with how often it came in '
-            'its worker:\n\n'
-            + '\n'.join(f'- `{w}`' for w in seen)) if seen else \
-        'The memory workers gave no warning.'
 
 
 # -- the studies (benchmarks/studies/nose_timestep.py, nose_chain.py) -------
@@ -202,31 +132,24 @@ def timestep_block(stored):
 """
 
 
-NOT_MEASURED_CHAIN = ('Not measured yet: `python benchmarks/run_all.py '
-                      '--only nose_chain`.')
-
-
 def chain_block(stored):
     """docs/thermostats.md, "A chain of thermostats": the measured table."""
     study = stored['results'].get('chain')
     if study is None:
-        return NOT_MEASURED_CHAIN
+        return ('Not measured yet: `python benchmarks/run_all.py --only '
+                'nose_chain`.')
     rows = []
     for c in study['cases']:
+        head = [f"{c['system']} {c['n_atoms']}, {c['temperature_K']:g} K, "
+                f"{c['timestep_fs']:g} fs", c['tchain']]
+        s_ranges = ', '.join(f'{a:.2f}–{b:.2f}' for a, b in c['s_range'])
         if c.get('failure'):
-            rows.append([f"{c['system']} {c['n_atoms']}, "
-                         f"{c['temperature_K']:g} K, {c['timestep_fs']:g} fs",
-                         c['tchain'], c['failure'], '', '', '', '',
-                         ', '.join(f'{a:.2f}–{b:.2f}'
-                                   for a, b in c['s_range']), '', ''])
+            rows.append(head + [c['failure'], '', '', '', '', s_ranges, '', ''])
             continue
         ks = c['sampling']['ks']
         e = c['thermostat']['extended_energy_eV']
-        s_ranges = ', '.join(f'{a:.2f}–{b:.2f}' for a, b in c['s_range'])
         exact = c.get('round_trip_equal')
-        rows.append([
-            f"{c['system']} {c['n_atoms']}, {c['temperature_K']:g} K, "
-            f"{c['timestep_fs']:g} fs", c['tchain'],
+        rows.append(head + [
             _mean_se(c['sampling']['temperature_K']),
             f"{ks['p_value']:.2g}", f"{ks['shape_p_value']:.2g}",
             f"{c['half_kicked']['ks']['p_value']:.2g}",
@@ -242,23 +165,8 @@ def chain_block(stored):
 """
 
 
-def chain_stability_block(stored):
-    """docs/thermostats.md, "A chain of thermostats": which runs lasted."""
-    study = stored['results'].get('chain')
-    if study is None or 'stability' not in study:
-        return NOT_MEASURED_CHAIN
-    rows = []
-    for c in study['stability']:
-        rows.append([f"{c['system']} {c['n_atoms']}, {c['timestep_fs']:g} fs",
-                     c['tdamp_steps'], c['tchain'],
-                     c['failure'] or f"ran {c['steps']:,} steps",
-                     f"{c['largest_change_kT']:.3g}"])
-    return markdown_table(['system', 'tdamp (steps)', 'tchain', 'outcome',
-                           'largest change of H (kT)'], rows)
-
-
 def values(results):
-    """The prose's numbers: loads, the studies' costs."""
+    """The prose's numbers: the systems, the loads, the chain's scheme."""
     load, first = results['load_average'], results['systems'][0]
     out = {'systems_described': '; '.join(
         f"{s['system']} {s['n_atoms']} atoms with {s['calculator']}, "
@@ -267,17 +175,9 @@ def values(results):
         'n_f': first['thermostat']['degrees_of_freedom'],
         'n_atoms': first['n_atoms'], 'dof': first['dof'],
         'load_start': load['start'][0], 'load_end': load['end'][0],
-        'load_before_memory': load['before_memory'][0],
         'load_before_cost': load['before_cost'][0]}
     if 'chain' in results:
-        median = results['chain']['speed']['median_seconds']
-        out.update(
-            chain_scheme=results['chain']['cases'][0]['scheme'],
-            chain_ms={k: 1e3 * v for k, v in median.items()},
-            chain_over_one=(median['reversible_nose_tchain3']
-                            / median['reversible_nose']),
-            chain_over_ase=(median['reversible_nose_tchain3']
-                            / median['ase_nose_hoover_chain']))
+        out['chain_scheme'] = results['chain']['cases'][0]['scheme']
     return out
 
 
@@ -287,20 +187,19 @@ SPEC = Spec(
                                                       THERMOSTATS),
             'thermostat': lambda stored: table(
                 THERMOSTAT_COLUMNS, stored['results']['systems']),
-            'harmonic': block(harmonic_lines),
+            'harmonic': lambda stored: offset_lines(
+                stored['results'], 'reversible_nose',
+                lambda s, r: s['thermostat']['harmonic_kinetic_offset_percent'],
+                'estimate', lambda s: ', rms real step '
+                f"{s['thermostat']['real_timestep_fs']['rms']:.3f} fs"),
             'potential': lambda stored: potential_lines(stored['results'],
                                                         'ReversibleNose'),
             'round-trip': lambda stored: table(
                 ROUND_TRIP_COLUMNS, stored['results']['systems']),
             'warnings': lambda stored: warning_lines(stored['results'],
                                                      'ReversibleNose'),
-            'memory': lambda stored: table(
-                MEMORY_COLUMNS, stored['results']['memory']['nose']),
-            'memory-lines': block(memory_lines),
-            'memory-warnings': block(memory_warning_lines),
             'speed': lambda stored: speed_table(
                 stored['results'], SPEED_COLUMNS, 'ase_nose_hoover_chain'),
             'timestep': timestep_block,
-            'chain-stability': chain_stability_block,
             'chain': chain_block},
     plots=(plot,), values=values)

@@ -1,5 +1,4 @@
-"""Cost per step of ReversibleIsotropicNPT against ASE's IsotropicMTKNPT,
-and the profile of one case.
+"""Cost per step of ReversibleIsotropicNPT against ASE's IsotropicMTKNPT.
 
 Measured by benchmarks/npt_cost.py.
 """
@@ -32,26 +31,6 @@ def cost_table(results):
         + ['ratio, wall (CPU)'], rows)
 
 
-def profile_tables(results):
-    p = results['profile']
-    parts = []
-    for key, label in LABELS:
-        run = p['runs'][key]
-        rows = [[f"`{r['function']}`", f"{r['calls']:,}",
-                 f"{r['tottime'] * 1e6 / run['steps']:,.0f}",
-                 f"{r['cumtime'] * 1e6 / run['steps']:,.0f}",
-                 f"{100 * r['share']:.1f}%"] for r in run['by_own_time']]
-        parts.append(
-            f"{label}, {p['label'].split(',')[0]} {p['n_atoms']} atoms, "
-            f"{run['steps']} steps under cProfile "
-            f"({run['per_step_seconds'] * 1e6:,.0f} µs/step with the "
-            "profiler), by own time:\n\n"
-            + markdown_table(['function', 'calls', 'own µs/step',
-                              'cumulative µs/step', 'share of the run'],
-                             rows))
-    return '\n\n'.join(parts)
-
-
 SPEC = Spec(
     'Constant pressure: cost per step against ASE IsotropicMTKNPT',
-    blocks={'cost': block(cost_table), 'profile': block(profile_tables)})
+    blocks={'cost': block(cost_table)})

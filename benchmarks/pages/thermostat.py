@@ -139,17 +139,16 @@ def potential_lines(results, name='ReversibleLangevin'):
                        s['potential_difference_standard_error_eV'])])
 
 
-def baoab_lines(results):
-    """Per system: BAOAB's predicted kinetic-temperature offset against
-    ReversibleLangevin's measured one, in %."""
+def offset_lines(results, key, predicted, word='predicted',
+                 step=lambda s: ''):
+    """Per system: the kinetic-temperature offset ``predicted(s, run)`` (%)
+    against ``key``'s measured one."""
     return '\n'.join(
-        f"- {s['system']} ({s['timestep_fs']:g} fs): ⟨ω²⟩ = "
-        f"{r['mean_omega_squared_per_fs2']:.3g} / fs², predicted "
-        f"{r['baoab_harmonic_kinetic_bias_percent']:+.2f}%, measured "
-        f"{deviation_percent(s, 'reversible_langevin'):+.2f} ± "
-        f"{100 * r['temperature_K']['standard_error'] / s['temperature_K']:.2f}%."
-        for s in results['systems']
-        for r in [s['sampling']['reversible_langevin']])
+        f"- {s['system']} ({s['timestep_fs']:g} fs{step(s)}): ⟨ω²⟩ = "
+        f"{r['mean_omega_squared_per_fs2']:.3g} / fs², {word} "
+        f"{predicted(s, r):+.2f}%, measured {deviation_percent(s, key):+.2f}"
+        f" ± {100 * r['temperature_K']['standard_error'] / s['temperature_K']:.2f}%."
+        for s in results['systems'] for r in [s['sampling'][key]])
 
 
 def system(s):
@@ -200,16 +199,6 @@ def buffer_table(results):
         ['system', 'steps', 'bits held / step / coordinate',
          'ratio to −log2(c)', 'buffer memory (nbytes)', 'allocated',
          'trajectory (x and p, float64)', 'trajectory / buffer'], rows)
-
-
-def forces_again_lines(results):
-    """What a repeated get_forces() cost, per case, in µs and in
-    VelocityVerlet steps."""
-    return '; '.join(
-        f"{r['calculator']} {r['n_atoms']}: "
-        f"{us(r['get_forces_again_seconds'])} µs "
-        f"({r['get_forces_again_seconds'] / r['median_seconds']['velocity_verlet']:.2f}"
-        " of a VelocityVerlet step)" for r in results['speed']) + '.'
 
 
 def speed_table(results, columns=SPEED_COLUMNS, base_key='ase_langevin'):
@@ -316,12 +305,14 @@ def values(results):
 SPEC = Spec(
     'Thermostat: ReversibleLangevin against ASE Langevin',
     blocks={'sampling': block(sampling_table),
-            'baoab': block(baoab_lines), 'potential': block(potential_lines),
+            'baoab': lambda stored: offset_lines(
+                stored['results'], 'reversible_langevin',
+                lambda s, r: r['baoab_harmonic_kinetic_bias_percent']),
+            'potential': block(potential_lines),
             'round-trip': lambda stored: table(
                 ROUND_TRIP_COLUMNS, stored['results']['systems']),
             'warnings': block(warning_lines),
             'buffer': block(buffer_table),
             'speed': block(speed_table),
-            'forces-again': block(forces_again_lines),
             'bussi': bussi_doc_block},
     plots=(plot,), values=values)

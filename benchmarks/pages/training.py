@@ -7,7 +7,7 @@ Measured by benchmarks/studies/training.py, whose docstring gives the method.
 
 from __future__ import annotations
 
-from . import Spec, block, figure, markdown_table
+from . import Spec, block, figure, label, markdown_table
 
 MEMORY_PLOT = 'training_memory.png'
 
@@ -18,7 +18,7 @@ LOSS_NAMES = {'rdf': 'g(r) loss', 'vacf': 'VACF loss',
 def plot(results, figures):
     with figure(figures / MEMORY_PLOT, 1, (7, 4), dpi=100) as (plt, fig, ax):
         memory = results['memory']
-        for kind, label, marker, color in (
+        for kind, legend, marker, color in (
                 ('reversible', 'one epoch through backpropagate (loss=, '
                  'window=)', 'o-', 'C0'),
                 ('autograd', 'plain PyTorch autograd through the steps',
@@ -26,16 +26,14 @@ def plot(results, figures):
             pts = memory['points'][kind]
             ax.loglog([p['steps'] for p in pts],
                       [p['max_rss_bytes'] / 2**20 for p in pts], marker,
-                      color=color, label=label)
+                      color=color, label=legend)
         extra = memory['autograd_extrapolated_bytes']
         ax.loglog([int(n) for n in extra], [b / 2**20 for b in extra.values()],
                   ':', color='C3', label='autograd, extrapolated linearly')
-        ax.set_xlabel('steps')
-        ax.set_ylabel('peak resident set size (MiB)')
         ax.grid(True, which='major', alpha=0.3)
-        ax.legend(fontsize=8)
-        ax.set_title(f"{memory['atoms']} argon atoms: peak memory of one "
-                     'gradient (a fresh process per point)', fontsize=10)
+        label(ax, 'steps', 'peak resident set size (MiB)',
+              f"{memory['atoms']} argon atoms: peak memory of one gradient "
+              '(a fresh process per point)')
 
 
 def gradients_table(g):

@@ -1,5 +1,5 @@
-"""Nosé-Hoover chains of ReversibleNose: stability, sampling, round trip,
-cost (``--only nose_chain``: ~13 minutes; stored as the nose section's
+"""Nosé-Hoover chains of ReversibleNose: sampling, round trip
+(``--only nose_chain``: ~13 minutes; stored as the nose section's
 'chain').
 """
 
@@ -16,12 +16,12 @@ from ase import units
 from ase.build import bulk
 from ase.md.langevin import Langevin
 from harness import (NoseSampler, StudyLengths, canonical_statistics,
-                     histogram_edges, nose_statistics, speed_case)
+                     histogram_edges, nose_statistics)
 from systems import (CALCULATORS, NOSE_SYSTEMS, SEED, TDAMP_STEPS,
-                     THERMOSTAT_SPEED, THERMOSTAT_SYSTEMS, THERMOSTATS, tdamp)
+                     THERMOSTAT_SYSTEMS, tdamp)
 
 from ase_reversible import ReversibleNose
-from ase_reversible.app.systems import copper_bulk, thermalize
+from ase_reversible.app.systems import thermalize
 from ase_reversible.md.nose.thermostat import CHAIN_STIFFNESS
 
 KS_LEVEL = 0.01
@@ -34,8 +34,6 @@ CHAIN_LENGTHS = (1, 2, 3)
 
 FULL = StudyLengths(equilibration=2000, sampled=60_000)
 QUICK = StudyLengths(equilibration=200, sampled=1000)
-SPEED_CONTESTANTS = ('reversible_nose', 'reversible_nose_tchain3',
-                     'ase_nose_hoover_chain')
 
 
 def liquid_argon(repeat, temperature_K):
@@ -54,14 +52,6 @@ SYSTEMS = (
     replace(THERMOSTAT_SYSTEMS[0], label='Ar liquid', build=liquid_argon,
             temperature_K=120.0, timestep_fs=10.0),
 )
-#: The stability check: the systems of the tests' round trips, tdamp in
-#: steps, and steps run from the start.
-STABILITY_SYSTEMS = (
-    replace(THERMOSTAT_SYSTEMS[1], repeat=(3, 3, 3), build=copper_bulk),
-    THERMOSTAT_SYSTEMS[0],
-)
-STABILITY_TDAMP_STEPS = (10, 20, 40, 100)
-STABILITY_STEPS = 3000
 
 
 class ChainSampler(NoseSampler):
@@ -143,45 +133,10 @@ def chain_case(system, tchain, scheme, lengths):
     return result
 
 
-def stability_case(system, tchain, tdamp_steps, steps):
-    """Does a run from the lattice, the thermostat at 0.6 times the
-    momenta's temperature, last ``steps`` steps, and how far does the
-    extended energy move (kT)?"""
-    atoms = system.atoms()
-    h = system.timestep_fs * units.fs
-    temperature_K = 0.6 * atoms.get_temperature()
-    dyn = ReversibleNose(atoms, h, temperature_K, tdamp_steps * h,
-                         tchain=tchain, energy_check=0)
-    kT = units.kB * temperature_K
-    e0 = dyn.get_conserved_energy()
-    largest = [0.0]
-
-    def watch():
-        largest[0] = max(largest[0], abs(dyn.get_conserved_energy() - e0))
-    dyn.attach(watch, interval=5)
-    try:
-        dyn.run(steps)
-        failure = None
-    except Exception as error:  # what it raised is the result
-        failure = f'{type(error).__name__} at step {dyn.nsteps}'
-    return {'system': system.label, 'n_atoms': len(atoms),
-            'timestep_fs': system.timestep_fs, 'tchain': tchain,
-            'tdamp_steps': tdamp_steps, 'steps': steps,
-            'failure': failure, 'largest_change_kT': largest[0] / kT}
-
-
 def run(quick, scheme='velocity'):
     lengths = QUICK if quick else FULL
-    steps = 300 if quick else STABILITY_STEPS
-    stability = [stability_case(system, tchain, tdamp_steps, steps)
-                 for system in STABILITY_SYSTEMS
-                 for tdamp_steps in STABILITY_TDAMP_STEPS
-                 for tchain in (1, 3)]
     cases = [chain_case(system, tchain, scheme, lengths)
              for system in SYSTEMS for tchain in CHAIN_LENGTHS]
-    cost = speed_case(NOSE_SYSTEMS[1], (5, 5, 10),
-                      THERMOSTAT_SPEED[quick],
-                      SPEED_CONTESTANTS, THERMOSTATS, 'ase_nose_hoover_chain')
     return {'lengths': asdict(lengths), 'tdamp_steps': TDAMP_STEPS,
             'ks_level': KS_LEVEL, 'chain_stiffness': CHAIN_STIFFNESS,
-            'stability': stability, 'cases': cases, 'speed': cost}
+            'cases': cases}
