@@ -543,16 +543,18 @@ def _plot(result):
     plt.close(fig)
 
 
-# -- a dynamical target: the velocity autocorrelation --------------------------
-
-#: NVE windows for the VACF: steps per window, steps between its samples,
-
-
-if __name__ == '__main__':
-    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+def command_line(doc):
+    """The options this example and ``fit_vacf.py`` share: ``--out DIR``
+    and ``--quick``; ``doc`` is the script's docstring."""
+    parser = argparse.ArgumentParser(description=doc.split('\n\n')[0])
     parser.add_argument('--out', default='.', metavar='DIR')
     parser.add_argument('--quick', action='store_true',
                         help='32 atoms, a few short epochs (< 30 s)')
+    return parser
+
+
+if __name__ == '__main__':
+    parser = command_line(__doc__)
     parser.add_argument('--student', choices=('mlp', 'lj'), default='mlp')
     parser.add_argument('--learning-rate', type=float, default=None,
                         metavar='RATE', help="Adam's (default: the size's)")

@@ -23,7 +23,6 @@ docs/images is the full run's.
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
@@ -33,8 +32,8 @@ from ase import units
 from ase_reversible import LennardJones, ReversibleLangevin, ReversibleVerlet
 from ase_reversible.core.record import INFO_KEY
 from fit_rdf import (EPSILON, FRICTION, FULL, QUICK, SEED, SIGMA,
-                     TEMPERATURE_K, TIMESTEP, LJStudent, finish,
-                     liquid_argon)
+                     TEMPERATURE_K, TIMESTEP, LJStudent, command_line,
+                     finish, liquid_argon)
 
 
 #: NVT steps between windows (the student's own thermostatted run, which
@@ -186,11 +185,7 @@ def _plot_vacf(result):
 
 
 if __name__ == '__main__':
-    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    parser.add_argument('--out', default='.', metavar='DIR')
-    parser.add_argument('--quick', action='store_true',
-                        help='32 atoms, a few short epochs (< 30 s)')
-    args = parser.parse_args()
+    args = command_line(__doc__).parse_args()
     r = fit_vacf(args.out, args.quick)
     print(f'VACF loss {r["loss_initial"]:.4g} -> {r["loss_final"]:.4g}; '
           f'σ {r["sigma_initial"]:.3f} -> {r["sigma_final"]:.3f} Å; '
