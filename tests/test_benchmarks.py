@@ -18,7 +18,7 @@ from tiers import SLOW
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Every section, as docs/benchmarks.md names them in its generated
-#: blocks' markers (read, not imported: tests never import benchmarks/).
+#: blocks' markers (read as text: no test loads a module of benchmarks/).
 #: That the committed page is what the stored results render to is checked
 #: by ``python benchmarks/render.py --check`` (a CI step of its own).
 MEASURED = re.compile(r'<!-- (\w+) measured: written by benchmarks/render')

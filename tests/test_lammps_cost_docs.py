@@ -20,9 +20,9 @@ DOCS = ROOT / 'docs'
 
 def block(page, name, block):
     """The generated block ``name block`` of ``page``, read from the
-    Markdown (tests never import benchmarks/; ``python benchmarks/render.py
-    --check``, a CI step, checks that the blocks are what the stored JSON
-    renders to)."""
+    Markdown (no test loads a module of benchmarks/; ``python
+    benchmarks/render.py --check``, a CI step, checks that the blocks are
+    what the stored JSON renders to)."""
     text = (DOCS / page).read_text()
     begin = f'<!-- {name} {block}: written by benchmarks/render.py'
     assert text.count(begin) == 1, (page, name, block)
