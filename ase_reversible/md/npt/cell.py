@@ -20,7 +20,8 @@ L11 = L11**-1 L22**-2``, which is ``exp(-H/kT)``'s factor above (``L =
 cell0 M``, ``cell0`` lower triangular).  ``d rho d pi = dx dp`` as for the
 isotropic barostat.
 
-The splitting is that of :mod:`ase_reversible.md.npt`, each part a shear:
+The splitting is that of docs/pressure.md ("The derivation"), each part a
+shear:
 
 * kinetic: ``rho += h q / m`` with ``q = p M^-1`` (``p = pi M^-T``), and
   ``P += h sum q^T p / m`` (the lower-triangular entries);

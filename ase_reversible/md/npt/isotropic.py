@@ -1,7 +1,7 @@
 """ReversibleIsotropicNPT: the integrator (arguments, restarts, the change
 contract, gradients' mapping); the dynamics is in
 :mod:`~ase_reversible.md.npt.system` and :mod:`.friction`, the derivation
-in :mod:`ase_reversible.md.npt`."""
+in docs/pressure.md, "The derivation"."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from .system import (DRIFT, FRICTION, KICK, KINETIC, LAMBDA, LAMBDA_QUANTUM,
 from .checks import (_checked_pressure, _refuse_cell, _refuse_constraints,
                      _refuse_stressless, _warn_new_run)
 
-#: ``B/2 P/2 T/2 O T/2 P/2 B/2`` (:mod:`ase_reversible.md.npt`): a
+#: ``B/2 P/2 T/2 O T/2 P/2 B/2`` (docs/pressure.md, "The derivation"): a
 #: palindrome, so the same sequence run with -h undoes a step.  The two
 #: parts of B read ``rho`` and ``lambda`` only, the two of T ``pi`` and
 #: ``lambda`` only.
@@ -90,13 +90,14 @@ class ReversibleIsotropicNPT(BufferedDynamics):
     The cell is scaled uniformly by an exact piston (Andersen's barostat,
     with friction and noise of its own) and the atoms are held at
     ``temperature_K`` by Langevin friction and noise (the derivation is
-    in :mod:`ase_reversible.md.npt`).  After ``run(n)``, :meth:`reverse` and
-    ``run(n)``, the scaled positions, their momenta, the cell's scale and
-    its momentum and the information buffer are bitwise those right after
-    the constructor; so are ``atoms.positions``, ``atoms.get_momenta()``
-    and ``atoms.cell``.  The atoms show the Cartesian positions, momenta
-    and cell after every step observers see, so ``atoms.get_volume()``,
-    ``atoms.get_temperature()`` and trajectories work as with ASE's NPT.
+    in docs/pressure.md, "The derivation").  After ``run(n)``,
+    :meth:`reverse` and ``run(n)``, the scaled positions, their momenta,
+    the cell's scale and its momentum and the information buffer are
+    bitwise those right after the constructor; so are
+    ``atoms.positions``, ``atoms.get_momenta()`` and ``atoms.cell``.  The
+    atoms show the Cartesian positions, momenta and cell after every step
+    observers see, so ``atoms.get_volume()``, ``atoms.get_temperature()``
+    and trajectories work as with ASE's NPT.
 
     Parameters
     ----------
@@ -562,7 +563,7 @@ class ReversibleIsotropicNPT(BufferedDynamics):
 
     @property
     def barostat_mass(self) -> float:
-        """``W``, eV (ASE time)**2 (see :mod:`ase_reversible.md.npt`)."""
+        """``W``, eV (ASE time)**2 (see docs/pressure.md, "The derivation")."""
         return self.system.W
 
     @property

@@ -1,6 +1,7 @@
 """The scaled system of :class:`~.isotropic.ReversibleIsotropicNPT`: its
 exact variables, what the atoms show, and the sub-steps of the
-Hamiltonian part (the derivation is in :mod:`ase_reversible.md.npt`)."""
+Hamiltonian part (the derivation is in docs/pressure.md, "The
+derivation")."""
 
 from __future__ import annotations
 
@@ -378,7 +379,7 @@ class PistonPush(SubStep):
 
 class VirialKick(PistonPush):
     """``p_lambda += round_odd(c h G / q)``, ``G = -lambda**2 V0 (tr(sigma)
-    + 3P) + 2 kT / lambda`` (see :mod:`ase_reversible.md.npt`).
+    + 3P) + 2 kT / lambda`` (see docs/pressure.md, "The derivation").
 
     Under guarded rounding the increment is a rounding like the kick's: if
     it lies within the stress's noise bound of a tie, the stress is
