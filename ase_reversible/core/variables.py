@@ -37,10 +37,13 @@ class ExactVariable:
     update cost twice the arithmetic at a hundred atoms and three times
     at thousands).  :attr:`ints` gives them as int64.
 
-    Three buffers rotate -- the value at the last :meth:`checkpoint`, the
-    current value, and the one being written -- so an update never
-    overwrites the checkpoint, and :meth:`rollback` puts it back without
-    copying anything.
+    An update never overwrites the value at the last :meth:`checkpoint`,
+    so :meth:`rollback` puts it back without copying anything.  The first
+    update after a checkpoint writes another buffer (the one the
+    checkpoint before used, so that a run alternates between two); later
+    ones add in place, unless the sum may leave the range, when they
+    write the third buffer so that a refused update leaves the value as
+    it was.
 
     Each buffer carries an upper bound on its largest ``|count|``: an update
     adds the increment's largest magnitude to it and checks the sum itself

@@ -80,20 +80,15 @@ class Hamiltonian:
         """Write the exact positions into the atoms' own array."""
         self.x.write_floats(self.atoms.arrays['positions'])
 
-    #: Whether the atoms show the momentum counts' exact image itself (a
-    #: subclass that shows a function of it overrides :meth:`shown_momenta`
-    #: and sets this False).
-    shows_counts = True
-
     def show_momenta(self):
-        """Write the momenta the atoms show into them (creating the
-        array)."""
+        """Write the momenta the atoms show (:meth:`shown_momenta`) into
+        them (creating the array)."""
         momenta = self.atoms.arrays.get('momenta')
         if momenta is None:
             self.atoms.set_momenta(self.shown_momenta(),
                                    apply_constraint=False)
-        elif self.shows_counts:
-            self.p.write_floats(momenta)  # one pass, not two
+        elif type(self).shown_momenta is Hamiltonian.shown_momenta:
+            self.p.write_floats(momenta)  # the counts' image: one pass
         else:
             np.copyto(momenta, self.shown_momenta())
 

@@ -151,8 +151,6 @@ class NoseHamiltonian(Hamiltonian):
         """``s``, its exact float image."""
         return float(self.s.floats[0])
 
-    shows_counts = False
-
     def shown_momenta(self):
         return self.divided_momenta(self.s)
 

@@ -128,8 +128,6 @@ class NPTHamiltonian(Hamiltonian):
         #: the one this dynamics set, not the user's.
         self.shown_cell_bytes = cell.tobytes()
 
-    shows_counts = False
-
     def shown_momenta(self):
         return self.divided_momenta(self.lam)
 
