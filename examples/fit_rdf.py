@@ -45,6 +45,7 @@ Run it::
     python examples/fit_rdf.py --out DIR                # 256 atoms, 10-25 min
     python examples/fit_rdf.py --out DIR --quick        # 32 atoms, < 30 s
     python examples/fit_rdf.py --out DIR --student lj   # learn ε and σ
+    python examples/fit_rdf.py --out DIR --large --device cuda  # 4,000 atoms
 
 It prints the loss per epoch and writes ``DIR/fit_rdf.png`` (g(r) before
 and after against the target, the learned pair potential against the
@@ -122,6 +123,9 @@ class Size:
 FULL = Size(repeat=4, r_max=10.0, equilibrate=1000, target_steps=10000,
             epochs=20, steps=400, every=50, window=50, learning_rate=0.01,
             mlp_cutoff=8.5, mlp_learning_rate=0.003, pretrain_steps=1500)
+#: 4,000 atoms (10³ fcc cells), the size a GPU is for: each epoch's
+#: g(r) is then the average of 4,000 atoms' shells, not 256.
+LARGE = dataclasses.replace(FULL, repeat=10, epochs=10)
 QUICK = Size(repeat=2, r_max=5.2, equilibrate=200, target_steps=2000,
              epochs=4, steps=200, every=50, window=50, learning_rate=0.01,
              mlp_cutoff=8.5, mlp_learning_rate=0.005, pretrain_steps=300)
@@ -150,9 +154,10 @@ class SmoothRDF:
     the same arithmetic.
     """
 
-    def __init__(self, atoms, r_max):
+    def __init__(self, atoms, r_max, device='cpu'):
         import torch
         self.torch = torch
+        self.device = torch.device(device)
         cell = atoms.cell.array
         if not (np.allclose(cell, np.diag(np.diag(cell)))
                 and atoms.pbc.all()):
@@ -168,13 +173,14 @@ class SmoothRDF:
                 f'less 3 kernel widths, {longest:.3f} Å.')
         n = len(atoms)
         self.r_b = bin_centres(r_max)
-        self.lengths = torch.tensor(lengths_c, dtype=torch.float64)
-        self.i, self.j = torch.triu_indices(n, n, 1)
+        f64 = {'dtype': torch.float64, 'device': self.device}
+        self.lengths = torch.tensor(lengths_c, **f64)
+        self.i, self.j = torch.triu_indices(n, n, 1, device=self.device)
         pair_density = n * (n - 1) / 2 / atoms.get_volume()
         self.norm_b = torch.tensor(
             1 / (pair_density * 4 * math.pi * self.r_b**2
-                 * math.sqrt(2 * math.pi) * KERNEL_WIDTH), dtype=torch.float64)
-        self.centres_b = torch.tensor(self.r_b, dtype=torch.float64)
+                 * math.sqrt(2 * math.pi) * KERNEL_WIDTH), **f64)
+        self.centres_b = torch.tensor(self.r_b, **f64)
         self.reach = r_max + 5 * KERNEL_WIDTH
 
     def _rdf(self, x_nc):
@@ -190,14 +196,18 @@ class SmoothRDF:
     def values(self, x_nc):
         torch = self.torch
         with torch.no_grad():
-            return self._rdf(torch.as_tensor(x_nc, dtype=torch.float64)).numpy()
+            return self._rdf(self._tensor(x_nc)).cpu().numpy()
 
     def pullback(self, x_nc, w_b):
         torch = self.torch
-        x = torch.tensor(x_nc, dtype=torch.float64, requires_grad=True)
+        x = self._tensor(x_nc).requires_grad_(True)
         g_b = self._rdf(x)
-        (g_b * torch.as_tensor(w_b, dtype=torch.float64)).sum().backward()
-        return x.grad.numpy()
+        (g_b * self._tensor(w_b)).sum().backward()
+        return x.grad.cpu().numpy()
+
+    def _tensor(self, array):
+        return self.torch.tensor(np.asarray(array), dtype=self.torch.float64,
+                                 device=self.device)
 
 
 def rdf_loss(mean_b, target_b):
@@ -218,16 +228,29 @@ def sample_rdf(dyn, rdf, steps, every):
     return total_b / count, count
 
 
-def target_rdf(size):
-    """g(r) of the reference potential: ``(target, atoms at the end)``."""
+def target_rdf(size, device='cpu'):
+    """g(r) of the reference potential: ``(target, atoms at the end)``;
+    on a torch device other than the CPU the reference is the same pair
+    potential in torch (``ase_reversible.torch.LennardJones``) there."""
     atoms = liquid_argon(size.repeat)
-    atoms.calc = LennardJones(epsilon=EPSILON, sigma=SIGMA)
+    atoms.calc = reference_calculator(device)
     dyn = ReversibleLangevin(atoms, TIMESTEP, TEMPERATURE_K, FRICTION,
                              seed=SEED)
     dyn.run(size.equilibrate)
-    rdf = SmoothRDF(atoms, size.r_max)
+    rdf = SmoothRDF(atoms, size.r_max, device)
     target_b, _ = sample_rdf(dyn, rdf, size.target_steps, size.every)
     return target_b, atoms
+
+
+def reference_calculator(device='cpu'):
+    """The reference Lennard-Jones (ε, σ, cut-off 3 σ switched from 0.66
+    of it) as this package's numpy calculator, or in torch on ``device``."""
+    if str(device) == 'cpu':
+        return LennardJones(epsilon=EPSILON, sigma=SIGMA)
+    from ase_reversible.torch import LennardJones as TorchLJ
+    from ase_reversible.torch import TorchCalculator
+    model = TorchLJ(EPSILON, SIGMA).to(device)
+    return TorchCalculator(model, model.cutoff)
 
 
 # -- students -------------------------------------------------------------------
@@ -292,13 +315,14 @@ class MLPStudent:
     """
 
     def __init__(self, cutoff, sigma=WRONG_SIGMA, learning_rate=0.003,
-                 pretrain_steps=1500, decay=0.92):
+                 pretrain_steps=1500, decay=0.92, device='cpu'):
         import torch
         from ase_reversible.torch import PairMLP, TorchCalculator
         self.torch = torch
         # SiLU: the activation the documented runs were made with (the
         # model's default is now tanh, whose products are cheaper).
-        self.model = PairMLP(cutoff=cutoff, seed=SEED, activation='silu')
+        self.model = PairMLP(cutoff=cutoff, seed=SEED,
+                             activation='silu').to(device)
         self.pretrain(sigma, pretrain_steps)
         self.calc = TorchCalculator(self.model, cutoff)
         self.names = self.calc.differentiable_parameters
@@ -317,10 +341,12 @@ class MLPStudent:
         below 3.1 Å and atoms came closer than 2.9 Å.
         """
         torch = self.torch
+        device = self.model.centres.device
         r = torch.linspace(0.8 * sigma, self.model.cutoff, 400,
-                           dtype=torch.float64)
-        target = torch.as_tensor(np.minimum(lj_pair(r.numpy(), EPSILON,
-                                                    sigma), 30 * EPSILON))
+                           dtype=torch.float64, device=device)
+        target = torch.tensor(np.minimum(lj_pair(r.cpu().numpy(), EPSILON,
+                                                 sigma), 30 * EPSILON),
+                              device=device)
         optimiser = torch.optim.Adam(self.model.parameters(), lr=3e-3)
         for _ in range(steps):
             optimiser.zero_grad()
@@ -342,8 +368,9 @@ class MLPStudent:
     def pair_energy(self, r):
         torch = self.torch
         with torch.no_grad():
-            return self.model.pair_energy(
-                torch.as_tensor(r, dtype=torch.float64)).numpy()
+            return self.model.pair_energy(torch.tensor(
+                np.asarray(r), dtype=torch.float64,
+                device=self.model.centres.device)).cpu().numpy()
 
     def summary(self):
         """Where the learned pair energy crosses zero and its minimum (Å,
@@ -397,9 +424,9 @@ def epoch(atoms, calc, names, rdf, target_b, size, seed):
     return loss, mean_b, grads.parameters, exact, end
 
 
-def train(student, size, target_b, atoms, report=print):
+def train(student, size, target_b, atoms, report=print, device='cpu'):
     """Adam on the student, one retrace per epoch; returns the history."""
-    rdf = SmoothRDF(atoms, size.r_max)
+    rdf = SmoothRDF(atoms, size.r_max, device)
     history = {'loss': [], 'rdf': [], 'exact': [], 'seconds': []}
     for k in range(size.epochs):
         tic = time.perf_counter()
@@ -419,40 +446,48 @@ def train(student, size, target_b, atoms, report=print):
     return history
 
 
-def make_student(kind, size):
+def make_student(kind, size, device='cpu'):
     if kind == 'lj':
+        if str(device) != 'cpu':
+            raise ValueError("The LJ student is the package's numpy "
+                             "LennardJones: it runs on the CPU only; use "
+                             "--student mlp with --device.")
         return LJStudent(learning_rate=size.learning_rate)
     if kind == 'mlp':
         return MLPStudent(size.mlp_cutoff, learning_rate=size.mlp_learning_rate,
-                          pretrain_steps=size.pretrain_steps)
+                          pretrain_steps=size.pretrain_steps, device=device)
     raise ValueError(f"unknown student {kind!r}: 'mlp' or 'lj'")
 
 
 def main(out_dir='.', quick=False, student='mlp', report=print,
-         learning_rate=None, window=None):
+         learning_rate=None, window=None, device='cpu', size=None):
     """Fit, draw, return the numbers (see the module docstring).
 
     ``learning_rate``: Adam's, instead of the size's (for the MLP its
     weights', for the LJ student that of ε / EPSILON and σ / SIGMA).
     ``window``: steps between observed states and the reach of each one's
-    gradient (``every = window``), instead of the size's.
+    gradient (``every = window``), instead of the size's.  ``device``:
+    where the MLP student and g(r) are computed (``'cuda'``, say; the
+    integrator and its exact variables stay on the CPU).  ``size``: a
+    :class:`Size` (``LARGE``, say) instead of ``QUICK`` or ``FULL``.
     """
     import torch
     # Small tensors: with torch's default two threads on a busy two-core
     # machine one pretraining iteration took 87 ms, with one 1.1 ms.
     torch.set_num_threads(1)
     tic = time.perf_counter()
-    size = QUICK if quick else FULL
+    if size is None:
+        size = QUICK if quick else FULL
     if learning_rate is not None:
         size = dataclasses.replace(size, learning_rate=learning_rate,
                                    mlp_learning_rate=learning_rate)
     if window is not None:
         size = dataclasses.replace(size, every=window, window=window)
-    target_b, atoms = target_rdf(size)
+    target_b, atoms = target_rdf(size, device)
     report(f'target g(r): {size.target_steps} steps of {len(atoms)} atoms '
            f'with LJ ε = {EPSILON} eV, σ = {SIGMA} Å '
            f'({time.perf_counter() - tic:.0f} s)')
-    learner = make_student(student, size)
+    learner = make_student(student, size, device)
     # The reference's liquid relaxed under the student first, so that the
     # first epoch's g(r) is the student's own.
     atoms.calc = learner.calculator()
@@ -462,16 +497,16 @@ def main(out_dir='.', quick=False, student='mlp', report=print,
     before = learner.summary()
     pair_r = np.linspace(3.0, 9.0, 241)
     pair_before = learner.pair_energy(pair_r)
-    history = train(learner, size, target_b, atoms, report)
+    history = train(learner, size, target_b, atoms, report, device)
     # The student after its last step, measured like the others.
-    rdf = SmoothRDF(atoms, size.r_max)
+    rdf = SmoothRDF(atoms, size.r_max, device)
     final_loss, final_b, _, exact, _ = epoch(
         atoms, learner.calculator(), learner.names, rdf, target_b, size,
         SEED + 1 + size.epochs)
     history['exact'].append(exact)
     os.makedirs(out_dir, exist_ok=True)
     result = {
-        'atoms': len(atoms), 'student': student,
+        'atoms': len(atoms), 'student': student, 'device': str(device),
         'epochs': size.epochs, 'steps_per_epoch': size.steps,
         'every': size.every, 'window': size.window,
         'learning_rate': (size.mlp_learning_rate if student == 'mlp'
@@ -561,9 +596,15 @@ if __name__ == '__main__':
     parser.add_argument('--window', type=int, default=None, metavar='STEPS',
                         help='steps between observed states, and the reach '
                         "of each one's gradient (default: the size's)")
+    parser.add_argument('--device', default='cpu',
+                        help="torch device of the MLP student and g(r) "
+                        "('cuda', say; default cpu)")
+    parser.add_argument('--large', action='store_true',
+                        help='4,000 atoms (LARGE): a fit for a GPU')
     args = parser.parse_args()
     r = main(args.out, args.quick, args.student,
-             learning_rate=args.learning_rate, window=args.window)
+             learning_rate=args.learning_rate, window=args.window,
+             device=args.device, size=LARGE if args.large else None)
     print(f'loss {r["loss_initial"]:.4g} -> {r["loss_final"]:.4g} Å; '
           f'{r["exact_returns"]} of {r["epochs"] + 1} retraces back bit for '
           f'bit; {r["seconds"]:.0f} s; {r["picture"]}')

@@ -23,8 +23,15 @@ except ImportError as error:   # pragma: no cover - depends on the venv
         "the CPU build add --index-url https://download.pytorch.org/whl/cpu)"
     ) from error
 
-from .calculator import TorchCalculator
-from .models import LennardJones, PairMLP
-from .neighbours import neighbour_list
+from ..core.kernels import prepare_cublas
+
+# Before the script's first CUDA call, which usually follows this import:
+# cuBLAS reads its workspace setting once, and deterministic kernels need
+# it fixed (core/kernels.py).  A value the user set is kept.
+prepare_cublas()
+
+from .calculator import TorchCalculator  # noqa: E402
+from .models import LennardJones, PairMLP  # noqa: E402
+from .neighbours import neighbour_list  # noqa: E402
 
 __all__ = ['TorchCalculator', 'PairMLP', 'LennardJones', 'neighbour_list']

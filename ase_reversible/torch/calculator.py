@@ -21,6 +21,7 @@ import torch
 from ase.calculators.calculator import all_changes
 
 from ..calculators.base import ExactCalculator
+from ..core.kernels import cublas_problem, deterministic_kernels
 from .neighbours import NeighbourList
 
 
@@ -46,6 +47,16 @@ class TorchCalculator(ExactCalculator):
         once an atom has moved more than ``skin / 2``
         (:class:`~ase_reversible.torch.neighbours.NeighbourList`); the
         pairs handed to the model are the same bits whatever the skin.
+    device : torch.device or str, optional
+        Where the model runs: the device of its parameters and buffers if
+        omitted (CPU for a model without any).  A model elsewhere is moved
+        there (``model.to(device)``, in place: make the optimiser after,
+        as after ``model.double()``).  Inputs go to the device, products
+        and parameter gradients are computed there, and energies, forces
+        and products come back as float64 numpy arrays.  A device that
+        cannot run the model (no CUDA in this torch build, no float64 on
+        Apple's MPS, cuBLAS without its deterministic workspace) is
+        refused here, before any step.
     threads : int
         Torch threads inside the calculator's calls (the caller's setting
         is restored after each).  The float64 forces of PairMLP and the
@@ -87,21 +98,28 @@ class TorchCalculator(ExactCalculator):
     default_parameters = {'cutoff': None, 'skin': 1.0, 'weights': None}
     parameter_bounds = {'cutoff': 'positive', 'skin': 'non-negative'}
     system_quantities = ('positions', 'numbers', 'cell', 'pbc')
-    # Pure: the neighbour list is a function of positions, cell and pbc,
-    # sorted; the model runs with deterministic algorithms and a fixed
-    # thread count (tested bit for bit after moving away and back).
-    forces_are_pure = True
+    @property
+    def forces_are_pure(self) -> bool:
+        """True on the CPU: the neighbour list is a function of positions,
+        cell and pbc, sorted, and the model runs with deterministic
+        algorithms and a fixed thread count (tested bit for bit after
+        moving away and back).  Elsewhere (a GPU) the same holds by
+        PyTorch's word for its deterministic kernels, not by a test run
+        here, so the integrators probe the forces and spot-check them
+        during runs."""
+        return self.device.type == 'cpu'
 
     def __init__(self, model, cutoff, *, skin: float = 1.0, threads: int = 1,
-                 **kwargs):
+                 device=None, **kwargs):
         if not isinstance(model, torch.nn.Module):
             raise TypeError(f'model must be a torch.nn.Module, got '
                             f'{type(model).__name__}')
-        _refuse_other_dtypes(model)
         threads = int(threads)
         if threads < 1:
             raise ValueError(f'threads must be a positive integer, got '
                              f'{threads!r}')
+        self.device = _runnable_device(model, device)
+        _check_model(model, self.device)
         self.model = model
         self.threads = threads
         self._keep_graph = False
@@ -143,8 +161,9 @@ class TorchCalculator(ExactCalculator):
         self._graph = None
 
     def weights_fingerprint(self) -> str:
-        """CRC-32 of every parameter's and buffer's bytes and of the
-        modules' plain settings, as text.
+        """A digest of every parameter's and buffer's bytes and of the
+        modules' plain settings, as text: CRC-32 on the CPU, on other
+        devices :func:`device_digest` computed where the tensors are.
 
         Settings are the public attributes of each submodule that are
         numbers, strings, booleans (``training``) or tuples of them, such
@@ -152,16 +171,20 @@ class TorchCalculator(ExactCalculator):
         Other Python state of a model (a dict, an array attribute) is not
         seen: attach a new calculator after changing it.
         """
-        crc = 0
-        for tensor in self._tensors():
-            crc = zlib.crc32(_as_bytes(tensor), crc)
+        if self.device.type == 'cpu':
+            crc = 0
+            for tensor in self._tensors():
+                crc = zlib.crc32(_as_bytes(tensor), crc)
+            digest = f'crc32:{crc:08x}'
+        else:
+            digest = device_digest(list(self._tensors()))
         # Python's hash of the settings: equal settings, equal hashes
         # within the process, which is where the fingerprints are compared.
         settings = hash(tuple(
             (k, v) for module in self.model.modules()
             for k, v in vars(module).items()
             if k[0] != '_' and _is_plain(v)))
-        return f'crc32:{crc:08x}:{settings & 0xFFFFFFFFFFFFFFFF:016x}'
+        return f'{digest}:{settings & 0xFFFFFFFFFFFFFFFF:016x}'
 
     def _tensors(self):
         for _, p in self.model.named_parameters():
@@ -204,8 +227,9 @@ class TorchCalculator(ExactCalculator):
         nothing written)."""
         params, arrays = self._checked_arrays(gradients, 'gradient')
         for name, array in arrays.items():
-            params[name].grad = torch.from_numpy(array.copy()).to(
-                params[name].dtype)
+            p = params[name]
+            p.grad = torch.from_numpy(array.copy()).to(device=p.device,
+                                                        dtype=p.dtype)
 
     def _checked_arrays(self, values, what):
         """``(parameters by name, float64 arrays by name)`` for ``values``,
@@ -254,7 +278,8 @@ class TorchCalculator(ExactCalculator):
                                     edge_shift)
             g = _gradient(energy, x, create_graph=True)
             inputs = [x] + [params[name] for name in names]
-            grads = _products(g, torch.from_numpy(v_nc), inputs)
+            grads = _products(g, torch.from_numpy(v_nc).to(self.device),
+                              inputs)
         dx_nc = _negated(grads[0], x)
         dtheta = {}
         for name, grad in zip(names, grads[1:]):
@@ -311,7 +336,7 @@ class TorchCalculator(ExactCalculator):
         """ASE's hook: ``energy``, ``free_energy`` (eV), ``forces``
         (eV/Å) into ``results``."""
         super().calculate(atoms, properties, system_changes)
-        _refuse_other_dtypes(self.model)
+        _check_model(self.model, self.device)
         self._check_cutoff(self._cutoff())   # the model's may have grown
         with self._scope():
             x, numbers, cell, edge_index, edge_shift = \
@@ -348,19 +373,26 @@ class TorchCalculator(ExactCalculator):
     @contextlib.contextmanager
     def _scope(self):
         """Deterministic algorithms and the calculator's thread count,
-        the caller's settings restored afterwards."""
-        deterministic = torch.are_deterministic_algorithms_enabled()
-        warn_only = torch.is_deterministic_algorithms_warn_only_enabled()
+        the caller's settings restored afterwards; a model operation
+        without a deterministic kernel on this device is refused with
+        what to do."""
         threads = torch.get_num_threads()
-        torch.use_deterministic_algorithms(True)
         if threads != self.threads:
             torch.set_num_threads(self.threads)
         try:
-            with torch.enable_grad():
+            with deterministic_kernels(), torch.enable_grad():
                 yield
+        except RuntimeError as error:
+            if 'deterministic' not in str(error):
+                raise
+            raise RuntimeError(
+                f'The model uses an operation without a deterministic '
+                f'kernel on {self.device}, so its forces could differ at the '
+                'same positions and the run could not be reversed. Replace '
+                'that operation (an index_add_ or scatter_add_ in place of '
+                'an index_put_ or a histogram, say), or run the model on '
+                f'another device. PyTorch said: {error}') from error
         finally:
-            torch.use_deterministic_algorithms(deterministic,
-                                               warn_only=warn_only)
             if threads != self.threads:
                 torch.set_num_threads(threads)
 
@@ -377,13 +409,14 @@ class TorchCalculator(ExactCalculator):
         if lists is None or lists[0] != key:
             edge_index, edge_shift, _ = self._neighbours(
                 x_nc, atoms.cell.array, atoms.pbc)
+            device = self.device
             lists = (key, torch.from_numpy(
-                         atoms.arrays['numbers'].astype(np.int64)),
-                     torch.from_numpy(atoms.cell.array.copy()),
-                     torch.from_numpy(edge_index),
-                     torch.from_numpy(edge_shift))
+                         atoms.arrays['numbers'].astype(np.int64)).to(device),
+                     torch.from_numpy(atoms.cell.array.copy()).to(device),
+                     torch.from_numpy(edge_index).to(device),
+                     torch.from_numpy(edge_shift).to(device))
             self._lists = lists
-        x = torch.from_numpy(np.array(x_nc, dtype=np.float64))
+        x = torch.from_numpy(np.array(x_nc, dtype=np.float64)).to(self.device)
         return (x,) + lists[1:]
 
     def _cutoff(self) -> float:
@@ -413,9 +446,57 @@ class TorchCalculator(ExactCalculator):
                 "missing. Give the calculator at least the model's cutoff.")
 
 
-def _refuse_other_dtypes(model):
+def _runnable_device(model, device):
+    """The ``torch.device`` the model runs on: ``device``, the model moved
+    there if it is elsewhere, or the device of its tensors; refused, with
+    what to do, where the model cannot run."""
+    tensors = list(model.parameters()) + list(model.buffers())
+    if device is None:
+        devices = sorted({str(t.device) for t in tensors})
+        if len(devices) > 1:
+            raise ValueError(
+                f"The model's tensors are on several devices {devices}: "
+                "move it to one (model.to('cuda'), say) or give device=.")
+        device = torch.device(devices[0] if devices else 'cpu')
+    else:
+        try:
+            device = torch.device(device)
+        except (RuntimeError, TypeError) as error:
+            raise ValueError(f'device={device!r} is not a torch device: '
+                             f'{error}') from None
+    if device.type == 'cuda' and not torch.cuda.is_available():
+        raise RuntimeError(
+            f'device={str(device)!r}, but this torch ({torch.__version__}) '
+            'finds no CUDA device: install a CUDA build of torch on a machine '
+            "with an NVIDIA GPU, or use device='cpu'.")
+    if device.type == 'mps':
+        raise RuntimeError(
+            "Apple's MPS has no float64, and TorchCalculator computes in "
+            "float64 only (float32 forces are too coarse for exact reversal "
+            "and the adjoint): use device='cpu'.")
+    problem = cublas_problem(device)
+    if problem is not None:
+        raise RuntimeError(problem)
+    if any(t.device != device for t in tensors):
+        try:
+            model.to(device)
+        except (RuntimeError, AssertionError) as error:
+            raise RuntimeError(f'The model could not be moved to {device}: '
+                               f'{error}') from error
+    return device
+
+
+def _check_model(model, device):
+    """Refuse a model with tensors that are not float64 or not on
+    ``device`` (checked at every call: a model can be changed after the
+    calculator was made)."""
     for name, t in list(model.named_parameters()) + list(
             model.named_buffers()):
+        if t.device != device:
+            raise RuntimeError(
+                f'{name} is on {t.device}, but the calculator computes on '
+                f'{device}: move the model back (model.to({str(device)!r})) '
+                'or make a calculator for the new device.')
         if t.is_floating_point() and t.dtype != torch.float64:
             raise TypeError(
                 f'TorchCalculator computes in float64 only, but {name} is '
@@ -459,11 +540,11 @@ def _negated(grad, like):
     """``-grad`` as a float64 numpy array (zeros for an unused input)."""
     if grad is None:
         return np.zeros(tuple(like.shape))
-    return (-grad.detach()).numpy().astype(np.float64, copy=True)
+    return (-grad.detach()).cpu().numpy().astype(np.float64, copy=True)
 
 
 def _to_value(p):
-    array = p.detach().numpy().astype(np.float64, copy=True)
+    array = p.detach().cpu().numpy().astype(np.float64, copy=True)
     return float(array) if array.ndim == 0 else array
 
 
@@ -478,3 +559,39 @@ def _as_bytes(tensor):
     if not t.is_contiguous():
         t = t.contiguous()
     return t.numpy().data.cast('B') if t.numel() else b''
+
+
+#: Two primes below 2**31: a weighted sum of 32-bit words modulo each stays
+#: exact in int64 (word < 2**32, weight < 2**31, so each term, reduced,
+#: is < 2**31, and 2**32 of them sum below 2**63).
+_DIGEST_PRIMES = (2**31 - 1, 2**31 - 19)
+
+
+def device_digest(tensors) -> str:
+    """A digest of the tensors' bytes computed on their device: for each
+    of two primes ``p``, ``sum_k w_k * (word_k mod p) mod p`` over the
+    32-bit words of all the tensors, with weights ``w_k = (k a + b) mod
+    p`` fixed per position, so a change of one word changes both sums
+    and a change spread over many goes unseen with a chance near 2**-62.
+
+    Integer sums are exact, so the digest is the same whatever order the
+    device adds in; it costs a dozen kernels and one transfer of two
+    numbers, against the copy of every weight to the host that a CRC
+    would need.
+    """
+    if not tensors:
+        return 'mod:0'
+    device = tensors[0].device
+    flat = torch.cat([t.detach().contiguous().reshape(-1).view(torch.uint8)
+                      for t in tensors])
+    pad = (-flat.numel()) % 4
+    if pad:
+        flat = torch.cat([flat, flat.new_zeros(pad)])
+    words = flat.view(torch.int32).to(torch.int64) & 0xFFFFFFFF
+    k = torch.arange(words.numel(), dtype=torch.int64, device=device)
+    sums = []
+    for p, a, b in zip(_DIGEST_PRIMES, (40503, 69069), (1, 12345)):
+        w = (k * a + b) % p
+        sums.append((((words % p) * w) % p).sum() % p)
+    s0, s1 = torch.stack(sums).tolist()
+    return f'mod:{words.numel():x}:{s0:08x}{s1:08x}'

@@ -63,8 +63,9 @@ class MACEModel(torch.nn.Module):
             # Integer images enter only virials and stress, not asked for.
             'unit_shifts': torch.zeros_like(edge_shift),
             'cell': cell.reshape(3, 3),
-            'batch': torch.zeros(n, dtype=torch.int64),
-            'ptr': torch.tensor([0, n], dtype=torch.int64),
+            'batch': torch.zeros(n, dtype=torch.int64, device=positions.device),
+            'ptr': torch.tensor([0, n], dtype=torch.int64,
+                                device=positions.device),
         }
         out = self.model(data, training=False, compute_force=False)
         return out['energy'].sum()

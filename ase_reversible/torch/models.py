@@ -192,8 +192,10 @@ class PairMLP(torch.nn.Module):
         """
         import numpy as np
         r_np = np.linspace(float(r_min), self.cutoff, int(points))
-        r = torch.from_numpy(r_np)
-        goal = torch.from_numpy(np.asarray(target(r_np), dtype=np.float64))
+        device = self.centres.device
+        r = torch.from_numpy(r_np).to(device)
+        goal = torch.from_numpy(np.asarray(target(r_np),
+                                           dtype=np.float64)).to(device)
         optimiser = torch.optim.Adam(self.mlp.parameters(),
                                      lr=learning_rate)
         threads = torch.get_num_threads()

@@ -1,0 +1,188 @@
+"""TorchCalculator on a torch device: the device argument, refusals before
+any step, the weights' digest computed where the weights are, cuBLAS's
+workspace rule; and, where CUDA is present, runs out and back on the GPU
+and gradients equal to the CPU's.
+
+CI has no GPU: every device path that can run on the CPU runs here with
+``device='cpu'``; the CUDA tests skip with the reason.
+"""
+
+import pytest
+
+torch = pytest.importorskip('torch', reason='ase_reversible.torch needs '
+                            "PyTorch (pip install 'torch==2.13.0')")
+
+import numpy as np  # noqa: E402
+
+from ase_reversible import ReversibleLangevin, ReversibleVerlet  # noqa: E402
+from ase_reversible.core.kernels import (CUBLAS_VARIABLE,  # noqa: E402
+                                         cublas_problem, prepare_cublas)
+from ase_reversible.torch import PairMLP, TorchCalculator  # noqa: E402
+from ase_reversible.torch.calculator import device_digest  # noqa: E402
+
+from conftest import DT, argon_bulk  # noqa: E402
+from exactness import assert_runs_back, assert_same_state, snapshot  # noqa: E402
+
+CUTOFF = 7.0   # Å
+cuda = pytest.mark.skipif(not torch.cuda.is_available(),
+                          reason='needs a CUDA device (torch.cuda.is_available()'
+                          ' is False here)')
+
+
+def ar32(calc):
+    atoms = argon_bulk((2, 2, 2), 60)
+    atoms.rattle(0.05, seed=5)
+    atoms.calc = calc
+    return atoms
+
+
+# -- the device argument and its refusals -----------------------------------
+
+def test_the_device_is_the_models_by_default_and_cpu_given_is_the_same():
+    model = PairMLP(cutoff=CUTOFF)
+    default = TorchCalculator(model, CUTOFF)
+    given = TorchCalculator(PairMLP(cutoff=CUTOFF), CUTOFF,
+                            device=torch.device('cpu'))
+    assert default.device == given.device == torch.device('cpu')
+    assert default.forces_are_pure and given.forces_are_pure
+    a, b = ar32(default), ar32(given)
+    assert np.array_equal(a.get_forces(), b.get_forces())
+    assert a.get_potential_energy() == b.get_potential_energy()
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason='CUDA is present')
+def test_cuda_without_cuda_is_refused_with_the_remedy():
+    with pytest.raises(RuntimeError, match="finds no CUDA device.*device='cpu'"):
+        TorchCalculator(PairMLP(cutoff=CUTOFF), CUTOFF, device='cuda')
+
+
+def test_devices_that_cannot_run_float64_or_are_not_devices_are_refused():
+    with pytest.raises(RuntimeError, match='MPS has no float64'):
+        TorchCalculator(PairMLP(cutoff=CUTOFF), CUTOFF, device='mps')
+    with pytest.raises(ValueError, match='is not a torch device'):
+        TorchCalculator(PairMLP(cutoff=CUTOFF), CUTOFF, device='gpu0')
+
+
+def test_a_model_moved_after_the_calculator_was_made_is_refused():
+    model = PairMLP(cutoff=CUTOFF)
+    atoms = ar32(TorchCalculator(model, CUTOFF))
+    atoms.get_forces()
+    model.to('meta')
+    atoms.positions[0, 0] += 0.01
+    with pytest.raises(RuntimeError, match='is on meta.*model.to'):
+        atoms.get_forces()
+
+
+def test_a_run_leaves_the_callers_deterministic_setting_as_it_was():
+    atoms = ar32(TorchCalculator(PairMLP(cutoff=CUTOFF), CUTOFF))
+    for setting in (False, True):
+        torch.use_deterministic_algorithms(setting)
+        try:
+            ReversibleVerlet(atoms, DT).run(3)
+            assert torch.are_deterministic_algorithms_enabled() is setting
+        finally:
+            torch.use_deterministic_algorithms(False)
+
+
+# -- cuBLAS's workspace ----------------------------------------------------------
+
+def test_the_cublas_workspace_is_set_if_unset_and_a_users_value_kept():
+    environ = {}
+    assert prepare_cublas(environ)
+    assert environ[CUBLAS_VARIABLE] == ':4096:8'
+    assert cublas_problem('cuda', environ) is None
+    mine = {CUBLAS_VARIABLE: ':0:0'}
+    assert not prepare_cublas(mine)
+    assert mine[CUBLAS_VARIABLE] == ':0:0'
+    message = cublas_problem(torch.device('cuda'), mine)
+    assert "is ':0:0'" in message and 'export CUBLAS_WORKSPACE_CONFIG' in message
+    assert 'is unset' in cublas_problem('cuda', {})
+    assert cublas_problem(torch.device('cpu'), {}) is None
+
+
+# -- the weights' digest on the device --------------------------------------------
+
+def test_the_device_digest_sees_every_change_of_the_weights():
+    model = PairMLP(cutoff=CUTOFF)
+    tensors = list(model.parameters()) + list(model.buffers())
+    first = device_digest(tensors)
+    assert device_digest(tensors) == first
+    twin = PairMLP(cutoff=CUTOFF)
+    assert device_digest(list(twin.parameters()) + list(twin.buffers())) \
+        == first
+    weight = model.mlp[0].weight
+    with torch.no_grad():
+        kept = weight[3, 5].item()
+        weight[3, 5] = float(np.nextafter(kept, np.inf))     # one ulp
+    assert device_digest(tensors) != first
+    with torch.no_grad():
+        weight[3, 5] = kept
+    assert device_digest(tensors) == first
+    weight.data[0, 0] += 1e-3                                 # through .data
+    assert device_digest(tensors) != first
+    weight.data[0, 0] -= 1e-3
+    with torch.no_grad():                                     # a swap
+        weight[[0, 1]] = weight[[1, 0]].clone()
+    assert device_digest(tensors) != first
+    with torch.no_grad():
+        weight[[0, 1]] = weight[[1, 0]].clone()
+    assert device_digest(tensors) == first
+    assert device_digest([]) == 'mod:0'
+
+
+# -- on a GPU ---------------------------------------------------------------------
+
+def big_argon(calc, repeat=8):
+    """fcc argon, 4 repeat**3 atoms (2,048 at 8), thermal momenta."""
+    atoms = argon_bulk((repeat, repeat, repeat), 60)
+    atoms.rattle(0.05, seed=5)
+    atoms.calc = calc
+    return atoms
+
+
+@cuda
+@pytest.mark.parametrize('dynamics', ['verlet', 'langevin'])
+def test_a_model_moved_to_cuda_runs_out_and_back_bit_for_bit(dynamics):
+    model = PairMLP(cutoff=CUTOFF).to('cuda')
+    calc = TorchCalculator(model, CUTOFF)
+    assert calc.device.type == 'cuda' and not calc.forces_are_pure
+    atoms = big_argon(calc)
+    if dynamics == 'verlet':
+        dyn = ReversibleVerlet(atoms, DT)
+    else:
+        dyn = ReversibleLangevin(atoms, DT, temperature_K=60,
+                                 friction=0.01, seed=3)
+    assert_runs_back(dyn, 50)
+
+
+@cuda
+def test_parameter_gradients_on_cuda_are_the_cpus_to_1e8():
+    grads = {}
+    for device in ('cpu', 'cuda'):
+        model = PairMLP(cutoff=CUTOFF).to(device)
+        calc = TorchCalculator(model, CUTOFF)
+        atoms = big_argon(calc, repeat=4)
+        dyn = ReversibleVerlet(atoms, DT)
+        start = snapshot(atoms)
+        dyn.run(100)
+        g = dyn.backpropagate(100, atoms.get_positions() - start[0],
+                              parameters=calc.differentiable_parameters)
+        assert_same_state(atoms, start)
+        calc.assign_gradients(g.parameters)
+        assert all(p.grad.device.type == device for p in model.parameters())
+        grads[device] = g.parameters
+    for name, cpu in grads['cpu'].items():
+        scale = np.abs(cpu).max()
+        assert np.abs(grads['cuda'][name] - cpu).max() <= 1e-8 * scale, name
+
+
+@cuda
+def test_the_fingerprint_on_cuda_follows_an_optimiser_step():
+    model = PairMLP(cutoff=CUTOFF).to('cuda')
+    calc = TorchCalculator(model, CUTOFF)
+    before = calc.parameters['weights']
+    assert before.startswith('mod:')
+    for p in model.parameters():
+        p.grad = torch.ones_like(p)
+    torch.optim.SGD(model.parameters(), lr=1e-9).step()
+    assert calc.parameters['weights'] != before
