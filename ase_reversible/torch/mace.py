@@ -69,3 +69,37 @@ class MACEModel(torch.nn.Module):
         }
         out = self.model(data, training=False, compute_force=False)
         return out['energy'].sum()
+
+
+def random_mace(atomic_numbers=(29,), r_max: float = 5.0, seed: int = 0):
+    """A small ``mace.modules.ScaleShiftMACE`` with random weights, float64.
+
+    Two interactions, 8 scalar and 8 vector channels, correlation order 2,
+    ``max_ell`` 2, Bessel radial basis of 8 (23,872 parameters for one
+    element).  For trying the
+    exact machinery without a trained model (no file to download); save it
+    with ``torch.save`` for MACE's own ``MACECalculator(model_paths=...)``.
+    ``atomic_numbers``: the elements it knows; ``r_max``: its cut-off, Å;
+    ``seed``: ``torch.manual_seed`` before the weights are drawn (the
+    global generator's state is restored after).
+    """
+    import numpy as np
+    from e3nn import o3
+    from mace import modules
+    state = torch.random.get_rng_state()
+    torch.manual_seed(seed)
+    try:
+        block = modules.interaction_classes[
+            'RealAgnosticResidualInteractionBlock']
+        return modules.ScaleShiftMACE(
+            r_max=float(r_max), num_bessel=8, num_polynomial_cutoff=6,
+            max_ell=2, interaction_cls=block, interaction_cls_first=block,
+            num_interactions=2, num_elements=len(atomic_numbers),
+            hidden_irreps=o3.Irreps('8x0e + 8x1o'),
+            MLP_irreps=o3.Irreps('8x0e'), gate=torch.nn.functional.silu,
+            atomic_energies=np.zeros(len(atomic_numbers)),
+            avg_num_neighbors=8.0, atomic_numbers=list(atomic_numbers),
+            correlation=2, atomic_inter_scale=1.0,
+            atomic_inter_shift=0.0).double()
+    finally:
+        torch.random.set_rng_state(state)
