@@ -4,6 +4,7 @@ refusals that name run-to-run nondeterminism."""
 
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from ase.calculators.calculator import Calculator, all_changes
 from ase.calculators.lj import LennardJones
 from ase.calculators.mixing import SumCalculator
 
-from ase_reversible import ImpureForcesError, ReversibleVerlet
+from ase_reversible import ImpureForcesError, ReversibleVerlet, check_calculator
 from ase_reversible.purity import (DEFAULT_FORCE_NOISE, GuardedForces,
                                    TrustedForces)
 from ase_reversible.purity.deterministic import DeterministicKernels
@@ -112,6 +113,17 @@ def cluster(calc):
     return atoms
 
 
+def run_to_run_refusal(calc):
+    """The message with which 'auto' refuses ``calc`` on an argon cluster,
+    checked to name run-to-run nondeterminism and not history."""
+    with pytest.raises(ImpureForcesError) as refused:
+        ReversibleVerlet(cluster(calc), DT)
+    message = str(refused.value)
+    assert 'run-to-run nondeterminism' in message
+    assert 'history' not in message
+    return message
+
+
 def test_torch_modules_are_found_in_attributes_lists_dicts_and_members():
     calc = TorchPairCalculator()
     inner = calc.models[0]
@@ -173,12 +185,8 @@ def test_float32_noise_is_trusted_with_every_call_on_held_kernels():
                          ids=['float64', 'float32'])
 def test_a_model_random_under_deterministic_kernels_is_refused_as_such(
         dtype):
-    atoms = cluster(TorchPairCalculator(dtype, always_shuffled=True))
-    with pytest.raises(ImpureForcesError) as refused:
-        ReversibleVerlet(atoms, DT)
-    message = str(refused.value)
-    assert 'run-to-run nondeterminism' in message
-    assert 'history' not in message
+    message = run_to_run_refusal(
+        TorchPairCalculator(dtype, always_shuffled=True))
     assert "deterministic kernels" in message and 'float64' in message
     # Guarded rounding is offered where it can absorb the noise.
     assert ("force_purity='guarded'" in message) == (dtype == torch.float64)
@@ -215,11 +223,45 @@ class CallNoiseLJ(LennardJones):
 
 
 def test_noise_between_repeated_calls_is_refused_as_run_to_run():
-    atoms = cluster(CallNoiseLJ(sigma=AR_SIGMA, epsilon=AR_EPSILON,
-                                rc=AR_RC))
-    with pytest.raises(ImpureForcesError) as refused:
-        ReversibleVerlet(atoms, DT)
-    message = str(refused.value)
-    assert 'run-to-run nondeterminism' in message
-    assert 'history' not in message
+    message = run_to_run_refusal(
+        CallNoiseLJ(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC))
     assert 'one thread' in message and "force_purity='guarded'" in message
+
+
+def test_pytorchs_warning_for_an_op_without_a_deterministic_kernel_once():
+    # put_ has no deterministic kernel on the CPU: PyTorch warns at every
+    # call under warn_only, and a run would repeat it at every step.
+    kernels = DeterministicKernels()
+    x = torch.zeros(3)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        for _ in range(3):
+            with kernels():
+                x.put_(torch.tensor([0]), torch.tensor([1.0]))
+    shown = [w for w in caught
+             if 'does not have a deterministic implementation' in
+             str(w.message)]
+    assert len(shown) == 1 and kernels.entries == 3
+    assert not torch.are_deterministic_algorithms_enabled()
+
+
+def test_a_torch_model_mixed_with_ase_lists_is_sorted_and_held():
+    lj = LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC)
+    model = TorchPairCalculator(torch.float64)
+    atoms = cluster(SumCalculator([lj, model]))
+    dyn = ReversibleVerlet(atoms, DT)
+    provider = dyn.force_purity
+    assert provider.mode == 'sorted'
+    assert [calls for _, calls in provider.holds] == [('forces',)]
+    model.deterministic_calls.clear()
+    assert_runs_back(dyn, 50)
+    assert all(model.deterministic_calls)
+
+
+@pytest.mark.parametrize('dtype, words', [
+    (torch.float64, 'The clean recomputations run under'),
+    (torch.float32, 'Every force call runs under')], ids=['float64', 'float32'])
+def test_check_calculator_names_the_kernel_hold_in_its_cost(dtype, words):
+    verdict = check_calculator(cluster(TorchPairCalculator(dtype)))
+    assert verdict.exact
+    assert words in verdict.cost and 'deterministic kernels' in verdict.cost

@@ -14,7 +14,8 @@ from .deterministic import DeterministicKernels
 from .introspection import (_declares_pure, _is_asap3,
                             _is_ase_neighborlist_calculator,
                             _is_plain_ase_neighborlist_calculator, _mixes,
-                            calculator_members, torch_devices, torch_modules)
+                            calculator_members, discard_all_results,
+                            torch_devices, torch_modules)
 from .probe import (measured_force_noise, noise_as_force_noise, probe_purity,
                     repeat_noise)
 from .providers import (ColdStartForces, GuardedForces,
@@ -207,10 +208,7 @@ def _torch_probed(atoms, listed):
     Probed as it is first: pure, it is trusted.  Otherwise probed again
     under PyTorch's deterministic kernels
     (:class:`~.deterministic.DeterministicKernels`); pure so, it is held to
-    them: if the noise without them is small enough for guarded rounding
-    with a bound measured from it, only the guard's clean recomputations
-    are held (a flagged kick is then rounded from the deterministic
-    forces, and the other calls pay nothing); else every call is.
+    them (:func:`_kernel_hold`).
     """
     # Before the model's first CUDA call, when cuBLAS makes its workspace.
     prepare_cublas()
@@ -227,24 +225,43 @@ def _torch_probed(atoms, listed):
     held = _base_provider(atoms, listed)
     held.hold(kernels)
     left = probe_purity(atoms, forces=held.forces)
-    f_held = np.array(held.forces(atoms))
     if left:
-        f_max = np.abs(f_held).max(initial=0.0)
+        f_max = np.abs(held.forces(atoms)).max(initial=0.0)
         repeated = repeat_noise(atoms, forces=held.forces)
         raise ImpureForcesError(
             _torch_advice(calc, left, f_max, repeated)
             if _run_to_run(left, repeated) else
             _impurity_advice(calc, left, f_max))
+    return _kernel_hold(atoms, plain, held, noise, listed)
+
+
+def _kernel_hold(atoms, plain, held, noise, listed):
+    """The provider for forces that are pure under deterministic kernels
+    (``held``, holding them around every call) and vary by ``noise`` (eV/Å)
+    without them (``plain``).
+
+    If guarded rounding with a bound measured from that noise can absorb
+    it, a :class:`GuardedForces` whose clean recomputations alone are held
+    to the kernels: a flagged kick is then rounded from the deterministic
+    forces both ways, and the other calls pay nothing for the kernels.
+    Else ``held``.
+    """
     # The guard rounds from either kind of forces: its bound covers the
     # noise among the plain ones and their distance from the held ones.
-    offset = float(np.abs(np.asarray(plain.forces(atoms)) - f_held).max(
-        initial=0.0))
+    # Each computed afresh, not from the cache of the other; the held ones
+    # last, so that a cached result the first step may use is theirs.
+    discard_all_results(atoms.calc)
+    f_plain = np.array(plain.forces(atoms))
+    discard_all_results(atoms.calc)
+    offset = float(np.abs(f_plain - held.forces(atoms)).max(initial=0.0))
     force_noise = noise_as_force_noise(atoms, max(noise, offset),
                                        forces=held.forces)
-    if force_noise > DEFAULT_FORCE_NOISE:
+    # GuardedForces keeps no sorted lists: beside members that need them
+    # its bound, measured with them sorted, would not hold.
+    if listed or force_noise > DEFAULT_FORCE_NOISE:
         return held
     guarded = GuardedForces(force_noise)
-    guarded.hold(kernels, calls=('clean_forces',))
+    guarded.hold(held.held(DeterministicKernels), calls=('clean_forces',))
     return guarded
 
 

@@ -65,6 +65,14 @@ def discard_results(calc):
             calc.atoms = None
 
 
+def discard_all_results(calc):
+    """:func:`discard_results` for ``calc`` and every calculator it mixes:
+    a mixing calculator's members keep their own results, which it would
+    otherwise sum again at positions they were computed at."""
+    for c in calculator_members(calc):
+        discard_results(c)
+
+
 def calculator_members(calc):
     """``calc`` and, recursively, every calculator it mixes (``.calcs``).
 

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from .introspection import discard_results
+from .introspection import discard_all_results
 from .settings import (DEFAULT_FORCE_NOISE, MEASURED_NOISE_FLOOR,
                        MEASURED_NOISE_MARGIN, REBUILD_SHIFT, guard_bound)
 
@@ -56,11 +56,11 @@ def repeat_noise(atoms, forces=None, repeats: int = 2) -> float:
     if forces is None:
         def forces(atoms):
             return atoms.get_forces(md=True)
-    discard_results(atoms.calc)
+    discard_all_results(atoms.calc)
     f0_nc = np.array(forces(atoms))
     worst = 0.0
     for _ in range(repeats):
-        discard_results(atoms.calc)
+        discard_all_results(atoms.calc)
         worst = max(worst, float(np.abs(np.asarray(forces(atoms))
                                         - f0_nc).max(initial=0.0)))
     return worst
@@ -85,7 +85,7 @@ def probe_purity(atoms, trials: int = 2, displacement: float = 0.3,
             return atoms.get_forces(md=True)
     rng = np.random.default_rng(seed)
     x_nc = atoms.positions.copy()
-    discard_results(atoms.calc)
+    discard_all_results(atoms.calc)
     f0_nc = np.array(forces(atoms))
     worst = 0.0
     try:
