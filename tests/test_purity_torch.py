@@ -66,6 +66,8 @@ class ShuffledPairSum(torch.nn.Module):
 class TorchPairCalculator(Calculator):
     """An ASE calculator holding its torch model in ``.models``, a list, as
     MACE's ``MACECalculator`` does; it does not declare its forces pure.
+    ``device``: where the model runs (the forces come back as float64
+    numpy).
 
     ``deterministic_calls`` records, for every calculation, whether
     PyTorch's deterministic algorithms were enabled during it.
@@ -73,9 +75,10 @@ class TorchPairCalculator(Calculator):
 
     implemented_properties = ['energy', 'forces']
 
-    def __init__(self, dtype=torch.float64, always_shuffled=False):
+    def __init__(self, dtype=torch.float64, always_shuffled=False,
+                 device='cpu'):
         super().__init__()
-        self.models = [ShuffledPairSum(dtype, always_shuffled)]
+        self.models = [ShuffledPairSum(dtype, always_shuffled).to(device)]
         self.deterministic_calls = []
 
     def calculate(self, atoms=None, properties=('energy',),
@@ -95,6 +98,12 @@ class TorchPairCalculator(Calculator):
         self.results = {
             'energy': float(e.cpu()),
             'forces': f_nc.cpu().numpy().astype(np.float64)}
+
+
+CUDA = pytest.mark.skipif(
+    not torch.cuda.is_available(),
+    reason='needs a CUDA GPU: deterministic kernels on CUDA (atomic adds, '
+           "cuBLAS's workspace)")
 
 
 @pytest.fixture
@@ -265,3 +274,23 @@ def test_check_calculator_names_the_kernel_hold_in_its_cost(dtype, words):
     verdict = check_calculator(cluster(TorchPairCalculator(dtype)))
     assert verdict.exact
     assert words in verdict.cost and 'deterministic kernels' in verdict.cost
+
+
+@CUDA
+@pytest.mark.parametrize('dtype, provider', [
+    (torch.float64, GuardedForces), (torch.float32, TrustedForces)],
+    ids=['float64', 'float32'])
+def test_on_cuda_the_kernel_hold_runs_back_bit_for_bit(dtype, provider):
+    atoms = cluster(TorchPairCalculator(dtype, device='cuda'))
+    dyn = ReversibleVerlet(atoms, DT)
+    assert type(dyn.force_purity) is provider
+    assert dyn.force_purity.held(DeterministicKernels) is not None
+    assert_runs_back(dyn, 100)
+
+
+@CUDA
+def test_on_cuda_a_cublas_workspace_the_kernels_cannot_use_is_refused(
+        monkeypatch):
+    monkeypatch.setenv('CUBLAS_WORKSPACE_CONFIG', ':0:0')
+    with pytest.raises(ImpureForcesError, match='CUBLAS_WORKSPACE_CONFIG'):
+        ReversibleVerlet(cluster(TorchPairCalculator(device='cuda')), DT)

@@ -102,11 +102,11 @@ def probed_check(atoms, provider, momentum_quanta=None):
     cost = _COSTS[provider.mode].format(rate=TARGET_CLEAN_RATE)
     if provider.one_thread is not None:
         cost += _ONE_THREAD_COST
-    kernels = provider.held(DeterministicKernels)
-    if kernels is not None:
-        every = next(calls for context, calls in provider.holds
-                     if context is kernels) == provider._calculator_calls
-        cost += _KERNELS_COST if every else _CLEAN_KERNELS_COST
+    kernels = [calls for context, calls in provider.holds
+               if isinstance(context, DeterministicKernels)]
+    if kernels:
+        cost += (_KERNELS_COST if 'forces' in kernels[0]
+                 else _CLEAN_KERNELS_COST)
     exact, advice = noise == 0.0, None
     if provider.mode == 'guarded':
         f_max = float(np.abs(provider.forces(atoms)).max(initial=0.0))

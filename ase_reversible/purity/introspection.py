@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+
 def _is_ase_neighborlist_calculator(calc):
     from ase.calculators.emt import EMT
     from ase.calculators.lj import LennardJones

@@ -50,9 +50,13 @@ def repeat_noise(atoms, forces=None, repeats: int = 2) -> float:
     """Largest force difference (eV/Å) between calls at the same
     positions with nothing between them: the calculator's cached results
     are discarded and it is called again, ``repeats`` times after the
-    first.  Noise here is run-to-run nondeterminism (parallel sums whose
-    order changes from call to call), not history: the calculator saw no
-    other positions.  ``forces(atoms)`` as for :func:`probe_purity`."""
+    first.  The calculator saw no other positions between them, so noise
+    here, nearly as large as the probe's, is run-to-run nondeterminism
+    (parallel sums whose order changes from call to call); a history
+    carried on from one repeat to the next (a self-consistent field
+    refined again) changes far less (``RUN_TO_RUN_SHARE``).  Costs
+    ``1 + repeats`` force calls; ``forces(atoms)`` as for
+    :func:`probe_purity`."""
     if forces is None:
         def forces(atoms):
             return atoms.get_forces(md=True)
