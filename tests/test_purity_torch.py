@@ -12,14 +12,15 @@ from ase.calculators.calculator import Calculator, all_changes
 from ase.calculators.lj import LennardJones
 from ase.calculators.mixing import SumCalculator
 
-from ase_reversible import ImpureForcesError, ReversibleVerlet, check_calculator
-from ase_reversible.purity import (DEFAULT_FORCE_NOISE, GuardedForces,
-                                   TrustedForces)
+from ase_reversible import (ImpureForcesError, ReversibleVerlet,
+                            check_calculator)
+from ase_reversible.purity import (DEFAULT_FORCE_NOISE, SPOT_CHECK_INTERVAL,
+                                   GuardedForces, TrustedForces)
 from ase_reversible.purity.deterministic import DeterministicKernels
 from ase_reversible.purity.introspection import torch_modules
 
 from conftest import AR_EPSILON, AR_RC, AR_SIGMA, DT, argon_cluster
-from exactness import assert_runs_back
+from exactness import assert_runs_back, run_until_refused
 
 torch = pytest.importorskip('torch', reason='the torch hold is for '
                             "calculators holding PyTorch models (pip install "
@@ -219,6 +220,19 @@ def test_the_users_deterministic_setting_is_restored_after_every_call(
     assert not torch.is_deterministic_algorithms_warn_only_enabled()
 
 
+def test_a_torch_model_made_nondeterministic_in_a_run_is_stopped(
+        user_setting):
+    torch.use_deterministic_algorithms(True)
+    atoms = cluster(TorchPairCalculator(torch.float64))
+    dyn = ReversibleVerlet(atoms, DT)
+    assert dyn.force_purity.holds == ()  # pure as it was probed
+    torch.use_deterministic_algorithms(False)
+    _, steps = run_until_refused(
+        dyn, 2 * SPOT_CHECK_INTERVAL, ImpureForcesError,
+        r'torch.use_deterministic_algorithms\(True\)')
+    assert 0 < steps < 2 * SPOT_CHECK_INTERVAL
+
+
 class CallNoiseLJ(LennardJones):
     """ASE's LennardJones whose forces carry fresh random noise of about
     1e-15 eV/Å at every call, as parallel sums in a varying order do."""
@@ -269,7 +283,8 @@ def test_a_torch_model_mixed_with_ase_lists_is_sorted_and_held():
 
 @pytest.mark.parametrize('dtype, words', [
     (torch.float64, 'The clean recomputations run under'),
-    (torch.float32, 'Every force call runs under')], ids=['float64', 'float32'])
+    (torch.float32, 'Every force call runs under')],
+    ids=['float64', 'float32'])
 def test_check_calculator_names_the_kernel_hold_in_its_cost(dtype, words):
     verdict = check_calculator(cluster(TorchPairCalculator(dtype)))
     assert verdict.exact

@@ -6,6 +6,7 @@ import os
 import sys
 import warnings
 
+from .introspection import torch_modules
 from .settings import (DEFAULT_FORCE_NOISE, RUN_TO_RUN_SHARE,
                        SUMMATION_NOISE_LIMIT, _bound_for)
 
@@ -159,9 +160,13 @@ def _spot_check_advice(calc, mode, noise, calls, bound=None, wanted=None):
             'alone, although the probe at construction saw no '
             f'difference.{tail} The usual cause is parallel sums whose '
             'order changes from call to call (threads, a GPU): run with one '
-            'thread (OMP_NUM_THREADS=1 before Python starts), or, if the '
-            "difference is at the level of rounding, use force_purity="
-            f"'guarded' with force_noise={_bound_for(noise):.2g}.")
+            'thread (OMP_NUM_THREADS=1 before Python starts)'
+            + (", its torch model under PyTorch's deterministic kernels "
+               '(torch.use_deterministic_algorithms(True))'
+               if torch_modules(calc) else '')
+            + ', or, if the difference is at the level of rounding, use '
+            f"force_purity='guarded' with force_noise="
+            f'{_bound_for(noise):.2g}.')
 
 
 def _parallel_noise_advice(calc, noise, left, one_thread_tried=False):
