@@ -38,7 +38,9 @@ check), :mod:`.probe`, :mod:`.choice` (``force_purity='auto'``),
 :mod:`.check` (the probe and cost in the verdict of
 :func:`ase_reversible.check_calculator`, which runs the integrators'
 checks in :mod:`ase_reversible.md.verdict`), :mod:`.advice` (the messages),
-:mod:`.introspection` (what a calculator is and mixes) and
+:mod:`.introspection` (what a calculator is, mixes and holds),
+:mod:`.threads` and :mod:`.deterministic` (the holds around force calls:
+one thread, deterministic torch kernels) and
 :mod:`.settings` (the bounds and their measurements, and the guard's
 rules: :func:`guard_bound` and the momentum quantum it needs,
 :func:`guarded_momentum_quantum`, which the LAMMPS drivers share).
@@ -49,13 +51,15 @@ rules: :func:`guard_bound` and the momentum quantum it needs,
 # and an __all__ here would document them a second time on this page.
 from .check import CalculatorCheck, probed_check, refused_check
 from .choice import force_provider
+from .deterministic import DeterministicKernels
 from .introspection import (calculator_members, cold_start, discard_results,
-                            mixture)
-from .probe import measured_force_noise, probe_purity
+                            mixture, torch_devices, torch_modules)
+from .probe import (measured_force_noise, noise_as_force_noise, probe_purity,
+                    repeat_noise)
 from .providers import (ColdStartForces, GuardedForces,
                         SortedNeighborListForces, SpotCheck, TrustedForces)
 from .settings import (DEFAULT_FORCE_NOISE, MEASURED_NOISE_FLOOR,
                        MEASURED_NOISE_MARGIN, NOISE_REFERENCE_EXTENT,
-                       REBUILD_SHIFT, SPOT_CHECK_INTERVAL,
+                       REBUILD_SHIFT, RUN_TO_RUN_SHARE, SPOT_CHECK_INTERVAL,
                        SUMMATION_NOISE_LIMIT, TARGET_CLEAN_RATE,
                        extent_factor, guard_bound, guarded_momentum_quantum)

@@ -6,30 +6,35 @@ import os
 import sys
 import warnings
 
-from .settings import DEFAULT_FORCE_NOISE, SUMMATION_NOISE_LIMIT, _bound_for
+from .introspection import torch_modules
+from .settings import (DEFAULT_FORCE_NOISE, RUN_TO_RUN_SHARE,
+                       SUMMATION_NOISE_LIMIT, _bound_for)
 
 
 def _impurity_advice(calc, noise, f_max, cold_start_tried=False,
-                     one_thread_tried=False):
+                     one_thread_tried=False, repeated=0.0):
     """The ImpureForcesError message, with the remedy for the likely cause;
     ``one_thread_tried``: the probe ran with OpenMP and BLAS held to one
-    thread."""
+    thread; ``repeated``: the noise between calls repeated at the same
+    positions without moving the atoms (:func:`~.probe.repeat_noise`),
+    which tells run-to-run nondeterminism from history
+    (:func:`_run_to_run`)."""
+    if _run_to_run(noise, repeated):
+        return _run_to_run_advice(calc, noise, f_max, repeated,
+                                  one_thread_tried)
     name = type(calc).__name__
     head = (f'{name} returned forces that differ by {noise:.3g} eV/Å at '
             'identical positions after the atoms had been moved elsewhere: '
             'its forces depend on its history, which breaks exact '
             'reversal.')
-    if noise <= SUMMATION_NOISE_LIMIT * max(1.0, f_max):
-        # Sixteen times what was seen keeps it far below the half of the
-        # bound at which guarded rounding warns that it is near.
-        bound = max(DEFAULT_FORCE_NOISE, _bound_for(noise))
+    if _rounding_level(noise, f_max):
         return (f'{head} Noise this small comes from the order of '
                 'floating-point sums (a neighbour list built elsewhere'
                 + (', not threads: it stayed with OpenMP and BLAS held to '
                    'one thread' if one_thread_tried else '') + '): '
                 "construct the integrator with force_purity='guarded', "
-                f'force_noise={bound:.2g} (eV/Å, at least sixteen times what '
-                "was seen). force_purity='trust' skips this check.")
+                f'{_guarded_force_noise(noise)}. '
+                "force_purity='trust' skips this check.")
     return (f'{head} Noise this large does not come from summation order '
             'but from state the calculator carries between calls, such as '
             'a self-consistent field (DFT, tight binding) that starts from '
@@ -43,6 +48,93 @@ def _impurity_advice(calc, noise, f_max, cold_start_tried=False,
             'first), then construct the integrator again. Guarded rounding '
             'cannot absorb noise this large: the momentum quantum would '
             'have to be so coarse that the momenta lose their precision.')
+
+
+def _run_to_run(noise, repeated):
+    """Whether forces that differ by ``noise`` after the atoms were moved
+    away and back, and by ``repeated`` between calls repeated at the same
+    positions (both eV/Å), vary from call to call rather than with the
+    calculator's history: the repeats vary nearly as much.  A history is
+    carried on by a repeat too (a self-consistent field refined from its
+    last solution at the same positions), but changes far less."""
+    return repeated > 0 and repeated >= RUN_TO_RUN_SHARE * noise
+
+
+def _rounding_level(noise, f_max):
+    """Whether ``noise`` (eV/Å) is at the level of rounding for forces up
+    to ``f_max``: guarded rounding can absorb it."""
+    return noise <= SUMMATION_NOISE_LIMIT * max(1.0, f_max)
+
+
+def _guarded_force_noise(noise):
+    """The ``force_noise=...`` words for guarded rounding of ``noise``."""
+    # Sixteen times what was seen keeps it far below the half of the
+    # bound at which guarded rounding warns that it is near.
+    bound = max(DEFAULT_FORCE_NOISE, _bound_for(noise))
+    return (f'force_noise={bound:.2g} (eV/Å, at least sixteen times what '
+            'was seen)')
+
+
+def _run_to_run_head(calc, noise, repeated):
+    """The opening of a refusal for forces that vary between calls at the
+    same positions."""
+    return (f'{type(calc).__name__} returned forces that differ by '
+            f'{noise:.3g} eV/Å at identical positions, and by {repeated:.3g} '
+            'eV/Å between calls repeated at the same positions without '
+            'moving the atoms: run-to-run nondeterminism (parallel sums '
+            'whose order changes from call to call, as GPU atomic adds and '
+            'threads make), which breaks exact reversal. ')
+
+
+def _run_to_run_advice(calc, noise, f_max, repeated, one_thread_tried):
+    """The refusal for run-to-run nondeterminism in a calculator that holds
+    no torch model."""
+    head = _run_to_run_head(calc, noise, repeated)
+    if one_thread_tried:
+        head += ('Holding the OpenMP and BLAS thread pools to one thread '
+                 'during force calls (threadpoolctl) did not remove it. '
+                 'Run the calculator serially or in its deterministic mode '
+                 '(its documentation says how)')
+    else:
+        head += ('Run with one thread (OMP_NUM_THREADS=1 before Python '
+                 'starts), or the calculator in its deterministic mode')
+    if _rounding_level(noise, f_max):
+        return (f"{head}, or construct the integrator with force_purity="
+                f"'guarded', {_guarded_force_noise(noise)}.")
+    return (f'{head}, then construct the integrator again. Guarded rounding '
+            'cannot absorb noise this large: the momentum quantum would '
+            'have to be so coarse that the momenta lose their precision.')
+
+
+def _torch_advice(calc, noise, f_max, repeated):
+    """The refusal for a calculator holding torch modules whose forces
+    vary between calls at the same positions even under PyTorch's
+    deterministic kernels."""
+    head = _run_to_run_head(calc, noise, repeated)
+    tried = ("PyTorch's deterministic kernels (torch.use_deterministic_"
+             "algorithms(True, warn_only=True)) were held around the calls "
+             'and did not remove it: an operation of the model has no '
+             'deterministic kernel (PyTorch warned which), or the '
+             'calculator sums outside PyTorch. ')
+    left = ('Run the model in float64 (a GPU\'s atomic adds then leave noise '
+            'near 1e-17 eV/Å, which guarded rounding absorbs, where float32 '
+            "leaves 1e-9) or on the CPU (device='cpu'), whose kernels are "
+            'deterministic')
+    if _rounding_level(noise, f_max):
+        left += (", or construct the integrator with force_purity="
+                 f"'guarded', {_guarded_force_noise(noise)}: its clean "
+                 'recomputations would still vary, so a kick they decide can '
+                 'come out differently on the way back, rarely')
+    return f'{head}{tried}{left}; then construct the integrator again.'
+
+
+def _cublas_advice(calc, noise, problem):
+    """The refusal for a torch model on CUDA whose forces vary at the same
+    positions, where deterministic kernels cannot run: ``problem`` is
+    :func:`~ase_reversible.core.kernels.cublas_problem`'s reason."""
+    return (f'{type(calc).__name__} holds a torch model on CUDA whose forces '
+            f'differ by {noise:.3g} eV/Å at identical positions; PyTorch\'s '
+            f'deterministic kernels would make them pure, but {problem}')
 
 
 def _spot_check_advice(calc, mode, noise, calls, bound=None, wanted=None):
@@ -68,9 +160,13 @@ def _spot_check_advice(calc, mode, noise, calls, bound=None, wanted=None):
             'alone, although the probe at construction saw no '
             f'difference.{tail} The usual cause is parallel sums whose '
             'order changes from call to call (threads, a GPU): run with one '
-            'thread (OMP_NUM_THREADS=1 before Python starts), or, if the '
-            "difference is at the level of rounding, use force_purity="
-            f"'guarded' with force_noise={_bound_for(noise):.2g}.")
+            'thread (OMP_NUM_THREADS=1 before Python starts)'
+            + (", its torch model under PyTorch's deterministic kernels "
+               '(torch.use_deterministic_algorithms(True))'
+               if torch_modules(calc) else '')
+            + ', or, if the difference is at the level of rounding, use '
+            f"force_purity='guarded' with force_noise="
+            f'{_bound_for(noise):.2g}.')
 
 
 def _parallel_noise_advice(calc, noise, left, one_thread_tried=False):

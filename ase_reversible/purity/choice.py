@@ -6,13 +6,18 @@ from contextlib import nullcontext
 
 import numpy as np
 
+from ..core.kernels import cublas_problem, prepare_cublas
 from ..errors import ImpureForcesError
-from .advice import _impurity_advice, _parallel_noise_advice
+from .advice import (_cublas_advice, _impurity_advice, _parallel_noise_advice,
+                     _run_to_run, _torch_advice)
+from .deterministic import DeterministicKernels
 from .introspection import (_declares_pure, _is_asap3,
                             _is_ase_neighborlist_calculator,
                             _is_plain_ase_neighborlist_calculator, _mixes,
-                            calculator_members)
-from .probe import measured_force_noise, probe_purity
+                            calculator_members, discard_all_results,
+                            torch_devices, torch_modules)
+from .probe import (measured_force_noise, noise_as_force_noise, probe_purity,
+                    repeat_noise)
 from .providers import (ColdStartForces, GuardedForces,
                         SortedNeighborListForces, SpotCheck, TrustedForces)
 from .settings import DEFAULT_FORCE_NOISE, SUMMATION_NOISE_LIMIT
@@ -42,16 +47,25 @@ def force_provider(atoms, mode: str = 'auto',
         takes ``'cold-start'`` if that makes them pure; noise left at the
         level of rounding is probed once more with OpenMP and BLAS held to
         one thread, which removes the noise of parallel sums; otherwise it
-        refuses the calculator.  In every mode, a calculator known to sum
-        in OpenMP threads (:data:`~.threads.OPENMP_CALCULATOR_PACKAGES`:
-        tblite) has every force call held to one thread.
+        refuses the calculator.  A calculator that holds torch modules
+        (:func:`~.introspection.torch_modules`) is probed as it is, then
+        under deterministic torch kernels, which it keeps if they make it
+        pure: around a guarded provider's clean recomputations only if the
+        noise without them is small enough for the guard, else around
+        every call (see :func:`_torch_probed`).  A refusal says whether
+        the noise varies between calls repeated at the same positions
+        (run-to-run nondeterminism) or with history.  In every mode, a
+        calculator known to sum in OpenMP threads
+        (:data:`~.threads.OPENMP_CALCULATOR_PACKAGES`: tblite) has every
+        force call held to one thread.
     force_noise : float, optional
         Noise bound for ``'guarded'`` (eV/Å).
 
     Returns
     -------
     TrustedForces, SortedNeighborListForces, GuardedForces or ColdStartForces
-        Its ``one_thread`` is the thread hold, or None.  Raises
+        Its ``holds`` are the contexts held around its force calls (its
+        ``one_thread`` the thread hold, or None).  Raises
         :class:`ImpureForcesError` if ``'auto'`` probes the calculator and
         no handling removes the history noise it sees.
     """
@@ -77,7 +91,7 @@ def _provider(atoms, mode, force_noise):
     provider = _handling(atoms, mode, force_noise)
     if provider.one_thread is None and any(
             uses_openmp(c) for c in calculator_members(atoms.calc)):
-        provider.hold_to_one_thread(one_thread())
+        provider.hold(one_thread())
     return provider
 
 
@@ -108,6 +122,8 @@ def _handling(atoms, mode, force_noise):
         elif all(_declares_pure(c) or _is_plain_ase_neighborlist_calculator(c)
                  for c in leaves):
             mode = 'sorted' if listed else 'trust'
+        elif torch_modules(calc):
+            return _torch_probed(atoms, listed)
         else:
             return _probed(atoms, listed)
     if mode == 'sorted':
@@ -146,7 +162,7 @@ def _probed(atoms, listed):
     if provider is None:
         raise ImpureForcesError(refusal)
     if held is not None:
-        provider.hold_to_one_thread(held)
+        provider.hold(held)
     return provider
 
 
@@ -157,10 +173,7 @@ def _probe_choice(atoms, listed, held):
     level of rounding."""
     calc = atoms.calc
     with held() if held is not None else nullcontext():
-        provider = (SortedNeighborListForces(listed) if listed
-                    else TrustedForces())
-        if listed:  # sorted lists in place before the probe
-            provider.forces(atoms)
+        provider = _base_provider(atoms, listed)
         noise = probe_purity(atoms)
         if not noise:
             return provider, None, False
@@ -176,6 +189,88 @@ def _probe_choice(atoms, listed, held):
             if left <= small:
                 return (None, _parallel_noise_advice(
                     calc, noise, left, held is not None), True)
+            # Started cold, a self-consistent field repeats itself: what
+            # still varies between repeated calls is not its history.
+            repeated = repeat_noise(atoms, forces=cold.forces)
+        else:
+            repeated = repeat_noise(atoms, forces=provider.forces)
         return (None, _impurity_advice(
             calc, noise, f_max, cold_start_tried=not listed,
-            one_thread_tried=held is not None), noise <= small)
+            one_thread_tried=held is not None, repeated=repeated),
+                noise <= small)
+
+
+def _torch_probed(atoms, listed):
+    """The provider ``'auto'`` takes for a calculator that holds torch
+    modules (:func:`~.introspection.torch_modules`); raises
+    :class:`ImpureForcesError` if none makes the forces pure.
+
+    Probed as it is first: pure, it is trusted.  Otherwise probed again
+    under PyTorch's deterministic kernels
+    (:class:`~.deterministic.DeterministicKernels`); pure so, it is held to
+    them (:func:`_kernel_hold`).
+    """
+    # Before the model's first CUDA call, when cuBLAS makes its workspace.
+    prepare_cublas()
+    plain = _base_provider(atoms, listed)
+    noise = probe_purity(atoms, forces=plain.forces)
+    if not noise:
+        return plain
+    calc = atoms.calc
+    for device in torch_devices(torch_modules(calc)):
+        problem = cublas_problem(device)
+        if problem is not None:
+            raise ImpureForcesError(_cublas_advice(calc, noise, problem))
+    kernels = DeterministicKernels()
+    held = _base_provider(atoms, listed)
+    held.hold(kernels)
+    left = probe_purity(atoms, forces=held.forces)
+    if left:
+        f_max = np.abs(held.forces(atoms)).max(initial=0.0)
+        repeated = repeat_noise(atoms, forces=held.forces)
+        raise ImpureForcesError(
+            _torch_advice(calc, left, f_max, repeated)
+            if _run_to_run(left, repeated) else
+            _impurity_advice(calc, left, f_max))
+    return _kernel_hold(atoms, plain, held, noise, listed)
+
+
+def _kernel_hold(atoms, plain, held, noise, listed):
+    """The provider for forces that are pure under deterministic kernels
+    (``held``, holding them around every call) and vary by ``noise`` (eV/Å)
+    without them (``plain``).
+
+    If guarded rounding with a bound measured from that noise can absorb
+    it, a :class:`GuardedForces` whose clean recomputations alone are held
+    to the kernels: a flagged kick is then rounded from the deterministic
+    forces both ways, and the other calls pay nothing for the kernels.
+    Else ``held``.
+    """
+    # The guard rounds from either kind of forces: its bound covers the
+    # noise among the plain ones and their distance from the held ones.
+    # Each computed afresh, not from the cache of the other; the held ones
+    # last, so that a cached result the first step may use is theirs.
+    discard_all_results(atoms.calc)
+    f_plain = np.array(plain.forces(atoms))
+    discard_all_results(atoms.calc)
+    offset = float(np.abs(f_plain - held.forces(atoms)).max(initial=0.0))
+    force_noise = noise_as_force_noise(atoms, max(noise, offset),
+                                       forces=held.forces)
+    # GuardedForces keeps no sorted lists: beside members that need them
+    # its bound, measured with them sorted, would not hold.
+    if listed or force_noise > DEFAULT_FORCE_NOISE:
+        return held
+    guarded = GuardedForces(force_noise)
+    guarded.hold(held.held(DeterministicKernels), calls=('clean_forces',))
+    return guarded
+
+
+def _base_provider(atoms, listed):
+    """The provider before any handling of noise: sorted lists for the
+    members that keep ASE's lists (in place, so that a probe meets them),
+    else the forces as returned."""
+    if not listed:
+        return TrustedForces()
+    provider = SortedNeighborListForces(listed)
+    provider.forces(atoms)
+    return provider

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import sys
+
+
 def _is_ase_neighborlist_calculator(calc):
     from ase.calculators.emt import EMT
     from ase.calculators.lj import LennardJones
@@ -63,6 +66,14 @@ def discard_results(calc):
             calc.atoms = None
 
 
+def discard_all_results(calc):
+    """:func:`discard_results` for ``calc`` and every calculator it mixes:
+    a mixing calculator's members keep their own results, which it would
+    otherwise sum again at positions they were computed at."""
+    for c in calculator_members(calc):
+        discard_results(c)
+
+
 def calculator_members(calc):
     """``calc`` and, recursively, every calculator it mixes (``.calcs``).
 
@@ -117,3 +128,36 @@ def cold_start(calc):
             c.reset()
         else:
             discard_results(c)
+
+
+def torch_modules(calc):
+    """The ``torch.nn.Module`` objects ``calc`` and the calculators it mixes
+    hold: among their attributes, and one level down inside lists, tuples
+    and dicts among them (MACE's calculator keeps ``.models``, a list;
+    others keep ``.model``).  Returns a list, each module once.
+
+    Never imports torch: with no torch loaded, nothing can hold a module.
+    """
+    torch = sys.modules.get('torch')
+    module_class = getattr(getattr(torch, 'nn', None), 'Module', None)
+    if module_class is None:
+        return []
+    found = {}
+    for c in calculator_members(calc):
+        for value in getattr(c, '__dict__', {}).values():
+            inner = (value.values() if isinstance(value, dict) else
+                     value if isinstance(value, (list, tuple)) else ())
+            for candidate in (value, *inner):
+                if isinstance(candidate, module_class):
+                    found.setdefault(id(candidate), candidate)
+    return list(found.values())
+
+
+def torch_devices(modules):
+    """The devices (``torch.device``) of the parameters and buffers of
+    ``modules`` (torch modules), each once."""
+    devices = {}
+    for module in modules:
+        for tensor in (*module.parameters(), *module.buffers()):
+            devices.setdefault(str(tensor.device), tensor.device)
+    return list(devices.values())

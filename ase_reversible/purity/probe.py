@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from .introspection import discard_results
+from .introspection import discard_all_results
 from .settings import (DEFAULT_FORCE_NOISE, MEASURED_NOISE_FLOOR,
                        MEASURED_NOISE_MARGIN, REBUILD_SHIFT, guard_bound)
 
@@ -24,15 +24,50 @@ def measured_force_noise(atoms) -> float:
     the run: every clean recomputation and spot check compares it with
     the noise it sees and stops the run if it was exceeded.
     """
-    noise = probe_purity(atoms, trials=3)
+    return min(noise_as_force_noise(atoms, probe_purity(atoms, trials=3)),
+               DEFAULT_FORCE_NOISE)
+
+
+def noise_as_force_noise(atoms, noise, forces=None) -> float:
+    """The ``force_noise`` (eV/Å) for ``noise`` (eV/Å) seen at the atoms'
+    positions: ``MEASURED_NOISE_MARGIN`` times it, scaled back as
+    ``force_noise`` is (to forces of 1 eV/Å and coordinates within
+    ``NOISE_REFERENCE_EXTENT``), rounded up to a power of two, at least
+    ``MEASURED_NOISE_FLOOR``; no upper bound (:func:`measured_force_noise`
+    keeps it within ``DEFAULT_FORCE_NOISE``).  ``forces(atoms)``, if
+    given, is how the forces are obtained."""
     x_nc = atoms.positions
     extent = max(x_nc.max(initial=0.0), -x_nc.min(initial=0.0))
-    f_nc = atoms.get_forces(md=True)
+    f_nc = (atoms.get_forces(md=True) if forces is None
+            else np.asarray(forces(atoms)))
     f_max = max(f_nc.max(initial=0.0), -f_nc.min(initial=0.0))
     scaled = noise / guard_bound(1.0, extent, f_max)
     wanted = max(MEASURED_NOISE_MARGIN * scaled, MEASURED_NOISE_FLOOR)
-    return min(2.0**math.ceil(math.log2(wanted)), DEFAULT_FORCE_NOISE)
+    return 2.0**math.ceil(math.log2(wanted))
 
+
+def repeat_noise(atoms, forces=None, repeats: int = 2) -> float:
+    """Largest force difference (eV/Å) between calls at the same
+    positions with nothing between them: the calculator's cached results
+    are discarded and it is called again, ``repeats`` times after the
+    first.  The calculator saw no other positions between them, so noise
+    here, nearly as large as the probe's, is run-to-run nondeterminism
+    (parallel sums whose order changes from call to call); a history
+    carried on from one repeat to the next (a self-consistent field
+    refined again) changes far less (``RUN_TO_RUN_SHARE``).  Costs
+    ``1 + repeats`` force calls; ``forces(atoms)`` as for
+    :func:`probe_purity`."""
+    if forces is None:
+        def forces(atoms):
+            return atoms.get_forces(md=True)
+    discard_all_results(atoms.calc)
+    f0_nc = np.array(forces(atoms))
+    worst = 0.0
+    for _ in range(repeats):
+        discard_all_results(atoms.calc)
+        worst = max(worst, float(np.abs(np.asarray(forces(atoms))
+                                        - f0_nc).max(initial=0.0)))
+    return worst
 
 
 def probe_purity(atoms, trials: int = 2, displacement: float = 0.3,
@@ -54,7 +89,7 @@ def probe_purity(atoms, trials: int = 2, displacement: float = 0.3,
             return atoms.get_forces(md=True)
     rng = np.random.default_rng(seed)
     x_nc = atoms.positions.copy()
-    discard_results(atoms.calc)
+    discard_all_results(atoms.calc)
     f0_nc = np.array(forces(atoms))
     worst = 0.0
     try:

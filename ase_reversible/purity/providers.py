@@ -13,6 +13,7 @@ from .introspection import (_has_sorted_list, _install_sorted_list,
 from .settings import (DEFAULT_FORCE_NOISE, NEAR_BOUND_FACTOR, REBUILD_SHIFT,
                        SPOT_CHECK_INTERVAL, _bound_for, _near_bound,
                        guard_bound, guarded_momentum_quantum)
+from .threads import OneThread
 
 
 class SpotCheck:
@@ -85,29 +86,49 @@ class TrustedForces:
     """Forces used as the calculator returns them.
 
     ``spot_check`` (a :class:`SpotCheck`, or None) checks during runs that
-    the forces stay a function of the positions; ``one_thread`` (a
-    :class:`~.threads.OneThread`, or None) is held around every force
-    call (see :meth:`hold_to_one_thread`).
+    the forces stay a function of the positions; ``holds`` are the
+    contexts held around chosen force calls (see :meth:`hold`).
     """
 
     mode = 'trust'
     force_noise = 0.0
     spot_check = None
-    one_thread = None
+    #: ``((context, calls), ...)``: what :meth:`hold` put in place.
+    holds = ()
     #: The methods that call the calculator.
     _calculator_calls = ('forces',)
 
-    def hold_to_one_thread(self, one_thread):
-        """Run every force call of this provider with OpenMP and BLAS held
-        to one thread (``one_thread``, a :class:`~.threads.OneThread`).
+    def hold(self, context, calls=None):
+        """Run the calculator calls named in ``calls`` (default: every
+        method of this provider that calls the calculator) inside
+        ``context()``: OpenMP and BLAS held to one thread
+        (:class:`~.threads.OneThread`), deterministic torch kernels
+        (:class:`~.deterministic.DeterministicKernels`).
 
-        The methods that call the calculator are wrapped on this instance,
-        so a provider without the hold pays nothing for it.
+        The methods are wrapped on this instance, so a provider without a
+        hold pays nothing for it.
         """
-        self.one_thread = one_thread
-        for name in self._calculator_calls:
-            setattr(self, name, _on_one_thread(getattr(self, name),
-                                               one_thread))
+        calls = self._calculator_calls if calls is None else tuple(calls)
+        unknown = set(calls) - set(self._calculator_calls)
+        if unknown:
+            raise ValueError(f'{type(self).__name__} calls the calculator '
+                             f'in {self._calculator_calls}, not in '
+                             f'{sorted(unknown)}')
+        self.holds = self.holds + ((context, calls),)
+        for name in calls:
+            setattr(self, name, _held(getattr(self, name), context))
+
+    def held(self, kind):
+        """The first context of class ``kind`` this provider holds around
+        its force calls, or None."""
+        return next((context for context, _ in self.holds
+                     if isinstance(context, kind)), None)
+
+    @property
+    def one_thread(self):
+        """The :class:`~.threads.OneThread` held around the force calls,
+        or None."""
+        return self.held(OneThread)
 
     def forces(self, atoms) -> np.ndarray:
         """Forces ``[n_atoms, 3]`` (eV/Å) at the atoms' current positions.
@@ -341,10 +362,10 @@ class ColdStartForces(TrustedForces):
         return atoms.get_forces(md=True)
 
 
-def _on_one_thread(method, one_thread):
-    """``method`` run inside ``one_thread()``."""
+def _held(method, context):
+    """``method`` run inside ``context()``."""
     def held(*args, **kwargs):
-        with one_thread():
+        with context():
             return method(*args, **kwargs)
     held.__doc__ = method.__doc__
     return held

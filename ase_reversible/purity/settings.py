@@ -40,6 +40,14 @@ SPOT_CHECK_INTERVAL = 512
 #: (tblite GFN2-xTB: 1.9e-4 eV/Å), far above this.
 SUMMATION_NOISE_LIMIT = 1e-9
 
+#: Forces that vary between calls repeated at the same positions by at
+#: least this share of what the probe saw after moving the atoms vary from
+#: call to call (parallel sums in a changing order), not with a history:
+#: two samples of the same noise differ by far less than a factor of 8,
+#: while a self-consistent field refined again from its own solution at
+#: the same positions changes by a fraction of its history noise (the
+#: contraction of its iterations, to the power of their number).
+RUN_TO_RUN_SHARE = 1 / 8
 
 #: Noise is *near* its bound, and a run warns, above the bound divided by
 #: this.  The largest noise a run meets grows as it visits more positions,
