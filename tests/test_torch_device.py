@@ -186,3 +186,30 @@ def test_the_fingerprint_on_cuda_follows_an_optimiser_step():
         p.grad = torch.ones_like(p)
     torch.optim.SGD(model.parameters(), lr=1e-9).step()
     assert calc.parameters['weights'] != before
+
+
+# -- MACE's own ASE calculator, where mace-torch is installed ------------------
+
+@pytest.mark.parametrize('device', ['cpu', pytest.param('cuda', marks=cuda)])
+@pytest.mark.parametrize('dtype', ['float64', 'float32'])
+def test_maces_own_calculator_runs_back_under_auto(tmp_path, monkeypatch,
+                                                   device, dtype):
+    # e3nn 0.4.4 loads its own constants with torch.load, refused by torch
+    # >= 2.6's weights-only default; so is MACE's model file.
+    monkeypatch.setenv('TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD', '1')
+    pytest.importorskip('e3nn', reason='MACE needs e3nn (pip install '
+                        'mace-torch==0.3.16 e3nn==0.4.4)')
+    calculators = pytest.importorskip(
+        'mace.calculators', reason='mace-torch is not installed (pip '
+        'install mace-torch==0.3.16 e3nn==0.4.4)')
+    from ase.build import bulk
+
+    from ase_reversible.torch.mace import random_mace
+    path = tmp_path / 'random.model'
+    torch.save(random_mace((29,)), path)
+    atoms = bulk('Cu', 'fcc', a=3.6, cubic=True).repeat(2)
+    atoms.rattle(0.05, seed=1)
+    atoms.calc = calculators.MACECalculator(
+        model_paths=str(path), device=device, default_dtype=dtype)
+    dyn = ReversibleVerlet(atoms, DT)          # 'auto': no refusal
+    assert_runs_back(dyn, 20)
