@@ -9,6 +9,8 @@ never imports it.  What is here:
   :class:`~ase_reversible.ReversibleVerlet` runs it out and back bit for
   bit, and one double-backward pass per kick for the reversible adjoint;
 - :func:`neighbour_list`: the canonical list it hands to the model;
+- :class:`TorchNeighbourList`: the same list, bit for bit, built on the
+  model's torch device;
 - :class:`PairMLP` and :class:`LennardJones`: two ready models.
 
 See docs/torch.md.
@@ -24,7 +26,9 @@ except ImportError as error:   # pragma: no cover - depends on the venv
     ) from error
 
 from .calculator import TorchCalculator
+from .cells import TorchNeighbourList
 from .models import LennardJones, PairMLP
 from .neighbours import neighbour_list
 
-__all__ = ['TorchCalculator', 'PairMLP', 'LennardJones', 'neighbour_list']
+__all__ = ['TorchCalculator', 'PairMLP', 'LennardJones', 'neighbour_list',
+           'TorchNeighbourList']
