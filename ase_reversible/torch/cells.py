@@ -102,8 +102,10 @@ class TorchNeighbourList:
             search = self._search = _Search(
                 x_nc.clone(), cell.tobytes(), pbc.tobytes(), ij_2p, s_pc,
                 shift_pc)
-        keep_e = torch.nonzero(within(x_nc, search.ij_2p[0], search.ij_2p[1],
-                                      search.shift_pc, cutoff)).squeeze(1)
+        keep_e = torch.nonzero(within(
+            x_nc.index_select(0, search.ij_2p[0]),
+            x_nc.index_select(0, search.ij_2p[1]), search.shift_pc,
+            cutoff)).squeeze(1)
         return (search.ij_2p.index_select(1, keep_e),
                 search.shift_pc.index_select(0, keep_e),
                 search.s_pc.index_select(0, keep_e))
@@ -140,10 +142,27 @@ def sorted_candidates(x_nc, cell, pbc, reach):
         order_p = torch.arange(len(i_p), device=device)
         for column in (s_pc[:, 2], s_pc[:, 1], s_pc[:, 0], j_p, i_p):
             order_p = order_p[torch.argsort(column[order_p], stable=True)]
-    s_pc = s_pc[order_p]
-    cell_t = torch.as_tensor(cell, dtype=torch.float64, device=device)
-    return (torch.stack((i_p[order_p], j_p[order_p])), s_pc,
-            image_shifts(s_pc.to(torch.float64), cell_t))
+    s_pc = s_pc.index_select(0, order_p)
+    # The shifts of the few distinct images, then gathered: elementwise,
+    # so the same bits as image_shifts over every candidate.
+    return (torch.stack((i_p.index_select(0, order_p),
+                         j_p.index_select(0, order_p))), s_pc,
+            _shifts_by_table(s_pc, cell, low, high))
+
+
+def _shifts_by_table(s_pc, cell, low, high):
+    """``image_shifts(s_pc, cell)`` through a table of every image from
+    ``low`` to ``high`` (``[3]`` ints): elementwise, so the same bits."""
+    device = s_pc.device
+    low_c = torch.tensor(low, device=device)
+    width = [h - lo + 1 for lo, h in zip(low, high)]
+    table = torch.cartesian_prod(*[
+        torch.arange(lo, h + 1, device=device) for lo, h in zip(low, high)])
+    table = image_shifts(table.reshape(-1, 3).to(torch.float64),
+                         torch.as_tensor(cell, dtype=torch.float64,
+                                         device=device))
+    strides = torch.tensor([width[1] * width[2], width[2], 1], device=device)
+    return table.index_select(0, ((s_pc - low_c) * strides).sum(dim=1))
 
 
 def _empty(device):
@@ -183,8 +202,9 @@ def _candidates(x_nc, cell, pbc, reach):
             pad = float(geometry.pads[a])
             keep &= (fa > -pad) & (fa < 1 + pad)
         img_k, atom_k = torch.nonzero(keep, as_tuple=True)
-        ghost_kc = xw_nc[atom_k] + images[img_k].to(torch.float64) @ cell_t
-        image_kc = images[img_k]
+        image_kc = images.index_select(0, img_k)
+        ghost_kc = (xw_nc.index_select(0, atom_k)
+                    + image_kc.to(torch.float64) @ cell_t)
     else:
         atom_k = torch.arange(n, device=device)
         ghost_kc = xw_nc
@@ -209,30 +229,46 @@ def _candidates(x_nc, cell, pbc, reach):
         return ((torch.minimum(c_nc.clamp(min=0), top) + grid.reach)
                 * strides).sum(dim=1)
 
+    # Ghosts sorted by cube, so that each cube's are a contiguous run.
     ghost_cube = cube_of(ghost_kc)
     order = torch.argsort(ghost_cube, stable=True)
-    sorted_cube = ghost_cube[order]
+    sorted_cube = ghost_cube.index_select(0, order)
+    atom_k, ghost_kc, image_kc = (atom_k.index_select(0, order),
+                                  ghost_kc.index_select(0, order),
+                                  image_kc.index_select(0, order))
     offsets = torch.as_tensor(grid.offsets, device=device)
     near = (cube_of(xw_nc)[:, None] + offsets).reshape(-1)
-    start = torch.searchsorted(sorted_cube, near, side='left')
-    count = torch.searchsorted(sorted_cube, near, side='right') - start
+    # Where each cube's run starts, for every cube of the grid (a few per
+    # atom): two gathers per near cube instead of two binary searches.
+    run = torch.searchsorted(sorted_cube, torch.arange(
+        int(np.prod(grid.dims)) + 1, device=device))
+    start = run.index_select(0, near)
+    count = run.index_select(0, near + 1) - start
     total = int(count.sum())
-    centre = torch.arange(n, device=device).repeat_interleave(
-        len(offsets)).repeat_interleave(count, output_size=total)
-    # Positions start[k], start[k]+1, ..., stop[k]-1 for every k, flat.
+    per_atom = count.view(n, len(offsets)).sum(dim=1)
+    # Slots start[k], start[k]+1, ..., stop[k]-1 for every k, flat; the
+    # centres in order, each as many times as it has slots.
     first = torch.repeat_interleave(start - torch.cumsum(count, 0) + count,
                                     count, output_size=total)
-    k = order[first + torch.arange(total, device=device)]
+    k = first + torch.arange(total, device=device)
+    centre = torch.arange(n, device=device).repeat_interleave(
+        per_atom, output_size=total)
     # A first cut by the ghosts' distances, with room for rounding (the
     # exact test follows), and no atom with itself in its own cell.
-    d = ghost_kc[k] - xw_nc[centre]
+    r2 = torch.zeros(total, dtype=torch.float64, device=device)
+    for a in range(3):   # by columns: contiguous, no [total, 3] temporaries
+        d = ghost_kc[:, a].contiguous().index_select(0, k)
+        d -= xw_nc[:, a].repeat_interleave(per_atom, output_size=total)
+        r2 += d * d
     scale = ghost_kc.abs().max() + xw_nc.abs().max()
-    close = (d * d).sum(dim=1) < (margin + 1e-12 * scale) ** 2
+    close = r2 < (margin + 1e-12 * scale) ** 2
+    del d, r2
     home_k = (image_kc == 0).all(dim=1)
-    itself = (atom_k[k] == centre) & home_k[k]
+    itself = (atom_k.index_select(0, k) == centre) & home_k.index_select(0, k)
     kept = torch.nonzero(close & ~itself).squeeze(1)
-    k, centre = k[kept], centre[kept]
-    j = atom_k[k]
+    k, centre = k.index_select(0, kept), centre.index_select(0, kept)
+    j = atom_k.index_select(0, k)
     # The true image: ghost = x_j - w_j cell + S' cell, centre = x_i - w_i
     # cell, so the pair vector is x_j - x_i + (S' - w_j + w_i) cell.
-    return centre, j, image_kc[k] - w_nc[j] + w_nc[centre]
+    return centre, j, (image_kc.index_select(0, k) - w_nc.index_select(0, j)
+                       + w_nc.index_select(0, centre))

@@ -252,18 +252,20 @@ def _select(x_nc, candidates, cutoff):
     positions only, by the distance a model computes: (x_j - x_i) + S @
     cell, squared and summed in order.  Keeps their order."""
     i_p, j_p, s_pc, shift_pc = candidates
-    keep_p = within(x_nc, i_p, j_p, shift_pc, cutoff)
+    keep_p = within(x_nc[i_p], x_nc[j_p], shift_pc, cutoff)
     return (np.stack((i_p[keep_p], j_p[keep_p])), shift_pc[keep_p],
             s_pc[keep_p])
 
 
-def within(x_nc, i_p, j_p, shift_pc, cutoff):
-    """``[n_pairs]`` bool: the pairs strictly inside ``cutoff`` (Å), by
-    the distance a model computes: ``d = (x_j - x_i) + shift``, then
+def within(xi_pc, xj_pc, shift_pc, cutoff):
+    """``[n_pairs]`` bool: the pairs strictly inside ``cutoff`` (Å), from
+    the positions of their ends (``[n_pairs, 3]``, Å, gathered as the
+    caller likes) by the distance a model computes: ``d = (x_j - x_i) +
+    shift``, then
     ``d0 d0 + d1 d1 + d2 d2`` in that order, against ``cutoff**2``.  One
     owner for numpy arrays and torch tensors: the same operations in the
     same order, so the same bits on any device."""
-    d_pc = (x_nc[j_p] - x_nc[i_p]) + shift_pc
+    d_pc = (xj_pc - xi_pc) + shift_pc
     r2_p = d_pc[:, 0] * d_pc[:, 0] + d_pc[:, 1] * d_pc[:, 1] \
         + d_pc[:, 2] * d_pc[:, 2]
     return r2_p < cutoff * cutoff
