@@ -212,6 +212,19 @@ def test_a_skin_history_changes_no_bit_of_the_torch_list(device):
 
 
 @pytest.mark.parametrize('device', DEVICES)
+def test_the_torch_list_runs_under_deterministic_kernels(device):
+    # The calculator calls its model in that mode, where PyTorch refuses
+    # the operations that have no deterministic kernel.
+    from ase_reversible.core.kernels import deterministic_kernels
+    from ase_reversible.torch import TorchNeighbourList
+    x_nc, cell, pbc, cutoff = random_system(np.random.default_rng(3))
+    pbc[:] = True
+    with deterministic_kernels():
+        assert_same_as_numpy(TorchNeighbourList(cutoff, 1.0, device), x_nc,
+                             cell, pbc)
+
+
+@pytest.mark.parametrize('device', DEVICES)
 def test_the_torch_list_refuses_what_the_numpy_list_refuses(device):
     from ase_reversible.torch import TorchNeighbourList
     x_nc = np.array([[0.0, 0, 0], [1e4, 0, 0], [1e4 + 1.0, 0, 0]])

@@ -15,8 +15,8 @@ test) and :func:`~ase_reversible.torch.neighbours.image_shifts`
 (``_shifts``), which are written once for numpy arrays and torch tensors;
 each eager torch operation is its own kernel, so nothing is contracted
 into an FMA on CUDA.  The search itself only has to find a superset of
-the pairs, so it may use matrix products.  ``tests/test_torch_neighbours.py``
-holds the two lists equal with ``np.array_equal``, on the CPU and, where
+the pairs (the margin covers its rounding).
+``tests/test_torch_neighbours.py`` holds the two lists equal with ``np.array_equal``, on the CPU and, where
 there is one, on CUDA.
 
 Per call on a skin hit: one host sync to decide whether any atom moved
@@ -180,14 +180,16 @@ def _candidates(x_nc, cell, pbc, reach):
     geometry = cell_geometry(cell, pbc, margin)
     cell_t = torch.as_tensor(cell, dtype=torch.float64, device=device)
     # Wrap into the cell along the periodic directions; w_nc: by how many
-    # cell vectors each atom moved.
+    # cell vectors each atom moved.  The products by the cell go through
+    # image_shifts, not @: no cuBLAS call (which deterministic mode
+    # refuses on CUDA without its workspace fixed).
     if pbc.any():
         normals = torch.as_tensor(geometry.normals, dtype=torch.float64,
                                   device=device)
-        f_nc = x_nc @ normals.T
+        f_nc = image_shifts(x_nc, normals.T)
         periodic = torch.as_tensor(pbc, device=device)
         w_nc = torch.where(periodic, torch.floor(f_nc), 0.0).to(torch.int64)
-        xw_nc = x_nc - w_nc.to(torch.float64) @ cell_t
+        xw_nc = x_nc - image_shifts(w_nc.to(torch.float64), cell_t)
         fw_nc = f_nc - w_nc
     else:
         w_nc = torch.zeros((n, 3), dtype=torch.int64, device=device)
@@ -204,7 +206,7 @@ def _candidates(x_nc, cell, pbc, reach):
         img_k, atom_k = torch.nonzero(keep, as_tuple=True)
         image_kc = images.index_select(0, img_k)
         ghost_kc = (xw_nc.index_select(0, atom_k)
-                    + image_kc.to(torch.float64) @ cell_t)
+                    + image_shifts(image_kc.to(torch.float64), cell_t))
     else:
         atom_k = torch.arange(n, device=device)
         ghost_kc = xw_nc
