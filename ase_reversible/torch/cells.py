@@ -143,24 +143,27 @@ def sorted_candidates(x_nc, cell, pbc, reach):
         for column in (s_pc[:, 2], s_pc[:, 1], s_pc[:, 0], j_p, i_p):
             order_p = order_p[torch.argsort(column[order_p], stable=True)]
     s_pc = s_pc.index_select(0, order_p)
-    # The shifts of the few distinct images, then gathered: elementwise,
-    # so the same bits as image_shifts over every candidate.
+    cell_t = torch.as_tensor(cell, dtype=torch.float64, device=device)
+    if np.prod([h - lo + 1 for lo, h in zip(low, high)]) < len(s_pc):
+        # The shifts of the few distinct images, then gathered:
+        # elementwise, so the same bits as over every candidate.
+        shift_pc = _shifts_by_table(s_pc, cell_t, low, high)
+    else:
+        shift_pc = image_shifts(s_pc.to(torch.float64), cell_t)
     return (torch.stack((i_p.index_select(0, order_p),
-                         j_p.index_select(0, order_p))), s_pc,
-            _shifts_by_table(s_pc, cell, low, high))
+                         j_p.index_select(0, order_p))), s_pc, shift_pc)
 
 
 def _shifts_by_table(s_pc, cell, low, high):
-    """``image_shifts(s_pc, cell)`` through a table of every image from
-    ``low`` to ``high`` (``[3]`` ints): elementwise, so the same bits."""
+    """``image_shifts(s_pc, cell)`` (``cell`` a tensor on ``s_pc``'s
+    device) through a table of every image from ``low`` to ``high``
+    (``[3]`` ints): elementwise, so the same bits."""
     device = s_pc.device
     low_c = torch.tensor(low, device=device)
     width = [h - lo + 1 for lo, h in zip(low, high)]
     table = torch.cartesian_prod(*[
         torch.arange(lo, h + 1, device=device) for lo, h in zip(low, high)])
-    table = image_shifts(table.reshape(-1, 3).to(torch.float64),
-                         torch.as_tensor(cell, dtype=torch.float64,
-                                         device=device))
+    table = image_shifts(table.reshape(-1, 3).to(torch.float64), cell)
     strides = torch.tensor([width[1] * width[2], width[2], 1], device=device)
     return table.index_select(0, ((s_pc - low_c) * strides).sum(dim=1))
 
