@@ -166,6 +166,11 @@ def test_the_torch_list_is_the_numpy_list(device, seed):
     # Numpy positions are moved to the device.
     assert_same_as_numpy(TorchNeighbourList(cutoff, 0.0, device), x_nc,
                          cell, pbc, positions=x_nc)
+    # Positions a model differentiates: the list keeps no graph.
+    listing = TorchNeighbourList(cutoff, 1.0, device)
+    assert_same_as_numpy(listing, x_nc, cell, pbc, positions=torch.tensor(
+        x_nc, device=device, requires_grad=True))
+    assert not listing._search.x_nc.requires_grad
 
 
 @pytest.mark.parametrize('device', DEVICES)

@@ -85,8 +85,9 @@ class TorchNeighbourList:
         bit those of :func:`~ase_reversible.torch.neighbours.neighbour_list`.
         """
         cell, pbc, cutoff = checked_cell(cell, pbc, self.cutoff)
+        # Detached: the reference kept for the skin must hold no graph.
         x_nc = torch.as_tensor(positions, dtype=torch.float64,
-                               device=self.device)
+                               device=self.device).detach()
         # Finiteness is checked on a rebuild only: a NaN or infinite
         # position makes the moved test fail, so it always gets there.
         check_positions(tuple(x_nc.shape), True)
