@@ -10,9 +10,10 @@ them: the checks, the margin, the cell's geometry, the images and cubes
 but the box the atoms fill), the canonical order
 (:func:`~ase_reversible.torch.neighbours.canonical_key`), and the two
 pieces of arithmetic that decide the bits,
-:func:`~ase_reversible.torch.neighbours.within` (``_select``'s exact
-test) and :func:`~ase_reversible.torch.neighbours.image_shifts`
-(``_shifts``), which are written once for numpy arrays and torch tensors;
+:func:`~ase_reversible.torch.neighbours.within` (the exact test by which
+both lists select their candidates) and
+:func:`~ase_reversible.torch.neighbours.image_shifts` (``S @ cell``),
+which are written once for numpy arrays and torch tensors;
 each eager torch operation is its own kernel, so nothing is contracted
 into an FMA on CUDA.  The search itself only has to find a superset of
 the pairs (the margin covers its rounding).
@@ -103,10 +104,10 @@ class TorchNeighbourList:
             search = self._search = _Search(
                 x_nc.clone(), cell.tobytes(), pbc.tobytes(), ij_2p, s_pc,
                 shift_pc)
-        keep_e = torch.nonzero(within(
-            x_nc.index_select(0, search.ij_2p[0]),
-            x_nc.index_select(0, search.ij_2p[1]), search.shift_pc,
-            cutoff)).squeeze(1)
+        ends_2pc = x_nc.index_select(0, search.ij_2p.reshape(-1)).view(
+            2, -1, 3)
+        keep_e = torch.nonzero(within(ends_2pc[0], ends_2pc[1],
+                                      search.shift_pc, cutoff)).squeeze(1)
         return (search.ij_2p.index_select(1, keep_e),
                 search.shift_pc.index_select(0, keep_e),
                 search.s_pc.index_select(0, keep_e))
