@@ -1,24 +1,24 @@
 """The canonical neighbour list built on a torch device, cell lists and all.
 
 :class:`TorchNeighbourList` returns, on the device of the model, the same
-bits in the same order as :func:`~ase_reversible.torch.neighbours.neighbour_list`
-(numpy, on the host): every ordered pair ``(i, j, S)`` with ``|x_j - x_i +
-S @ cell| < cutoff``, sorted by ``(i, j, S)``.  It mirrors the numpy
-module's search step for step and calls its rules rather than restating
-them: the checks, the margin, the cell's geometry, the images and cubes
-(host-side, from the cell: nothing there depends on the positions' bits
-but the box the atoms fill), the canonical order
+bits in the same order as
+:func:`~ase_reversible.torch.neighbours.neighbour_list` (numpy, on the
+host): every ordered pair ``(i, j, S)`` with ``|x_j - x_i + S @ cell| <
+cutoff``, sorted by ``(i, j, S)``.  It mirrors the numpy module's search
+step for step and calls its rules rather than restating them: the checks,
+the margin, the cell's geometry, the images and cubes (host-side, from
+the cell and the box the atoms fill), the canonical order
 (:func:`~ase_reversible.torch.neighbours.canonical_key`), and the two
 pieces of arithmetic that decide the bits,
 :func:`~ase_reversible.torch.neighbours.within` (the exact test by which
 both lists select their candidates) and
 :func:`~ase_reversible.torch.neighbours.image_shifts` (``S @ cell``),
-which are written once for numpy arrays and torch tensors;
-each eager torch operation is its own kernel, so nothing is contracted
-into an FMA on CUDA.  The search itself only has to find a superset of
-the pairs (the margin covers its rounding).
-``tests/test_torch_neighbours.py`` holds the two lists equal with ``np.array_equal``, on the CPU and, where
-there is one, on CUDA.
+written once for numpy arrays and torch tensors; each eager torch
+operation is its own kernel, so nothing is contracted into an FMA on
+CUDA.  The search itself only has to find a superset of the pairs (the
+margin covers its rounding).  ``tests/test_torch_neighbours.py`` holds
+the two lists equal with ``np.array_equal``, on the CPU and, where there
+is one, on CUDA.
 
 Per call on a skin hit: one host sync to decide whether any atom moved
 more than ``skin / 2`` and one for the number of pairs (``nonzero``),
@@ -26,9 +26,11 @@ about twenty kernels, no copy between host and device but the positions
 when they come as a numpy array.  A rebuild costs some more syncs (the
 box, the number of ghosts, of candidates), none per atom.  The candidates
 kept between rebuilds number about ``4.2 (cutoff + skin)^3`` times the
-density per atom (``i``, ``j``, ``S`` and the shift: 80 bytes each); the
+density per atom (``i``, ``j``, ``S`` and the shift: 64 bytes each); the
 search passes through about ``15.6 (cutoff + skin)^3`` per atom on the
-way.
+way (some 50 bytes each, at once).  For 32,000 argon atoms (fcc, a =
+5.26 Å) with 8 + 1 Å: 2.5 million candidates kept (160 MB), 9.7 million
+passed through.
 """
 
 from __future__ import annotations
