@@ -3,7 +3,8 @@
 
 import pytest
 
-pytest.importorskip('torch', reason='ase_reversible.torch needs PyTorch')
+torch = pytest.importorskip('torch',
+                            reason='ase_reversible.torch needs PyTorch')
 
 import itertools  # noqa: E402
 
@@ -132,3 +133,123 @@ def test_a_skin_changes_no_bit_of_the_list():
             assert a.dtype == b.dtype and np.array_equal(a, b)
     with pytest.raises(ValueError, match='skin'):
         NeighbourList(cutoff, skin=-1.0)
+
+
+# The list built by torch, on any device: the same bits in the same order.
+
+DEVICES = ['cpu', pytest.param('cuda', marks=pytest.mark.skipif(
+    not torch.cuda.is_available(),
+    reason='the CUDA build of the list needs a CUDA device'))]
+
+
+def assert_same_as_numpy(listing, x_nc, cell, pbc, positions=None):
+    """``listing``'s pairs equal, bit for bit, a fresh numpy list's."""
+    if positions is None:
+        positions = torch.tensor(x_nc, device=listing.device)
+    got = listing(positions, cell, pbc)
+    expected = neighbour_list(x_nc, cell, pbc, listing.cutoff)
+    assert len(got) == len(expected)
+    for a, b in zip(got, expected):
+        assert a.device == listing.device
+        a = a.cpu().numpy()
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+
+
+@pytest.mark.parametrize('device', DEVICES)
+@pytest.mark.parametrize('seed', range(12))
+def test_the_torch_list_is_the_numpy_list(device, seed):
+    from ase_reversible.torch import TorchNeighbourList
+    rng = np.random.default_rng(seed)
+    x_nc, cell, pbc, cutoff = random_system(rng)
+    assert_same_as_numpy(TorchNeighbourList(cutoff, 0.5, device), x_nc,
+                         cell, pbc)
+    # Numpy positions are moved to the device.
+    assert_same_as_numpy(TorchNeighbourList(cutoff, 0.0, device), x_nc,
+                         cell, pbc, positions=x_nc)
+    # Positions a model differentiates: the list keeps no graph.
+    listing = TorchNeighbourList(cutoff, 1.0, device)
+    assert_same_as_numpy(listing, x_nc, cell, pbc, positions=torch.tensor(
+        x_nc, device=device, requires_grad=True))
+    assert not listing._search.x_nc.requires_grad
+
+
+@pytest.mark.parametrize('device', DEVICES)
+def test_the_torch_list_on_thin_cells_open_and_tiny_systems(device):
+    from ase_reversible.torch import TorchNeighbourList
+    thin = np.array([[2.0, 0, 0], [0.7, 2.2, 0], [0, 0, 9.0]])
+    two = np.array([[0.1, 0.2, 0.3], [1.0, 1.1, 4.0]])
+    far = np.array([[0.0, 0, 0], [1e4, 0, 0], [1e4 + 1.0, 0, 0]])
+    for x_nc, cell, pbc, cutoff in [
+            (two, thin, [True, True, False], 5.0),
+            (two, thin, [True] * 3, 9.5),
+            (far, np.zeros((3, 3)), [False] * 3, 2.0),
+            (np.zeros((0, 3)), thin, [True] * 3, 3.0),
+            (np.zeros((0, 3)), np.zeros((3, 3)), [False] * 3, 3.0),
+            (two[:1], thin, [True] * 3, 4.0),
+            (two[:1], np.zeros((3, 3)), [False] * 3, 4.0)]:
+        assert_same_as_numpy(TorchNeighbourList(cutoff, 1.0, device), x_nc,
+                             thin if cell is thin else cell, np.array(pbc))
+
+
+@pytest.mark.parametrize('device', DEVICES)
+def test_a_skin_history_changes_no_bit_of_the_torch_list(device):
+    from ase_reversible.torch import TorchNeighbourList
+    rng = np.random.default_rng(11)
+    x_nc, cell, pbc, cutoff = random_system(rng)
+    pbc[:2] = True
+    skin = 0.8
+    listing = TorchNeighbourList(cutoff, skin, device)
+    rebuilds = 0
+    for step in range(16):
+        if step == 6:
+            x_nc = x_nc + cell[0]            # wrapped by a whole cell
+        elif step == 9:
+            cell = cell * 1.01               # a new cell
+        elif step == 12:
+            x_nc = x_nc[:-1]                 # an atom fewer
+        else:                                # moves below and above skin/2
+            x_nc = x_nc + rng.normal(0.0, (0.02, 0.3)[step % 2],
+                                     x_nc.shape)
+        before = listing._search
+        assert_same_as_numpy(listing, x_nc, cell, pbc)
+        rebuilds += listing._search is not before
+    assert 3 < rebuilds < 16          # both paths taken
+
+
+@pytest.mark.parametrize('device', DEVICES)
+def test_the_torch_list_runs_under_deterministic_kernels(device):
+    # The calculator calls its model in that mode, where PyTorch refuses
+    # the operations that have no deterministic kernel.
+    from ase_reversible.core.kernels import deterministic_kernels
+    from ase_reversible.torch import TorchNeighbourList
+    x_nc, cell, pbc, cutoff = random_system(np.random.default_rng(3))
+    pbc[:] = True
+    with deterministic_kernels():
+        assert_same_as_numpy(TorchNeighbourList(cutoff, 1.0, device), x_nc,
+                             cell, pbc)
+
+
+@pytest.mark.parametrize('device', DEVICES)
+def test_the_torch_list_refuses_what_the_numpy_list_refuses(device):
+    from ase_reversible.torch import TorchNeighbourList
+    x_nc = np.array([[0.0, 0, 0], [1e4, 0, 0], [1e4 + 1.0, 0, 0]])
+    open_ = (np.zeros((3, 3)), [False] * 3)
+    with pytest.raises(ValueError, match='positive length'):
+        TorchNeighbourList(0.0, device=device)(x_nc, *open_)
+    with pytest.raises(ValueError, match='not independent'):
+        TorchNeighbourList(2.0, device=device)(
+            x_nc, np.zeros((3, 3)), [True, False, False])
+    with pytest.raises(ValueError, match='shape'):
+        TorchNeighbourList(2.0, device=device)(x_nc[:, :2], *open_)
+    with pytest.raises(ValueError, match='skin'):
+        TorchNeighbourList(2.0, skin=-1.0, device=device)
+    # NaN or infinite positions, on a fresh list and after a skin hit.
+    listing = TorchNeighbourList(2.0, device=device)
+    listing(x_nc, *open_)
+    for bad in (np.nan, np.inf):
+        for fresh in (TorchNeighbourList(2.0, device=device), listing):
+            x = torch.tensor(x_nc, device=device)
+            x[1, 2] = bad
+            with pytest.raises(ValueError, match='NaN or infinite'):
+                fresh(x, *open_)
+    assert_same_as_numpy(listing, x_nc, *open_)

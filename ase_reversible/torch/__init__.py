@@ -9,6 +9,8 @@ never imports it.  What is here:
   :class:`~ase_reversible.ReversibleVerlet` runs it out and back bit for
   bit, and one double-backward pass per kick for the reversible adjoint;
 - :func:`neighbour_list`: the canonical list it hands to the model;
+- :class:`TorchNeighbourList`: the same list, bit for bit, built on the
+  model's torch device;
 - :class:`PairMLP` and :class:`LennardJones`: two ready models.
 
 See docs/torch.md.
@@ -31,7 +33,9 @@ from ..core.kernels import prepare_cublas
 prepare_cublas()
 
 from .calculator import TorchCalculator  # noqa: E402
+from .cells import TorchNeighbourList  # noqa: E402
 from .models import LennardJones, PairMLP  # noqa: E402
 from .neighbours import neighbour_list  # noqa: E402
 
-__all__ = ['TorchCalculator', 'PairMLP', 'LennardJones', 'neighbour_list']
+__all__ = ['TorchCalculator', 'PairMLP', 'LennardJones', 'neighbour_list',
+           'TorchNeighbourList']

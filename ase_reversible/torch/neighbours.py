@@ -18,11 +18,24 @@ than the cut-off is handled, not refused), and compares each atom with
 the atoms of the cubes around its own.  Everything is vectorised: no
 Python loop over atoms.  Measured against ASE's ``neighbor_list`` in
 ``benchmarks/torch_products.py`` (docs/benchmarks.md).
+
+:class:`~ase_reversible.torch.cells.TorchNeighbourList` is the same list
+built on a torch device.  The rules both follow have one owner, here:
+the checks (:func:`checked_cell`, :func:`check_positions`,
+:func:`checked_skin`), the host-side geometry of the search
+(:func:`search_margin`, :func:`cell_geometry`, :func:`image_grid`,
+:func:`cube_grid`), the canonical order (:func:`canonical_key`) and the
+arithmetic that decides the bits, :func:`image_shifts` and
+:func:`within`, written once for numpy arrays and torch tensors alike
+(each eager torch operation is its own kernel, so no contraction into
+FMAs changes a bit).  ``tests/test_torch_neighbours.py`` holds the two
+lists equal, bit for bit.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -59,7 +72,8 @@ def neighbour_list(positions, cell, pbc, cutoff):
         The image ``S`` of each pair (``edge_shift = S @ cell``, summed in
         a fixed order).
     """
-    x_nc, cell, pbc, cutoff = _checked(positions, cell, pbc, cutoff)
+    cell, pbc, cutoff = checked_cell(cell, pbc, cutoff)
+    x_nc = _checked_positions(positions)
     return _select(x_nc, _sorted_candidates(x_nc, cell, pbc, cutoff),
                    cutoff)
 
@@ -83,15 +97,13 @@ class NeighbourList:
 
     def __init__(self, cutoff: float, skin: float = 1.0):
         self.cutoff = float(cutoff)
-        self.skin = float(skin)
-        if not (math.isfinite(self.skin) and self.skin >= 0):
-            raise ValueError(f'The skin must be a non-negative length in Å, '
-                             f'got {skin!r}')
+        self.skin = checked_skin(skin)
         self._search = None   # (positions, cell bytes, pbc bytes, candidates)
 
     def __call__(self, positions, cell, pbc):
         """``(edge_index, edge_shift, image)`` as :func:`neighbour_list`."""
-        x_nc, cell, pbc, cutoff = _checked(positions, cell, pbc, self.cutoff)
+        cell, pbc, cutoff = checked_cell(cell, pbc, self.cutoff)
+        x_nc = _checked_positions(positions)
         search = self._search
         if (search is None or len(search[0]) != len(x_nc)
                 or search[1] != cell.tobytes() or search[2] != pbc.tobytes()
@@ -110,20 +122,112 @@ def _moved_beyond(x_nc, ref_nc, distance):
     return bool(moved_n.max(initial=0.0) > distance * distance)
 
 
-def _checked(positions, cell, pbc, cutoff):
-    x_nc = np.ascontiguousarray(positions, dtype=np.float64)
+def checked_cell(cell, pbc, cutoff):
+    """``(cell [3, 3] float64, pbc [3] bool, cutoff float)`` as the lists
+    use them; ``ValueError`` for a cut-off that is not a positive length
+    (Å)."""
     cell = np.ascontiguousarray(cell, dtype=np.float64).reshape(3, 3)
     pbc = np.ascontiguousarray(pbc, dtype=bool).reshape(3)
     cutoff = float(cutoff)
     if not (math.isfinite(cutoff) and cutoff > 0):
         raise ValueError(f'The cut-off must be a positive length in Å, got '
                          f'{cutoff!r}')
-    if x_nc.ndim != 2 or x_nc.shape[1] != 3:
+    return cell, pbc, cutoff
+
+
+def checked_skin(skin):
+    """The skin as a float (Å); ``ValueError`` unless a non-negative
+    length."""
+    skin = float(skin)
+    if not (math.isfinite(skin) and skin >= 0):
+        raise ValueError(f'The skin must be a non-negative length in Å, '
+                         f'got {skin!r}')
+    return skin
+
+
+def check_positions(shape, finite):
+    """``ValueError`` unless the positions' ``shape`` is ``(n_atoms, 3)``
+    and they are all ``finite`` (a bool the caller computed)."""
+    if len(shape) != 2 or shape[1] != 3:
         raise ValueError(f'positions must have shape (n_atoms, 3), got '
-                         f'{x_nc.shape}')
-    if not np.isfinite(x_nc).all():
+                         f'{tuple(shape)}')
+    if not finite:
         raise ValueError('The positions hold NaN or infinite values.')
-    return x_nc, cell, pbc, cutoff
+
+
+def _checked_positions(positions):
+    x_nc = np.ascontiguousarray(positions, dtype=np.float64)
+    check_positions(x_nc.shape, bool(np.isfinite(x_nc).all()))
+    return x_nc
+
+
+def search_margin(reach):
+    """Å: how far the search looks for pairs within ``reach`` (Å): a
+    little further, so that rounding in the wrapped positions and the
+    ghosts cannot lose a pair (the exact test follows)."""
+    return reach * (1 + 1e-6) + 1e-9
+
+
+class CellGeometry(NamedTuple):
+    """What the search needs of a cell (:func:`cell_geometry`)."""
+    #: ``[3, 3]``, 1/Å: row ``a`` gives the fractional coordinate ``f_a =
+    #: x . normals[a]`` (the non-periodic directions completed).
+    normals: np.ndarray
+    #: ``[3]``, fractional: the margin over each periodic direction's
+    #: height (0 where open).
+    pads: np.ndarray
+    #: ``[3]`` int64: images on each side within the margin (0 where open).
+    reach: np.ndarray
+
+
+def cell_geometry(cell, pbc, margin):
+    """The :class:`CellGeometry` of ``cell`` (Å, rows) for a search to
+    ``margin`` (Å, :func:`search_margin`).  ``ValueError`` when the
+    periodic directions' vectors are not independent."""
+    periodic = np.flatnonzero(pbc)
+    if np.linalg.matrix_rank(cell[periodic]) < len(periodic):
+        raise ValueError(
+            f'The cell vectors of the periodic directions {periodic.tolist()} '
+            f'are not independent: {cell.tolist()}. Set a cell with '
+            'non-zero, independent vectors along every periodic '
+            'direction (atoms.set_cell).')
+    normals = np.linalg.inv(_complete(cell, pbc)).T
+    heights = 1.0 / np.linalg.norm(normals, axis=1)
+    pads = np.where(pbc, margin / heights, 0.0)
+    reach = np.where(pbc, np.ceil(pads), 0).astype(np.int64)
+    return CellGeometry(normals, pads, reach)
+
+
+def image_grid(reach_c):
+    """``[n_images, 3]`` int64: every image ``S`` with ``|S_a| <=
+    reach_c[a]``, ``S`` in lexicographic order."""
+    ranges = [np.arange(-r, r + 1) for r in reach_c]
+    return np.stack(np.meshgrid(*ranges, indexing='ij'),
+                    axis=-1).reshape(-1, 3)
+
+
+class CubeGrid(NamedTuple):
+    """The cubes the search bins into (:func:`cube_grid`)."""
+    size: float          #: Å, a cube's edge
+    reach: int           #: cubes searched on each side of an atom's own
+    dims: np.ndarray     #: ``[3]`` int64, cubes along each axis, padded
+    strides: np.ndarray  #: ``[3]`` int64, a cube's flat index = c @ strides
+    offsets: np.ndarray  #: ``[(2 reach + 1)^3]`` int64, flat offsets
+
+
+def cube_grid(lo, hi, margin, n_ghosts):
+    """The :class:`CubeGrid` over the box ``lo``..``hi`` (Å, ``[3]``)
+    holding ``n_ghosts`` atoms and images, for a search to ``margin``:
+    cubes no smaller than ``margin / _CUBES_PER_CUTOFF``, and not more of
+    them than a few per atom (a sparse open system would otherwise
+    allocate a huge grid)."""
+    size = max(margin / _CUBES_PER_CUTOFF,
+               (np.prod(hi - lo) / (4.0 * max(n_ghosts, 1))) ** (1 / 3))
+    reach = int(math.ceil(margin / size))
+    dims = np.floor((hi - lo) / size).astype(np.int64) + 1 + 2 * reach
+    strides = np.array([dims[1] * dims[2], dims[2], 1], np.int64)
+    offsets = image_grid([reach] * 3) @ strides
+    return CubeGrid(float(size), reach, dims, strides, offsets)
 
 
 def _sorted_candidates(x_nc, cell, pbc, reach):
@@ -139,7 +243,8 @@ def _sorted_candidates(x_nc, cell, pbc, reach):
     i_p, j_p, s_pc = i_p[keep_p], j_p[keep_p], s_pc[keep_p]
     order_p = _canonical_order(i_p, j_p, s_pc, n)
     s_pc = s_pc[order_p]
-    return i_p[order_p], j_p[order_p], s_pc, _shifts(s_pc, cell)
+    return (i_p[order_p], j_p[order_p], s_pc,
+            image_shifts(s_pc.astype(np.float64), cell))
 
 
 def _select(x_nc, candidates, cutoff):
@@ -147,76 +252,81 @@ def _select(x_nc, candidates, cutoff):
     positions only, by the distance a model computes: (x_j - x_i) + S @
     cell, squared and summed in order.  Keeps their order."""
     i_p, j_p, s_pc, shift_pc = candidates
-    d_pc = (x_nc[j_p] - x_nc[i_p]) + shift_pc
-    r2_p = d_pc[:, 0] * d_pc[:, 0] + d_pc[:, 1] * d_pc[:, 1] \
-        + d_pc[:, 2] * d_pc[:, 2]
-    keep_p = r2_p < cutoff * cutoff
+    keep_p = within(x_nc[i_p], x_nc[j_p], shift_pc, cutoff)
     return (np.stack((i_p[keep_p], j_p[keep_p])), shift_pc[keep_p],
             s_pc[keep_p])
 
 
-def _canonical_order(i_p, j_p, s_pc, n):
-    """The permutation sorting by (i, j, S): one sort of a combined
-    integer key where it fits in int64, else numpy's lexsort."""
-    if not len(i_p):
-        return np.zeros(0, np.int64)
-    low = s_pc.min(axis=0)
-    width = s_pc.max(axis=0) - low + 1
-    if float(n) * n * float(np.prod(width.astype(float))) < 2.0**62:
-        key = i_p * n + j_p
-        for c in range(3):
-            key = key * width[c] + (s_pc[:, c] - low[c])
-        return np.argsort(key, kind='stable')
-    return np.lexsort((s_pc[:, 2], s_pc[:, 1], s_pc[:, 0], j_p, i_p))
+def within(xi_pc, xj_pc, shift_pc, cutoff):
+    """``[n_pairs]`` bool: the pairs strictly inside ``cutoff`` (Å), from
+    the positions of their ends (``[n_pairs, 3]``, Å, gathered as the
+    caller likes) by the distance a model computes: ``d = (x_j - x_i) +
+    shift``, then
+    ``d0 d0 + d1 d1 + d2 d2`` in that order, against ``cutoff**2``.  One
+    owner for numpy arrays and torch tensors: the same operations in the
+    same order, so the same bits on any device."""
+    d_pc = (xj_pc - xi_pc) + shift_pc
+    r2_p = d_pc[:, 0] * d_pc[:, 0] + d_pc[:, 1] * d_pc[:, 1] \
+        + d_pc[:, 2] * d_pc[:, 2]
+    return r2_p < cutoff * cutoff
 
 
-def _shifts(s_pc, cell):
-    """``S @ cell`` summed in a fixed order (BLAS could change the bits)."""
-    s_pc = s_pc.astype(np.float64)
+def image_shifts(s_pc, cell):
+    """``[n_pairs, 3]``, Å: ``S @ cell`` as ``(S0 c0 + S1 c1) + S2 c2``
+    (a matrix product could change the bits), for float64 ``s_pc`` and
+    ``cell`` both numpy arrays or both torch tensors on one device."""
     return (s_pc[:, 0:1] * cell[0] + s_pc[:, 1:2] * cell[1]) \
         + s_pc[:, 2:3] * cell[2]
+
+
+def canonical_key(i_p, j_p, s_pc, n, low, high):
+    """``[n_pairs]`` int64 whose order is that of ``(i, j, S)``, for
+    numpy arrays or torch tensors; ``None`` when it would not fit in
+    int64 (sort by the five columns then).  ``low``, ``high``: ``[3]``
+    ints, the least and greatest ``S`` along each axis."""
+    width = [int(h) - int(lo) + 1 for lo, h in zip(low, high)]
+    if float(n) * n * float(np.prod(np.array(width, float))) >= 2.0**62:
+        return None
+    key = i_p * n + j_p
+    for c in range(3):
+        key = key * width[c] + (s_pc[:, c] - int(low[c]))
+    return key
+
+
+def _canonical_order(i_p, j_p, s_pc, n):
+    """The permutation sorting by (i, j, S)."""
+    if not len(i_p):
+        return np.zeros(0, np.int64)
+    key = canonical_key(i_p, j_p, s_pc, n, s_pc.min(axis=0),
+                        s_pc.max(axis=0))
+    if key is not None:
+        return np.argsort(key, kind='stable')
+    return np.lexsort((s_pc[:, 2], s_pc[:, 1], s_pc[:, 0], j_p, i_p))
 
 
 def _candidates(x_nc, cell, pbc, cutoff):
     """A superset of the pairs within ``cutoff``: ``(i, j, S)``."""
     n = len(x_nc)
+    margin = search_margin(cutoff)
+    geometry = cell_geometry(cell, pbc, margin)
     # Wrap into the cell along the periodic directions; remember by how
     # many cell vectors each atom moved (w_nc, integers).
     w_nc = np.zeros((n, 3), np.int64)
-    reach_c = np.zeros(3, np.int64)
-    margin = cutoff * (1 + 1e-6) + 1e-9
     if pbc.any():
-        periodic = np.flatnonzero(pbc)
-        vectors = cell[periodic]
-        if np.linalg.matrix_rank(vectors) < len(periodic):
-            raise ValueError(
-                f'The cell vectors of the periodic directions {periodic.tolist()} '
-                f'are not independent: {cell.tolist()}. Set a cell with '
-                'non-zero, independent vectors along every periodic '
-                'direction (atoms.set_cell).')
-        full = _complete(cell, pbc)
-        # Rows of inv(full).T are the normals: f_a = x . normal_a.
-        normals = np.linalg.inv(full).T
-        heights = 1.0 / np.linalg.norm(normals, axis=1)
-        f_nc = x_nc @ normals.T
-        for a in periodic:
-            w_nc[:, a] = np.floor(f_nc[:, a]).astype(np.int64)
-            reach_c[a] = int(math.ceil(margin / heights[a]))
+        f_nc = x_nc @ geometry.normals.T
+        w_nc[:, pbc] = np.floor(f_nc[:, pbc]).astype(np.int64)
         xw_nc = x_nc - w_nc.astype(np.float64) @ cell
         fw_nc = f_nc - w_nc
     else:
         xw_nc = x_nc
     # Images: every atom shifted by each S within reach, kept if within
     # the cut-off (in fractional terms) of the wrapped cell.
-    ranges = [np.arange(-r, r + 1) for r in reach_c]
-    images = np.stack(np.meshgrid(*ranges, indexing='ij'),
-                      axis=-1).reshape(-1, 3)
+    images = image_grid(geometry.reach)
     if len(images) > 1:
         keep = np.ones((len(images), n), bool)
         for a in np.flatnonzero(pbc):
-            pad = margin / heights[a]
             fa = fw_nc[None, :, a] + images[:, a:a + 1]
-            keep &= (fa > -pad) & (fa < 1 + pad)
+            keep &= (fa > -geometry.pads[a]) & (fa < 1 + geometry.pads[a])
         img_k, atom_k = np.nonzero(keep)
         ghost_k = xw_nc[atom_k] + images[img_k].astype(np.float64) @ cell
         image_kc = images[img_k]
@@ -231,30 +341,22 @@ def _candidates(x_nc, cell, pbc, cutoff):
     inside = ((ghost_k >= lo) & (ghost_k <= hi)).all(axis=1)
     atom_k, ghost_k, image_kc = atom_k[inside], ghost_k[inside], \
         image_kc[inside]
-    # Cubes no smaller than cutoff / 2, and not more of them than a few
-    # per atom (a sparse open system would otherwise allocate a huge grid).
-    size = max(margin / _CUBES_PER_CUTOFF,
-               (np.prod(hi - lo) / (4.0 * len(ghost_k))) ** (1 / 3))
-    reach = int(math.ceil(margin / size))
-    dims = np.floor((hi - lo) / size).astype(np.int64) + 1 + 2 * reach
-    strides = np.array([dims[1] * dims[2], dims[2], 1], np.int64)
+    grid = cube_grid(lo, hi, margin, len(ghost_k))
 
     def cube_of(p):
-        c = np.floor((p - lo) / size).astype(np.int64)
-        return np.clip(c, 0, dims - 1 - 2 * reach) + reach
+        c = np.floor((p - lo) / grid.size).astype(np.int64)
+        return (np.clip(c, 0, grid.dims - 1 - 2 * grid.reach)
+                + grid.reach) @ grid.strides
 
-    ghost_cube = cube_of(ghost_k) @ strides
+    ghost_cube = cube_of(ghost_k)
     order = np.argsort(ghost_cube, kind='stable')
     sorted_cube = ghost_cube[order]
-    centre_cube = cube_of(xw_nc) @ strides
-    offsets = np.stack(np.meshgrid(*[np.arange(-reach, reach + 1)] * 3,
-                                   indexing='ij'), axis=-1).reshape(-1, 3)
-    near = (centre_cube[:, None] + offsets @ strides).ravel()
+    near = (cube_of(xw_nc)[:, None] + grid.offsets).ravel()
     start = np.searchsorted(sorted_cube, near, side='left')
     stop = np.searchsorted(sorted_cube, near, side='right')
     count = stop - start
     total = int(count.sum())
-    centre = np.repeat(np.repeat(np.arange(n), len(offsets)), count)
+    centre = np.repeat(np.repeat(np.arange(n), len(grid.offsets)), count)
     # Positions start[k], start[k]+1, ..., stop[k]-1 for every k, flat.
     first = np.repeat(start - np.cumsum(count) + count, count)
     slot = first + np.arange(total)

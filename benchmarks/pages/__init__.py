@@ -94,7 +94,7 @@ NAMES = ('step_cost', 'calculators', 'savings', 'work_precision',
          'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
          'thermostat', 'nose', 'npt_sampling', 'npt_cost', 'lammps_cost',
          'portable', 'force_noise', 'full_precision', 'long_reversal',
-         'torch_products', 'training')
+         'torch_products', 'gpu', 'training')
 
 
 def load(name) -> Spec:
