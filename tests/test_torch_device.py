@@ -213,3 +213,23 @@ def test_maces_own_calculator_runs_back_under_auto(tmp_path, monkeypatch,
         model_paths=str(path), device=device, default_dtype=dtype)
     dyn = ReversibleVerlet(atoms, DT)          # 'auto': no refusal
     assert_runs_back(dyn, 20)
+
+
+def test_pairs_built_on_the_device_give_the_forces_and_products_bit_for_bit():
+    numpy_built = ar32(TorchCalculator(PairMLP(cutoff=CUTOFF), CUTOFF))
+    device_built = ar32(TorchCalculator(PairMLP(cutoff=CUTOFF), CUTOFF))
+    assert not device_built.calc.device_neighbours   # the CPU's default
+    device_built.calc.device_neighbours = True
+    device_built.calc.reset()
+    v_nc = np.random.default_rng(2).normal(size=(32, 3))
+    for atoms in (numpy_built, device_built):
+        dyn = ReversibleVerlet(atoms, DT)
+        dyn.run(5)
+    assert np.array_equal(numpy_built.positions, device_built.positions)
+    assert np.array_equal(numpy_built.get_forces(), device_built.get_forces())
+    names = numpy_built.calc.differentiable_parameters
+    a = numpy_built.calc.vector_jacobian_product(numpy_built, v_nc, names)
+    b = device_built.calc.vector_jacobian_product(device_built, v_nc, names)
+    assert np.array_equal(a[0], b[0])
+    assert all(np.array_equal(a[1][n], b[1][n]) for n in names)
+    assert_runs_back(ReversibleVerlet(device_built, DT), 10)
