@@ -10,12 +10,12 @@ from ..core.kernels import cublas_problem, prepare_cublas
 from ..errors import ImpureForcesError
 from .advice import (_cublas_advice, _impurity_advice, _parallel_noise_advice,
                      _run_to_run, _torch_advice)
-from .deterministic import DeterministicKernels
+from .deterministic import DeterministicKernels, UnoptimisedJit
 from .introspection import (_declares_pure, _is_asap3,
                             _is_ase_neighborlist_calculator,
                             _is_plain_ase_neighborlist_calculator, _mixes,
                             calculator_members, discard_all_results,
-                            torch_devices, torch_modules)
+                            torch_devices, torch_modules, torch_precisions)
 from .probe import (measured_force_noise, noise_as_force_noise, probe_purity,
                     repeat_noise)
 from .providers import (ColdStartForces, GuardedForces,
@@ -205,25 +205,47 @@ def _torch_probed(atoms, listed):
     modules (:func:`~.introspection.torch_modules`); raises
     :class:`ImpureForcesError` if none makes the forces pure.
 
-    Probed as it is first: pure, it is trusted.  Otherwise probed again
-    under PyTorch's deterministic kernels
-    (:class:`~.deterministic.DeterministicKernels`); pure so, it is held to
-    them (:func:`_kernel_hold`).
+    Every call runs without TorchScript's profiling-guided optimisation
+    (:class:`~.deterministic.UnoptimisedJit`), whose first call at each
+    input shape gives other bits than the later ones.  Then, by what the
+    modules are:
+
+    - float64 on the CPU: probed as it is; pure, it is trusted.
+    - below float64 anywhere: PyTorch's deterministic kernels
+      (:class:`~.deterministic.DeterministicKernels`) held around every
+      call, without a plain probe first.  MACE in float32 on the CPU (two
+      threads) gave forces 1e-7 eV/Å apart at the same positions in 2 of
+      12 fresh probes and the same bits in the other 10, so a probe that
+      saw nothing had not shown it pure; and noise that size is far beyond
+      what guarded rounding absorbs.
+    - float64 on another device (a GPU's atomic adds): guarded rounding
+      whose clean recomputations run under deterministic kernels
+      (:func:`_kernel_hold`), whether or not the plain probe saw noise.
+
+    In every case the probe under deterministic kernels must find the
+    forces pure, else the calculator is refused.
     """
     # Before the model's first CUDA call, when cuBLAS makes its workspace.
     prepare_cublas()
-    plain = _base_provider(atoms, listed)
-    noise = probe_purity(atoms, forces=plain.forces)
-    if not noise:
-        return plain
     calc = atoms.calc
-    for device in torch_devices(torch_modules(calc)):
+    modules = torch_modules(calc)
+    devices = torch_devices(modules)
+    below_float64 = any(str(d) != 'torch.float64'
+                        for d in torch_precisions(modules))
+    off_cpu = any(d.type != 'cpu' for d in devices)
+    plain = _base_provider(atoms, listed)
+    plain.hold(UnoptimisedJit())
+    noise = 0.0
+    if not below_float64:
+        noise = probe_purity(atoms, forces=plain.forces)
+        if not noise and not off_cpu:
+            return plain
+    for device in devices:
         problem = cublas_problem(device)
         if problem is not None:
             raise ImpureForcesError(_cublas_advice(calc, noise, problem))
-    kernels = DeterministicKernels()
     held = _base_provider(atoms, listed)
-    held.hold(kernels)
+    held.hold(DeterministicKernels())
     left = probe_purity(atoms, forces=held.forces)
     if left:
         f_max = np.abs(held.forces(atoms)).max(initial=0.0)
@@ -232,6 +254,8 @@ def _torch_probed(atoms, listed):
             _torch_advice(calc, left, f_max, repeated)
             if _run_to_run(left, repeated) else
             _impurity_advice(calc, left, f_max))
+    if below_float64:
+        return held
     return _kernel_hold(atoms, plain, held, noise, listed)
 
 
@@ -261,6 +285,7 @@ def _kernel_hold(atoms, plain, held, noise, listed):
     if listed or force_noise > DEFAULT_FORCE_NOISE:
         return held
     guarded = GuardedForces(force_noise)
+    guarded.hold(plain.held(UnoptimisedJit))
     guarded.hold(held.held(DeterministicKernels), calls=('clean_forces',))
     return guarded
 

@@ -161,3 +161,14 @@ def torch_devices(modules):
         for tensor in (*module.parameters(), *module.buffers()):
             devices.setdefault(str(tensor.device), tensor.device)
     return list(devices.values())
+
+
+def torch_precisions(modules):
+    """The floating-point dtypes (``torch.dtype``) of the parameters and
+    buffers of ``modules`` (torch modules), each once."""
+    dtypes = {}
+    for module in modules:
+        for tensor in (*module.parameters(), *module.buffers()):
+            if tensor.is_floating_point():
+                dtypes.setdefault(str(tensor.dtype), tensor.dtype)
+    return list(dtypes.values())
