@@ -233,3 +233,11 @@ def test_pairs_built_on_the_device_give_the_forces_and_products_bit_for_bit():
     assert np.array_equal(a[0], b[0])
     assert all(np.array_equal(a[1][n], b[1][n]) for n in names)
     assert_runs_back(ReversibleVerlet(device_built, DT), 10)
+
+
+def test_torchscript_optimisation_is_off_once_a_torch_calculator_is_made():
+    from ase_reversible.core.kernels import steady_torchscript
+    torch._C._set_graph_executor_optimize(True)
+    TorchCalculator(PairMLP(cutoff=CUTOFF), CUTOFF)
+    assert not torch._C._get_graph_executor_optimize()
+    assert not steady_torchscript()      # already off

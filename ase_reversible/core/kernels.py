@@ -13,17 +13,18 @@ workspace fixed (``CUBLAS_WORKSPACE_CONFIG``, read when cuBLAS first
 makes its workspace): PyTorch refuses a cuBLAS call in deterministic mode
 without it.
 
-TorchScript adds a history of its own: its graph executor profiles the
-first call of a scripted function at each input shape and then runs an
-optimised graph, with other last bits.  MACE's ASE calculator (e3nn's
-scripted tensor products, CPU, float64) gave one result at the first call
-and another at every later one at the same positions, and a float32 run
-under 'auto' came back with other momenta once in seven tries (the shapes
-change as pairs enter and leave the cut-off, so the first visit of a shape
-differed from the second).  Without the profiling-guided optimisation
-(``torch.jit.optimized_execution(False)``) the same calls gave the same
-bits from the first, and took 48 against 88 ms (float64) and 37 against
-69 ms (float32) per call for 32 copper atoms on the CPU.
+TorchScript adds a history of its own, and for the whole process: its
+graph executor profiles the first calls of a scripted function at each
+input shape, then runs an optimised graph with other last bits.  MACE's
+ASE calculator (e3nn's scripted tensor products, CPU) gave one result at
+the first call and another at every later one at the same positions; and
+once any call had run optimised, calls inside
+``torch.jit.optimized_execution(False)`` gave other bits than before it
+(5 of 6 positions, float32), so no hold around our own calls alone can
+fix it.  With the optimisation off for the process, before or after the
+model had run optimised, every call gave the same bits (6 positions, 4
+rounds), and a call took 48 against 88 ms (float64) and 37 against 69 ms
+(float32) for 32 copper atoms on the CPU.
 
 Nothing here imports torch until it is used; only the callers that hold
 torch models reach it.
@@ -73,22 +74,29 @@ def cublas_problem(device, environ=None) -> str | None:
             'which sets it if unset.')
 
 
-@contextlib.contextmanager
-def unoptimised_jit():
-    """The context: TorchScript's graph executor without profiling-guided
-    optimisation inside (``torch.jit.optimized_execution(False)``), so a
-    scripted function gives the same bits at its first call at a shape as
-    at its later ones; the caller's setting back after."""
+def steady_torchscript() -> bool:
+    """Turn TorchScript's profiling-guided optimisation off for the whole
+    process (``torch.jit.optimized_execution(False)``, not restored), so a
+    scripted model's results no longer depend on how often and at which
+    shapes it ran before; returns whether it was on.
+
+    Process-wide on purpose: a call anyone makes with it on (an observer,
+    the user's own) changes what later calls return.  Called when a
+    calculator that holds torch modules is taken on.
+    """
     import torch
-    with torch.jit.optimized_execution(False):
-        yield
+    flag = getattr(torch._C, '_get_graph_executor_optimize', None)
+    if flag is None or not flag():
+        return False
+    torch._C._set_graph_executor_optimize(False)
+    return True
 
 
 @contextlib.contextmanager
 def deterministic_kernels(warn_only: bool = False):
     """The context: ``torch.use_deterministic_algorithms(True,
-    warn_only=warn_only)`` and :func:`unoptimised_jit` inside, the
-    caller's settings (and its ``warn_only``) back after.
+    warn_only=warn_only)`` inside, the caller's setting (and its
+    ``warn_only``) back after.
 
     ``warn_only=True`` lets an operation without a deterministic kernel
     run nondeterministically (PyTorch warns) instead of raising: for a
@@ -101,8 +109,7 @@ def deterministic_kernels(warn_only: bool = False):
     if changed:
         torch.use_deterministic_algorithms(True, warn_only=warn_only)
     try:
-        with unoptimised_jit():
-            yield
+        yield
     finally:
         if changed:
             torch.use_deterministic_algorithms(enabled,

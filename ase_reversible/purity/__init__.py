@@ -51,7 +51,7 @@ rules: :func:`guard_bound` and the momentum quantum it needs,
 # and an __all__ here would document them a second time on this page.
 from .check import CalculatorCheck, probed_check, refused_check
 from .choice import force_provider
-from .deterministic import DeterministicKernels, UnoptimisedJit
+from .deterministic import DeterministicKernels
 from .introspection import (calculator_members, cold_start, discard_results,
                             mixture, torch_devices, torch_modules)
 from .probe import (measured_force_noise, noise_as_force_noise, probe_purity,

@@ -6,11 +6,11 @@ from contextlib import nullcontext
 
 import numpy as np
 
-from ..core.kernels import cublas_problem, prepare_cublas
+from ..core.kernels import cublas_problem, prepare_cublas, steady_torchscript
 from ..errors import ImpureForcesError
 from .advice import (_cublas_advice, _impurity_advice, _parallel_noise_advice,
                      _run_to_run, _torch_advice)
-from .deterministic import DeterministicKernels, UnoptimisedJit
+from .deterministic import DeterministicKernels
 from .introspection import (_declares_pure, _is_asap3,
                             _is_ase_neighborlist_calculator,
                             _is_plain_ase_neighborlist_calculator, _mixes,
@@ -205,10 +205,10 @@ def _torch_probed(atoms, listed):
     modules (:func:`~.introspection.torch_modules`); raises
     :class:`ImpureForcesError` if none makes the forces pure.
 
-    Every call runs without TorchScript's profiling-guided optimisation
-    (:class:`~.deterministic.UnoptimisedJit`), whose first call at each
-    input shape gives other bits than the later ones.  Then, by what the
-    modules are:
+    TorchScript's profiling-guided optimisation is turned off for the
+    process first (:func:`~ase_reversible.core.kernels.steady_torchscript`):
+    with it, a scripted model's bits depend on how often it ran before.
+    Then, by what the modules are:
 
     - float64 on the CPU: probed as it is; pure, it is trusted.
     - below float64 anywhere: PyTorch's deterministic kernels
@@ -227,6 +227,7 @@ def _torch_probed(atoms, listed):
     """
     # Before the model's first CUDA call, when cuBLAS makes its workspace.
     prepare_cublas()
+    steady_torchscript()
     calc = atoms.calc
     modules = torch_modules(calc)
     devices = torch_devices(modules)
@@ -234,7 +235,6 @@ def _torch_probed(atoms, listed):
                         for d in torch_precisions(modules))
     off_cpu = any(d.type != 'cpu' for d in devices)
     plain = _base_provider(atoms, listed)
-    plain.hold(UnoptimisedJit())
     noise = 0.0
     if not below_float64:
         noise = probe_purity(atoms, forces=plain.forces)
@@ -285,7 +285,6 @@ def _kernel_hold(atoms, plain, held, noise, listed):
     if listed or force_noise > DEFAULT_FORCE_NOISE:
         return held
     guarded = GuardedForces(force_noise)
-    guarded.hold(plain.held(UnoptimisedJit))
     guarded.hold(held.held(DeterministicKernels), calls=('clean_forces',))
     return guarded
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import warnings
 
-from ..core.kernels import deterministic_kernels, unoptimised_jit
+from ..core.kernels import deterministic_kernels
 
 #: Words of PyTorch's warning for an operation without a deterministic
 #: kernel under ``warn_only=True``.
@@ -68,15 +68,3 @@ class DeterministicKernels:
                                    warning.filename, warning.lineno,
                                    source=warning.source)
 
-
-class UnoptimisedJit:
-    """A context: TorchScript without profiling-guided optimisation
-    inside (:func:`~ase_reversible.core.kernels.unoptimised_jit`), held
-    around every call of a calculator that holds torch modules, whatever
-    else 'auto' decides: a scripted model's first call at an input shape
-    otherwise gives other bits than its later ones, a history no probe
-    at construction sees once the shapes of the run are new."""
-
-    def __call__(self):
-        """The context: ``with jit(): atoms.get_forces()``."""
-        return unoptimised_jit()

@@ -21,7 +21,8 @@ import torch
 from ase.calculators.calculator import all_changes
 
 from ..calculators.base import ExactCalculator
-from ..core.kernels import cublas_problem, deterministic_kernels
+from ..core.kernels import (cublas_problem, deterministic_kernels,
+                            steady_torchscript)
 from .cells import TorchNeighbourList
 from .neighbours import NeighbourList
 
@@ -120,6 +121,9 @@ class TorchCalculator(ExactCalculator):
             raise ValueError(f'threads must be a positive integer, got '
                              f'{threads!r}')
         self.device = _runnable_device(model, device)
+        # A scripted model (torch.jit.script) gives other bits once
+        # TorchScript has optimised it: off for the process, see there.
+        steady_torchscript()
         #: Whether pairs are built by :class:`TorchNeighbourList` on the
         #: device (True off the CPU) or by the numpy list (the same bits;
         #: change it, then ``reset()``).
