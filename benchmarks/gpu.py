@@ -240,6 +240,7 @@ def mace_case(device, dtype, n_atoms, steps, rounds, folder):
     provider = dyn.force_purity
     return {'dtype': dtype, 'n_atoms': len(atoms), 'steps': steps,
             'force_purity': provider.todict(),
+            'holds': [type(context).__name__ for context, _ in provider.holds],
             'clean_recomputations': getattr(provider,
                                             'clean_recomputations', None),
             'exact': exact, **per_step(wall, cpu),

@@ -40,7 +40,9 @@ DEFAULT_SECTIONS = ('step_cost', 'calculators', 'savings', 'work_precision',
 STUDIES = {'nose_timestep': ('nose_timestep', 'run', 'nose', 'timestep', None),
            'nose_chain': ('nose_chain', 'run', 'nose', 'chain', None),
            'training_memory': ('training', 'measure_memory', 'training',
-                               'memory', 'measured')}
+                               'memory', 'measured'),
+           'device_neighbours': ('device_neighbours', 'run', 'gpu',
+                                 'neighbours', None)}
 
 
 def measure(name, quick, only, machine) -> dict:

@@ -15,10 +15,12 @@ def step_table(results):
         return f"Not measured: {results['skipped']}."
     return markdown_table(
         ['device', 'atoms', "force_purity chosen ('auto')", 'reversible (ms)',
-         'VelocityVerlet (ms)', 'reversible / VelocityVerlet'],
+         'VelocityVerlet (ms)', 'reversible / VelocityVerlet',
+         'spread of rounds'],
         [[results['device_name'], c['n_atoms'], c['force_purity'],
           _ms(c['median_seconds']['reversible']),
-          _ms(c['median_seconds']['velocity_verlet']), f"{c['ratio']:.3f}"]
+          _ms(c['median_seconds']['velocity_verlet']), f"{c['ratio']:.3f}",
+          f"{max(c['spread'].values()):.0%}"]
          for c in results['per_step']])
 
 
@@ -64,6 +66,8 @@ def mace_table(results):
         purity = c['force_purity']
         mode = purity['mode'] + (f" ({purity['force_noise']:.2g} eV/Å)"
                                  if 'force_noise' in purity else '')
+        if 'DeterministicKernels' in c.get('holds', ()):
+            mode += ', deterministic kernels held'
         rows.append([c['dtype'], c['n_atoms'], mode,
                      c['clean_recomputations']
                      if c['clean_recomputations'] is not None else '-',
@@ -74,9 +78,28 @@ def mace_table(results):
          'reversible / VelocityVerlet'], rows)
 
 
+def neighbours_table(results):
+    study = results.get('neighbours')
+    if study is None:
+        return ('*Not measured yet: `python benchmarks/run_all.py --only '
+                'device_neighbours`.*')
+    names = (('numpy_fresh', 'numpy, fresh (8 Å)'),
+             ('numpy_fresh_with_skin', 'numpy, fresh (9 Å)'),
+             ('torch_fresh_with_skin', 'torch, fresh (9 Å)'),
+             ('numpy_skin_hit', 'numpy, skin hit'),
+             ('torch_skin_hit', 'torch, skin hit'))
+    return markdown_table(
+        ['device', 'atoms', 'pairs', 'candidates kept']
+        + [f'{label} (ms)' for _, label in names],
+        [[c['device'], c['n_atoms'], c['n_pairs'], c['n_candidates']]
+         + [_ms(c['median_seconds'][key]) for key, _ in names]
+         for c in study['cases']])
+
+
 SPEC = Spec(
     'PyTorch models on a GPU',
     blocks={'steps': block(step_table), 'calls': block(calls_table),
-            'memory': block(memory_table), 'mace': block(mace_table)},
+            'memory': block(memory_table), 'mace': block(mace_table),
+            'neighbours': block(neighbours_table)},
     values=lambda results: {'rounds': results['per_step'][0]['rounds']}
     if 'per_step' in results else {})

@@ -4,8 +4,10 @@ one: a fresh build and a call on a skin hit, rattled fcc argon (a = 5.26
 thread.  Each torch result is checked equal, bit for bit, to numpy's.
 
     python benchmarks/studies/device_neighbours.py --device cuda
+    python benchmarks/run_all.py --only device_neighbours
 
-Not a section of run_all.py: it prints its results.
+The second stores its results in the gpu section (on the first CUDA
+device torch finds, else on the CPU).
 """
 
 from __future__ import annotations
@@ -86,8 +88,14 @@ def measure(repeat, device, rounds):
                                for name, values in times.items()}}
 
 
-def run(quick, device='cpu', rounds=5):
-    return [measure(repeat, device, rounds) for repeat in REPEATS[quick]]
+def run(quick, device=None, rounds=5):
+    """The records of each size, on ``device`` (default: the first CUDA
+    device, else the CPU)."""
+    import torch
+    if device is None:
+        device = 'cuda' if torch.cuda.is_available() else 'cpu'
+    return {'cases': [measure(repeat, device, rounds)
+                      for repeat in REPEATS[quick]]}
 
 
 if __name__ == '__main__':
@@ -96,7 +104,8 @@ if __name__ == '__main__':
     parser.add_argument('--rounds', type=int, default=5)
     parser.add_argument('--quick', action='store_true')
     arguments = parser.parse_args()
-    for record in run(arguments.quick, arguments.device, arguments.rounds):
+    for record in run(arguments.quick, arguments.device,
+                      arguments.rounds)['cases']:
         print(f"{record['n_atoms']} atoms on {record['device']}: "
               f"{record['n_pairs']} pairs, {record['n_candidates']} "
               'candidates kept')
