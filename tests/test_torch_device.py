@@ -241,3 +241,16 @@ def test_torchscript_optimisation_is_off_once_a_torch_calculator_is_made():
     TorchCalculator(PairMLP(cutoff=CUTOFF), CUTOFF)
     assert not torch._C._get_graph_executor_optimize()
     assert not steady_torchscript()      # already off
+
+
+def test_auto_probes_the_calculator_without_adding_a_torch_hold():
+    from ase_reversible.purity import force_provider
+    from ase_reversible.purity.introspection import torch_modules
+    calc = TorchCalculator(PairMLP(cutoff=CUTOFF), CUTOFF)
+    atoms = ar32(calc)
+    assert torch_modules(calc) == []
+    calc.device_neighbours = True          # as on a GPU: it builds the pairs
+    calc.reset()
+    # forces_are_pure is the CPU's promise; off it the probe decides.
+    provider = force_provider(atoms, 'auto')
+    assert provider.mode == 'trust' and provider.holds == ()

@@ -134,7 +134,10 @@ def torch_modules(calc):
     """The ``torch.nn.Module`` objects ``calc`` and the calculators it mixes
     hold: among their attributes, and one level down inside lists, tuples
     and dicts among them (MACE's calculator keeps ``.models``, a list;
-    others keep ``.model``).  Returns a list, each module once.
+    others keep ``.model``).  Returns a list, each module once.  A
+    calculator that declares ``holds_deterministic_kernels = True``
+    (:class:`~ase_reversible.torch.TorchCalculator`) holds them around
+    its own calls and is left out: it is probed as any other.
 
     Never imports torch: with no torch loaded, nothing can hold a module.
     """
@@ -144,6 +147,8 @@ def torch_modules(calc):
         return []
     found = {}
     for c in calculator_members(calc):
+        if getattr(c, 'holds_deterministic_kernels', False) is True:
+            continue
         for value in getattr(c, '__dict__', {}).values():
             inner = (value.values() if isinstance(value, dict) else
                      value if isinstance(value, (list, tuple)) else ())

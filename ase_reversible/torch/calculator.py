@@ -97,6 +97,10 @@ class TorchCalculator(ExactCalculator):
     """
 
     implemented_properties = ['energy', 'free_energy', 'forces']
+    #: Deterministic kernels and TorchScript's steady execution are held
+    #: around every call here, so force_purity='auto' does not add its
+    #: torch handling: off the CPU it probes and spot-checks the forces.
+    holds_deterministic_kernels = True
     default_parameters = {'cutoff': None, 'skin': 1.0, 'weights': None}
     parameter_bounds = {'cutoff': 'positive', 'skin': 'non-negative'}
     system_quantities = ('positions', 'numbers', 'cell', 'pbc')
