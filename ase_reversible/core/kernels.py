@@ -46,7 +46,7 @@ def prepare_cublas(environ=None) -> bool:
     chose a value: ``CUBLAS_WORKSPACE_CONFIG=:4096:8`` if it is unset.
 
     Returns whether the value now set is one of
-    :data:`CUBLAS_DETERMINISTIC`.  Called when ``ase_reversible.torch`` is
+    ``CUBLAS_DETERMINISTIC``.  Called when ``ase_reversible.torch`` is
     imported, which a script does before it moves a model to the GPU.
     """
     environ = os.environ if environ is None else environ

@@ -52,7 +52,7 @@ def force_provider(atoms, mode: str = 'auto',
         under deterministic torch kernels, which it keeps if they make it
         pure: around a guarded provider's clean recomputations only if the
         noise without them is small enough for the guard, else around
-        every call (see :func:`_torch_probed`).  A refusal says whether
+        every call (see the torch section of docs/force-purity.md).  A refusal says whether
         the noise varies between calls repeated at the same positions
         (run-to-run nondeterminism) or with history.  In every mode, a
         calculator known to sum in OpenMP threads
