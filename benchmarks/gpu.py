@@ -47,13 +47,12 @@ def _sync(device):
 
 def _argon(n_atoms, seed=1):
     from ase.build import bulk
-    from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
+
+    from ase_reversible.app.systems import thermalize
     r = SIZES[n_atoms]
     atoms = bulk('Ar', 'fcc', a=5.26, cubic=True).repeat((r, r, r))
     atoms.rattle(0.05, seed=seed)
-    MaxwellBoltzmannDistribution(atoms, temperature_K=TEMPERATURE_K,
-                                 rng=np.random.default_rng(seed))
-    return atoms
+    return thermalize(atoms, TEMPERATURE_K, seed=seed)
 
 
 def _calculator(device):
