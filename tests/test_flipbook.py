@@ -363,3 +363,91 @@ def test_a_thermostatted_run_is_browsed_back_to_its_first_frame_exactly(
     book.goto(20)
     assert book.time > 0
     assert not np.array_equal(dyn.counts['position'], start['position'])
+
+
+def langevin_trajectory(path, **kwargs):
+    """A short ReversibleLangevin run at 2 fs written every 3 steps: not
+    the command line's default dynamics (Verlet, 5 fs, one step)."""
+    from ase_reversible import LennardJones, ReversibleLangevin
+    atoms = argon_cluster(2, 60.0)
+    atoms.calc = LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC)
+    ReversibleLangevin(atoms, 2 * units.fs, temperature_K=60,
+                       friction=0.01 / units.fs, seed=4, trajectory=str(path),
+                       loginterval=3).run(9)
+    return atoms
+
+
+def test_a_thermostat_trajectory_is_refused_with_the_reason(tmp_path,
+                                                            capsys):
+    # Replayed by Verlet at 5 fs its frames would not be the file's; the
+    # command says which dynamics wrote it, what replaying would need and
+    # how to start a new run instead, and draws nothing.
+    path = tmp_path / 'nvt.traj'
+    langevin_trajectory(path)
+    png = tmp_path / 'frame.png'
+    with pytest.raises(SystemExit) as exit_:
+        cli.flipbook([str(path), '--index', '1', '--calculator', 'lj-argon',
+                      '--png', '2', '--out', str(png)])
+    assert exit_.value.code == 2
+    message = capsys.readouterr().err
+    for part in ('written by ReversibleLangevin', 'timestep 2 fs', 'seed 4',
+                 'interval 3', 'write_buffer', '--new-run'):
+        assert part in message, part
+    assert not png.exists()
+
+
+def test_a_thermostat_frame_without_a_header_is_refused(tmp_path, capsys):
+    # A frame saved on its own keeps the thermostat's restart record.
+    atoms = langevin_trajectory(tmp_path / 'nvt.traj')
+    atoms.write(tmp_path / 'frame.traj')
+    with pytest.raises(SystemExit):
+        cli.flipbook([str(tmp_path / 'frame.traj'), '--calculator',
+                      'lj-argon', '--png', '1', '--out',
+                      str(tmp_path / 'x.png')])
+    assert "'langevin' section" in capsys.readouterr().err
+
+
+def test_ase_dynamics_trajectories_are_refused(tmp_path, capsys):
+    atoms = argon_cluster(2, 60.0)
+    atoms.calc = AseLennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON,
+                                 rc=AR_RC)
+    path = tmp_path / 'md.traj'
+    VelocityVerlet(atoms, 2 * units.fs, trajectory=str(path)).run(2)
+    with pytest.raises(SystemExit):
+        cli.flipbook([str(path), '--calculator', 'lj-argon', '--png', '1',
+                      '--out', str(tmp_path / 'x.png')])
+    assert 'written by VelocityVerlet (timestep 2 fs' in \
+        capsys.readouterr().err
+
+
+def test_new_run_starts_from_a_thermostat_frame_and_says_so(
+        tmp_path, monkeypatch, capsys):
+    path = tmp_path / 'nvt.traj'
+    langevin_trajectory(path)
+    books = []
+    monkeypatch.setattr(cli, 'Flipbook',
+                        lambda dyn, **kw: books.append(Flipbook(dyn, **kw))
+                        or books[-1])
+    assert cli.flipbook([str(path), '--index', '1', '--calculator',
+                         'lj-argon', '--new-run', '--timestep', '1',
+                         '--png', '2', '--out',
+                         str(tmp_path / 'frame.png')]) == 0
+    assert '--new-run: a new ReversibleVerlet run from frame 1 at 1 fs, ' \
+        '1 steps per frame' in capsys.readouterr().out
+    book, = books
+    assert type(book.dyn) is ReversibleVerlet
+    assert book.dyn.dt == 1 * units.fs and book.time0 == 0.0
+    with Trajectory(str(path)) as frames:
+        assert np.array_equal(book.goto(0).atoms.positions,
+                              frames[1].positions)
+
+
+def test_a_structure_file_starts_a_new_run_and_says_so(tmp_path, capsys):
+    atoms = argon_cluster(2, 60.0)
+    atoms.write(tmp_path / 'start.traj')
+    assert cli.flipbook([str(tmp_path / 'start.traj'), '--calculator',
+                         'lj-argon', '--png', '1', '--out',
+                         str(tmp_path / 'x.png')]) == 0
+    assert 'no dynamics recorded in start.traj: a new ReversibleVerlet ' \
+        'run from frame -1 at 5 fs, 1 steps per frame' in \
+        capsys.readouterr().out

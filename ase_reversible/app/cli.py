@@ -90,6 +90,12 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
     parser.add_argument('--stride', type=int,
                         help='steps per frame (default: the scene\'s; for '
                              'a file, the steps between its frames, else 1)')
+    parser.add_argument('--new-run', action='store_true',
+                        help='for a file: start a new ReversibleVerlet run '
+                             'from the frame (clock at 0, --timestep and '
+                             '--stride or their defaults) instead of '
+                             'replaying the dynamics that wrote the file; '
+                             'needed for a file written by other dynamics')
     parser.add_argument('--plane', choices=sorted(PLANES),
                         help='axes shown (default: the scene\'s; xy)')
     parser.add_argument('--png', type=int, metavar='FRAME',
@@ -123,19 +129,28 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
             parser.error('a trajectory file needs --calculator '
                          f'({", ".join(sorted(CALCULATORS))})')
         atoms = ase.io.read(path, args.index)
-        # The flipbook starts a run of its own at the frame, with a
-        # calculator of the user's choosing: whether its forces are those
-        # of the run that wrote the frame is moot (no warning about it).
-        record = atoms.info.get(INFO_KEY)
-        if isinstance(record, dict):
-            record.pop('machine', None)
         module, name, kwargs = CALCULATORS[args.calculator]
         try:
             atoms.calc = getattr(import_module(module), name)(**kwargs)
         except ImportError:
             parser.error(f'--calculator {args.calculator} needs {module}, '
                          'which is not installed')
-        dynamics = recorded_dynamics(path)
+        if args.new_run:
+            dynamics = {}
+            # A new run: the frame's record (quanta, clock, a thermostat's
+            # state) belongs to the run that wrote it.
+            atoms.info.pop(INFO_KEY, None)
+        else:
+            try:
+                dynamics = recorded_dynamics(path, atoms)
+            except ValueError as error:
+                parser.error(str(error))
+            # The flipbook replays the run with a calculator of the user's
+            # choosing: whether its forces are those of the run that wrote
+            # the frame is moot (no warning about it).
+            record = atoms.info.get(INFO_KEY)
+            if isinstance(record, dict):
+                record.pop('machine', None)
         timestep, stride, view = (dynamics.pop('timestep', 5 * units.fs),
                                   dynamics.pop('stride', 1), AtomsView())
         if dynamics:
@@ -143,6 +158,14 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
                   f'{timestep / units.fs:g} fs, scheme {dynamics["scheme"]}, '
                   f'order {dynamics["order"]} ({dynamics["composition"]}), '
                   f'{stride} steps per frame')
+        else:
+            # Never a silent default: the frames shown are a new run's.
+            why = '--new-run' if args.new_run \
+                else f'no dynamics recorded in {path.name}'
+            step = args.timestep or timestep / units.fs
+            print(f'{why}: a new ReversibleVerlet run from frame '
+                  f'{args.index} at {step:g} fs, {args.stride or stride} '
+                  'steps per frame (--timestep, --stride)')
     if args.timestep is not None:
         timestep = args.timestep * units.fs
     if args.stride is not None:
@@ -167,29 +190,82 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
     return 0
 
 
-def recorded_dynamics(path):
-    """What a ``.traj`` file's header records of the ReversibleVerlet run
-    that wrote it: ``timestep`` (ASE time units), ``scheme``, ``order``,
-    ``composition`` and, as ``stride``, the steps between its frames;
-    empty for any other file or dynamics.
+def recorded_dynamics(path, atoms=None):
+    """What a file records of the ReversibleVerlet run that wrote it, from
+    a ``.traj`` file's header: ``timestep`` (ASE time units), ``scheme``,
+    ``order``, ``composition`` and, as ``stride``, the steps between its
+    frames; empty where no dynamics are recorded (a structure file, a
+    format without a header whose frame's restart record names no
+    thermostat).
 
     Without these a frame would be browsed with other dynamics than the
-    run's, still exactly reversible but not retracing the file's frames.
+    run's, still exactly reversible but not retracing the file's frames;
+    so a file written by any other dynamics (a thermostat, a barostat,
+    ASE's own classes, named by the header's ``md-type`` or by a section
+    of ``atoms``' restart record, ``atoms.info['reversible']``) raises
+    ``ValueError`` saying which dynamics and why they are not replayed.
     """
+    header = _trajectory_header(path)
+    md_type = header.get('md-type')
+    keys = ('timestep', 'scheme', 'order', 'composition')
+    if md_type == 'ReversibleVerlet':
+        missing = [key for key in keys if key not in header]
+        if missing:
+            raise ValueError(
+                f'{Path(path).name} was written by ReversibleVerlet, but its '
+                f'header lacks {", ".join(missing)}: its frames cannot be '
+                'replayed; pass --new-run (with --timestep and --stride) to '
+                'start a new run from the frame instead.')
+        # The sign says which way the run went when the file was opened.
+        return {'timestep': abs(float(header['timestep'])),
+                'scheme': header['scheme'], 'order': int(header['order']),
+                'composition': header['composition'],
+                'stride': max(1, int(header.get('interval', 1)))}
+    record = {} if atoms is None else atoms.info.get(INFO_KEY)
+    sections = sorted(name for name, value in (record or {}).items()
+                      if isinstance(value, dict) and name != 'machine') \
+        if isinstance(record, dict) else []
+    if md_type is None and not sections:
+        return {}
+    if md_type is not None:
+        settings = ', '.join(
+            f'{key} {_setting(key, value)}' for key, value in header.items()
+            if key in ('timestep', 'temperature_K', 'friction', 'taut',
+                       'tdamp', 'pressure_au', 'seed', 'interval'))
+        what = f'{md_type}' + (f' ({settings})' if settings else '')
+    else:
+        what = (f'dynamics whose restart record has a '
+                f'{" and ".join(repr(s) for s in sections)} section')
+    if 'seed' in header or {'langevin', 'bussi'} & set(sections):
+        need = ('replaying it would need that thermostat, its seed and the '
+                'noise buffer the run wrote (write_buffer), and the '
+                'flipbook replays only ReversibleVerlet runs')
+    else:
+        need = 'the flipbook replays only ReversibleVerlet runs'
+    raise ValueError(
+        f'{Path(path).name} was written by {what}: {need}, so its frames '
+        'cannot be shown as the file has them. Pass --new-run to start a '
+        'new ReversibleVerlet run from the frame instead (not the file\'s '
+        'frames).')
+
+
+def _setting(key, value):
+    """A header value for a message, times in fs."""
+    if key in ('timestep', 'taut', 'tdamp') and isinstance(value, float):
+        return f'{abs(value) / units.fs:g} fs'  # negative: run reversed
+    if key == 'friction' and isinstance(value, float):
+        return f'{value * units.fs:g} / fs'
+    return f'{value}'
+
+
+def _trajectory_header(path):
+    """The description (a dict) an ASE ``.traj`` file's dynamics wrote;
+    empty for other files."""
     if Path(path).suffix != '.traj':
         return {}
     from ase.io.trajectory import Trajectory
     try:
         with Trajectory(str(path)) as trajectory:
-            header = trajectory.description
+            return dict(trajectory.description)
     except Exception:  # not a trajectory ASE can open: no header
         return {}
-    keys = ('timestep', 'scheme', 'order', 'composition')
-    if header.get('md-type') != 'ReversibleVerlet' or \
-            not all(key in header for key in keys):
-        return {}
-    # The sign says which way the run went when the file was opened.
-    return {'timestep': abs(float(header['timestep'])),
-            'scheme': header['scheme'], 'order': int(header['order']),
-            'composition': header['composition'],
-            'stride': max(1, int(header.get('interval', 1)))}
