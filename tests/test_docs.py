@@ -1,9 +1,15 @@
 """The documentation cannot rot.
 
-- Every ```python block of docs/user-guide.md (and docs/flipbook.md,
-  docs/architecture.md, docs/pressure.md) runs,
-  in order, in one namespace, in a fresh directory: the guide's examples assert what the
-  prose says, so a change of behaviour breaks this test, not the reader.
+- Every ```python block of README.md and docs/*.md runs or is marked as a
+  sketch.  The pages of ``RUNNABLE`` run all their blocks, in order, in
+  one namespace, in a fresh directory: the examples assert what the prose
+  says, so a change of behaviour breaks this test, not the reader.  What
+  a page takes from the reader ("your atoms") is made small by its entry
+  in ``GIVEN``, run before its first block; a page that needs an optional
+  module (``NEEDS``: torch) is skipped without it, with the reason.  A
+  block whose first line starts with ``# sketch:`` (the rest of the line
+  says what it leaves out: a CUDA device, the reader's own data) is not
+  run; any other python block on a page not in ``RUNNABLE`` is an error.
 - Every relative link (and #anchor) in README.md and docs/*.md leads to an
   existing file (and heading).
 - Every name of ``ase_reversible.__all__``, and every public class,
@@ -130,25 +136,102 @@ def links(text):
 
 # -- (a) the user guide runs ---------------------------------------------------
 
+#: The first line of a python block that is not run (the rest of the line
+#: says what the sketch leaves out).
+SKETCH = '# sketch:'
+
 #: Pages whose python blocks run, with the fewest blocks each must keep.
-RUNNABLE = {'user-guide.md': 10, 'flipbook.md': 1, 'architecture.md': 1,
-            'pressure.md': 1, 'ase-dynamics.md': 6}
+RUNNABLE = {'README.md': 1, 'user-guide.md': 10, 'flipbook.md': 1,
+            'architecture.md': 1, 'pressure.md': 1, 'ase-dynamics.md': 6,
+            'adjoint.md': 2, 'torch.md': 2, 'force-purity.md': 1,
+            'machines.md': 1, 'thermostats.md': 5}
+
+_ARGON13 = """
+import numpy as np
+from ase.calculators.lj import LennardJones
+from ase.cluster import Icosahedron
+from ase.md.velocitydistribution import thermalize_momenta
+atoms = Icosahedron('Ar', 2, latticeconstant=5.26)
+atoms.center(vacuum=10.0)
+thermalize_momenta(atoms, 40, rng=np.random.default_rng(0))
+atoms.calc = LennardJones(sigma=3.4, epsilon=0.0104, rc=8.5)
+"""
+
+# README's run writes 2,001 frames (ASE reopens the file for each): an
+# argon dimer with the package's LennardJones is the least it can be.
+_ARGON2 = """
+import numpy as np
+from ase import Atoms
+from ase.md.velocitydistribution import thermalize_momenta
+from ase_reversible import LennardJones
+atoms = Atoms('Ar2', positions=[[0, 0, 0], [3.8, 0, 0]])
+atoms.center(vacuum=10.0)
+thermalize_momenta(atoms, 40, rng=np.random.default_rng(0))
+atoms.calc = LennardJones(sigma=3.4, epsilon=0.0104, rc=8.5)
+"""
+
+_COPPER13 = """
+import numpy as np
+from ase.calculators.emt import EMT
+from ase.cluster import Icosahedron
+from ase.md.velocitydistribution import thermalize_momenta
+atoms = Icosahedron('Cu', 2, latticeconstant=3.61)
+atoms.center(vacuum=6.0)
+thermalize_momenta(atoms, 600, rng=np.random.default_rng(0))
+atoms.calc = EMT()
+"""
+
+#: What a page's examples take from the reader, made small: the code runs
+#: in the page's namespace before its first block.
+GIVEN = {
+    'README.md': _ARGON2,
+    'thermostats.md': _ARGON13,
+    'force-purity.md': _COPPER13,
+    # machines.md reads the last frame of the reader's run.traj.
+    'machines.md': _COPPER13 + """
+from ase import units
+from ase_reversible import ReversibleVerlet
+ReversibleVerlet(atoms, 5 * units.fs, trajectory='run.traj').run(10)
+""",
+}
+
+#: Modules a page's examples need that the package does not require.
+NEEDS = {'torch.md': 'torch'}
 
 
-# The flipbook page renders pictures: the long tier.
+def page_path(name):
+    """README.md at the root, the others in docs/."""
+    return ROOT / name if name == 'README.md' else DOCS / name
+
+
+def is_sketch(code):
+    """Whether a python block is marked as a sketch (not run)."""
+    return code.lstrip('\n').startswith(SKETCH)
+
+
+def python_blocks(page):
+    """``(first line number, code)`` of each python block of ``page`` that
+    is not a sketch."""
+    return [(line, code) for language, line, code
+            in code_blocks(page.read_text(encoding='utf-8'))
+            if language == 'python' and not is_sketch(code)]
+
+
+# The flipbook page renders pictures, and README's run writes 2,001
+# trajectory frames (6 s here): the long tier.
 @pytest.mark.parametrize('name', tiered(sorted(RUNNABLE),
-                                        quick=['architecture.md',
-                                               'ase-dynamics.md',
-                                               'pressure.md',
-                                               'user-guide.md']))
+                                        quick=sorted(set(RUNNABLE) - {
+                                            'flipbook.md', 'README.md'})))
 def test_page_examples_run_in_order(name, tmp_path, monkeypatch):
-    page = DOCS / name
-    blocks = [(line, code) for language, line, code
-              in code_blocks(page.read_text(encoding='utf-8'))
-              if language == 'python']
+    if name in NEEDS and not _importable(NEEDS[name]):
+        pytest.skip(f'{name}\'s examples need {NEEDS[name]}, which is not '
+                    'installed')
+    page = page_path(name)
+    blocks = python_blocks(page)
     assert len(blocks) >= RUNNABLE[name], f'{name} lost its examples'
     monkeypatch.chdir(tmp_path)
     namespace = {'__name__': '__docs__'}
+    exec(GIVEN.get(name, ''), namespace)
     with warnings.catch_warnings():
         # An unintended re-anchoring would mean an example does not show
         # what it claims; the guide catches the one it provokes itself.
@@ -159,9 +242,29 @@ def test_page_examples_run_in_order(name, tmp_path, monkeypatch):
             exec(compile(source, str(page), 'exec'), namespace)
 
 
+@pytest.mark.parametrize('page', MARKDOWN, ids=lambda p: p.name)
+def test_every_python_block_runs_or_is_a_sketch(page):
+    if page.name in RUNNABLE:
+        return
+    unmarked = [line for line, _ in python_blocks(page)]
+    assert not unmarked, (
+        f'{page.name}: python blocks at lines {unmarked} are neither run '
+        f'(add the page to RUNNABLE, with what it takes from the reader '
+        f'in GIVEN) nor marked as sketches (a first line "{SKETCH} what '
+        'it leaves out")')
+
+
+def test_sketches_are_recognised_and_only_at_the_top():
+    text = ('```python\n# sketch: needs a GPU\nx = 1\n```\n\n'
+            '```python\nx = 1  # sketch: not a mark\n```\n')
+    blocks = [code for language, _, code in code_blocks(text)
+              if language == 'python']
+    assert [is_sketch(code) for code in blocks] == [True, False]
+
+
 @pytest.mark.parametrize('name', sorted(RUNNABLE))
 def test_code_blocks_are_closed_and_labelled(name):
-    text = (DOCS / name).read_text(encoding='utf-8')
+    text = page_path(name).read_text(encoding='utf-8')
     fences = [line for line in text.split('\n') if _FENCE.match(line)]
     assert len(fences) % 2 == 0, 'an unclosed code fence'
     for language, line, _ in code_blocks(text):
@@ -217,15 +320,16 @@ def package_modules():
         if info.name.rsplit('.', 1)[-1] in COMMAND_MODULES:
             continue
         # ase_reversible.torch needs PyTorch, an optional dependency.
-        if info.name.startswith('ase_reversible.torch') and not _has_torch():
+        if info.name.startswith('ase_reversible.torch') \
+                and not _importable('torch'):
             continue
         modules.append(importlib.import_module(info.name))
     return modules
 
 
-def _has_torch():
+def _importable(module):
     try:
-        import torch  # noqa: F401
+        importlib.import_module(module)
     except ImportError:
         return False
     return True
