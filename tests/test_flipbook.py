@@ -279,6 +279,15 @@ def test_a_flipbook_on_a_trajectory_frame_shows_the_frames_own_time(
     assert seen[0][0] == written[2]  # frame 0 is the frame's own time
 
 
+def books_made(monkeypatch):
+    """The list the command line's flipbooks are appended to as made."""
+    books = []
+    monkeypatch.setattr(cli, 'Flipbook',
+                        lambda dyn, **kw: books.append(Flipbook(dyn, **kw))
+                        or books[-1])
+    return books
+
+
 def test_a_flipbook_on_a_trajectory_frame_retraces_the_files_frames(
         tmp_path, monkeypatch, capsys):
     # Another time step, order and stride than the command line's defaults
@@ -290,10 +299,7 @@ def test_a_flipbook_on_a_trajectory_frame_retraces_the_files_frames(
     path = tmp_path / 'md.traj'
     ReversibleVerlet(atoms, 2 * units.fs, trajectory=str(path),
                      loginterval=3, order=4).run(15)
-    books = []
-    monkeypatch.setattr(cli, 'Flipbook',
-                        lambda dyn, **kw: books.append(Flipbook(dyn, **kw))
-                        or books[-1])
+    books = books_made(monkeypatch)
     assert cli.flipbook([str(path), '--index', '1', '--calculator',
                          'lj-argon', '--png', '3', '--out',
                          str(tmp_path / 'frame.png')]) == 0
@@ -424,10 +430,7 @@ def test_new_run_starts_from_a_thermostat_frame_and_says_so(
         tmp_path, monkeypatch, capsys):
     path = tmp_path / 'nvt.traj'
     langevin_trajectory(path)
-    books = []
-    monkeypatch.setattr(cli, 'Flipbook',
-                        lambda dyn, **kw: books.append(Flipbook(dyn, **kw))
-                        or books[-1])
+    books = books_made(monkeypatch)
     assert cli.flipbook([str(path), '--index', '1', '--calculator',
                          'lj-argon', '--new-run', '--timestep', '1',
                          '--png', '2', '--out',
