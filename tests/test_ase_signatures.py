@@ -137,11 +137,13 @@ def test_seed_and_rng_together_are_refused_before_anything_changes(name):
 def test_ases_positional_temperature_in_ev_is_refused_in_kelvin():
     atoms = ar13()
     start = snapshot(atoms)
-    with pytest.raises(ValueError, match=r'for 300 K\. Pass temperature_K=300'):
+    with pytest.raises(ValueError,
+                       match=r'for 300 K\. Pass temperature_K=300'):
         ReversibleLangevin(atoms, DT, 300 * units.kB, 0.002)
     assert_same_state(atoms, start)
     dyn = langevin(atoms, seed=1)
-    with pytest.raises(ValueError, match=r'for 500 K\. Pass temperature_K=500'):
+    with pytest.raises(ValueError,
+                       match=r'for 500 K\. Pass temperature_K=500'):
         dyn.set_temperature(500 * units.kB)
     with pytest.raises(TypeError, match='temperature_K=500'):
         dyn.set_temperature(temperature=500 * units.kB)
@@ -203,6 +205,14 @@ def test_set_timestep_is_setting_dt(factor):
         assert dyn.dt == factor * DT
         states.append(snapshot(atoms))
     assert_same_state(atoms, states[0])
+
+
+def test_set_timestep_warns_at_the_callers_line():
+    dyn = langevin(ar13(), seed=1)
+    dyn.run(2)
+    with pytest.warns(AnchorMovedWarning, match='time step changed') as seen:
+        dyn.set_timestep(2 * units.fs)
+    assert [w.filename for w in seen] == [__file__]
 
 
 def test_set_timestep_out_of_the_frictions_range_is_refused():

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -38,7 +39,7 @@ from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
                                InformationBuffer, friction_ratio)
 from ..core.noise import StepNoise, step_key
 from ..core import portable
-from ..errors import RetraceLimitError
+from ..errors import AnchorMovedWarning, RetraceLimitError
 from .buffered import (BufferedDynamics, BufferedMomentumStep, buffer_arrays,
                        load_buffer_arrays, resume_point)
 from .checks import (check_energy_watch, check_temperature_K,
@@ -455,7 +456,12 @@ class ReversibleLangevin(BufferedDynamics):
         is out of range (as in the constructor)."""
         timestep = check_timestep(timestep)
         checked_friction(self._friction, timestep)
-        self.dt = timestep
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always', AnchorMovedWarning)
+            self.dt = timestep
+        for warning in caught:
+            # At the caller's line, where ``dyn.dt = ...`` puts it.
+            warnings.warn(warning.message, warning.category, stacklevel=2)
 
     def todict(self):
         """ASE's description plus the thermostat's settings and the
