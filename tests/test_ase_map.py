@@ -58,13 +58,13 @@ MAP = {
         'friction': (0.02 / units.fs, TAKEN),
         'fixcm': (True, TAKEN),
         'temperature': (_kT(300.0), 'temperature_K=300'),
-        'rng': (np.random.default_rng(1), 'seed='),
+        'rng': (np.random.default_rng(1), TAKEN),
         **FILES,
     }),
     'Bussi': ('ase.md.bussi', 'ReversibleBussi', {
         'temperature_K': (300.0, TAKEN),
         'taut': (100 * units.fs, TAKEN),
-        'rng': (np.random.default_rng(1), 'seed='),
+        'rng': (np.random.default_rng(1), TAKEN),
         **FILES,
     }),
     'NoseHooverChainNVT': ('ase.md.nose_hoover_chain', 'ReversibleNose', {
@@ -175,8 +175,10 @@ def test_a_cell_mask_is_refused():
     assert_same_state(atoms, start)
 
 
-def test_a_temperature_in_ev_is_warned_about():
+def test_a_temperature_in_ev_is_refused_with_its_value_in_kelvin():
     atoms = _atoms()
-    with pytest.warns(UserWarning, match='temperature_K=300'):
+    start = snapshot(atoms)
+    with pytest.raises(ValueError, match='for 300 K. Pass temperature_K=300'):
         ase_reversible.ReversibleLangevin(atoms, DT, _kT(300.0),
                                           0.02 / units.fs)
+    assert_same_state(atoms, start)

@@ -242,7 +242,7 @@ def test_ases_usual_call_works_with_the_class_name_swapped():
 
 
 @pytest.mark.parametrize('kwargs, error, match', [
-    ({'rng': np.random.default_rng(1)}, TypeError, 'seed='),
+    ({'rng': np.random.default_rng(1)}, ValueError, 'both seed=1 and rng'),
     ({'fixcm': True}, TypeError, 'FixCom'),
     ({'taut': 0.0}, ValueError, 'taut must be positive'),
     ({'taut': -5 * units.fs}, ValueError, 'taut must be positive'),

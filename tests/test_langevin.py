@@ -95,7 +95,8 @@ def test_a_default_seed_is_drawn_kept_and_resumed_from_the_record():
 
 
 @pytest.mark.parametrize('kwargs, error, match', [
-    ({'rng': np.random.default_rng(0)}, TypeError, 'seed='),
+    ({'rng': np.random.default_rng(0)}, ValueError, 'both seed=1 and rng'),
+    ({'rng': 7, 'seed': None}, TypeError, 'pass seed= instead'),
     ({'temperature_K': 0}, ValueError, 'temperature_K must be positive'),
     ({'friction': -1.0}, ValueError, 'friction must be positive'),
     ({'friction': 100.0}, ValueError, 'at most'),

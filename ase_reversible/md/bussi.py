@@ -59,7 +59,7 @@ from ..core.scaling import N_MAX, N_MIN, RATIO_BITS, ScalingBuffer
 from ..errors import RetraceLimitError
 from .buffered import BufferedDynamics, BufferedMomentumStep, resume_point
 from .checks import (check_energy_watch, check_timestep,
-                     refuse_plane_and_line_constraints)
+                     refuse_plane_and_line_constraints, seed_from)
 from .hamiltonian import largest_kick
 
 DRIFT, KICK, RESCALE = 'drift', 'kick', 'rescale'
@@ -132,13 +132,21 @@ class Rescale(BufferedMomentumStep):
     :class:`~.buffered.BufferedMomentumStep` whose ``settings()`` returns
     :class:`BussiSettings`, with a :class:`ScalingBuffer` per size of time
     step used since the anchor; ``heat`` is the kinetic energy the
-    rescaling added since then (eV).
+    rescaling added since then (eV), ``heat_before_anchor`` what it added
+    before (eV; kept when the anchor moves).
     """
 
     def __init__(self, system, settings, step_of):
         super().__init__(system, settings, step_of)
         self.size = math.prod(self.shape)
         self._draws = None
+        self.heat_before_anchor = 0.0
+
+    def forget(self):
+        # ASE's transferred_energy counts from construction, through every
+        # move of the anchor: one addition per move, none per step.
+        self.heat_before_anchor += self.heat
+        super().forget()
 
     def buffer_for(self, h):
         """The buffer of steps of size ``|h|`` (made if new)."""
@@ -277,6 +285,11 @@ class ReversibleBussi(BufferedDynamics):
     taut : float
         Time constant of the coupling, ASE time units (``100 *
         ase.units.fs``); positive.
+    rng : numpy.random.Generator or RandomState, optional
+        As ASE's (also its fifth positional argument): used once, to draw
+        the seed (a single draw from it), so the same seeded generator
+        gives the same run; the seed drawn is recorded and resumes the
+        run as one passed as ``seed`` would.  Not together with ``seed``.
     seed : int, optional
         Key of the random draws, stored as ``seed``
         (:attr:`~ase_reversible.md.buffered.BufferedDynamics.seed`).
@@ -304,15 +317,20 @@ class ReversibleBussi(BufferedDynamics):
     The degrees of freedom are ASE's count,
     ``atoms.get_number_of_degrees_of_freedom()``: ``3N`` less those
     constraints remove (3 for ``FixCom``, which holds the total momentum
-    at exactly zero here).  ASE's ``rng`` is refused: the draws come from
-    a counter-based generator that the way back can start again.
+    at exactly zero here).  The draws come from a counter-based generator
+    that the way back can start again, keyed by the seed (``rng`` only
+    draws it).  ASE's attributes ``temp``, ``ndof``,
+    ``target_kinetic_energy`` and ``transferred_energy`` are there, in
+    ASE's units.
 
     Raises
     ------
     TypeError
-        ``rng`` given, or a setting that is not a number.
+        ``fixcm``, an ``rng`` that is not a numpy generator, or a setting
+        that is not a number.
     ValueError
-        ``taut`` or ``temperature_K`` not positive, momenta all zero.
+        ``taut`` or ``temperature_K`` not positive, ``seed`` and ``rng``
+        both given, momenta all zero.
     UnsupportedConstraintError
         A constraint other than FixAtoms, FixCartesian and FixCom.
     """
@@ -320,17 +338,12 @@ class ReversibleBussi(BufferedDynamics):
     record_sections = ('bussi',)
     buffer_mark = 'buffer_ratios'
 
-    def __init__(self, atoms, timestep, temperature_K, taut, *, seed=None,
-                 buffer=None, trajectory=None, logfile=None, loginterval=1,
-                 position_quantum=None, momentum_quantum=None,
+    def __init__(self, atoms, timestep, temperature_K, taut, rng=None, *,
+                 seed=None, buffer=None, trajectory=None, logfile=None,
+                 loginterval=1, position_quantum=None, momentum_quantum=None,
                  force_purity='auto', force_noise=None,
                  energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
                  **kwargs):
-        if 'rng' in kwargs:
-            raise TypeError(
-                'ReversibleBussi draws its random numbers from a '
-                'counter-based generator, so the way back can draw them '
-                'again: pass seed=<int> instead of rng.')
         if 'fixcm' in kwargs:
             raise TypeError(
                 'ReversibleBussi has no fixcm, as ASE\'s Bussi has none: one '
@@ -344,6 +357,7 @@ class ReversibleBussi(BufferedDynamics):
                                       'ASE time units, e.g. 100 * units.fs')
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
+        seed = seed_from(seed, rng, 'ReversibleBussi')
         refuse_plane_and_line_constraints(atoms, 'ReversibleBussi',
                                           'the rescaling')
         momenta = atoms.get_momenta()
@@ -405,6 +419,35 @@ class ReversibleBussi(BufferedDynamics):
     def taut(self) -> float:
         """Time constant of the coupling, ASE time units."""
         return self._taut
+
+    @property
+    def temp(self) -> float:
+        """Target ``kB T``, eV: ASE's ``Bussi.temp``."""
+        return self._temperature_K * units.kB
+
+    @property
+    def ndof(self) -> int:
+        """The degrees of freedom thermostatted, ASE's ``Bussi.ndof``:
+        ``atoms.get_number_of_degrees_of_freedom()`` (3N less those the
+        constraints remove, read as each step is prepared)."""
+        return self.atoms.get_number_of_degrees_of_freedom()
+
+    @property
+    def target_kinetic_energy(self) -> float:
+        """``temp * ndof / 2``, eV: ASE's ``Bussi.target_kinetic_energy``."""
+        return 0.5 * self.temp * self.ndof
+
+    @property
+    def transferred_energy(self) -> float:
+        """Kinetic energy the rescaling has put into the atoms since
+        construction, eV: ASE's ``Bussi.transferred_energy``, so that
+        ``atoms.get_total_energy() - transferred_energy`` is conserved but
+        for the time-step error.  Net: a step run back takes its share out
+        again.  Unlike
+        :attr:`~ase_reversible.md.buffered.BufferedDynamics.heat`, it does
+        not restart where the anchor of reversal moves."""
+        step = self.rescale_step
+        return step.heat_before_anchor + step.heat
 
     def set_temperature(self, temperature_K):
         """Use ``temperature_K`` (K) from the next step on; the anchor

@@ -4,7 +4,6 @@ is changed or opened, with a message that says what to do."""
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 from ase import units
@@ -34,24 +33,25 @@ def check_timestep(timestep):
     return dt
 
 
-#: K.  A target temperature below this is more likely ``kB T`` in eV, the
-#: unit of ASE's deprecated ``temperature`` argument (its third positional
-#: argument in ``Langevin`` and ``NVTBerendsen``): 300 K is 0.0259 eV.
+#: K.  A target temperature below this is ``kB T`` in eV, the unit of
+#: ASE's deprecated ``temperature`` (its third positional argument in
+#: ``Langevin`` and ``NVTBerendsen``): 300 K is 0.0259 eV, and anything
+#: below 11604 K is below 1 in eV.
 EV_LIKE_BELOW = 1.0
 
 
-def check_temperature_K(temperature_K, kwargs, dynamics):
+def check_temperature_K(temperature_K, dynamics, temperature=None):
     """The target temperature (K) of ``dynamics`` (a class name), checked.
 
-    ASE's deprecated ``temperature`` (eV, left in ``kwargs``) is refused
-    with its translation; a value below :data:`EV_LIKE_BELOW` is warned
-    about, since a script written for ASE's positional ``temperature``
-    passes eV there and would otherwise run 11604 times colder.
+    ASE's deprecated ``temperature`` (eV) is refused with its translation,
+    and so is a ``temperature_K`` below :data:`EV_LIKE_BELOW`: it is what
+    ASE's positional call ``Langevin(atoms, dt, kB * T, friction)`` passes
+    in the third place, and taken as kelvin it would run 11604 times
+    colder than meant.
     """
-    if 'temperature' in kwargs:
-        value = kwargs['temperature']
-        hint = (f'temperature_K={value / units.kB:.6g}'
-                if isinstance(value, (int, float)) else
+    if temperature is not None:
+        hint = (f'temperature_K={temperature / units.kB:.6g}'
+                if isinstance(temperature, (int, float)) else
                 'temperature_K=temperature / ase.units.kB')
         raise TypeError(
             f'{dynamics} takes the temperature in kelvin: temperature= is '
@@ -61,11 +61,13 @@ def check_temperature_K(temperature_K, kwargs, dynamics):
                         'temperature in kelvin (e.g. temperature_K=300).')
     value = checked_positive(temperature_K, 'temperature_K', 'K')
     if value < EV_LIKE_BELOW:
-        warnings.warn(
-            f'temperature_K={value:g} K is below {EV_LIKE_BELOW:g} K. If it '
-            f'is kB T in eV (the unit of ASE\'s deprecated positional '
-            f'temperature), pass temperature_K={value / units.kB:.6g}.',
-            UserWarning, stacklevel=3)
+        raise ValueError(
+            f'{dynamics} got a target temperature of {value:g}, below '
+            f'{EV_LIKE_BELOW:g} K: that is kB T in eV, the unit of ASE\'s '
+            f'deprecated positional temperature, for {value / units.kB:.6g} '
+            f'K. Pass temperature_K={value / units.kB:.6g} (in kelvin). '
+            f'Targets below {EV_LIKE_BELOW:g} K are refused, being eV far '
+            'more often than meant.')
     return value
 
 
@@ -203,6 +205,28 @@ def checked_seed(seed):
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise TypeError(f'seed must be an int, got {seed!r}')
     return int(seed) % 2**64
+
+
+def seed_from(seed, rng, dynamics):
+    """The seed of ``dynamics`` (a class name): ``seed`` as given, or one
+    drawn from ``rng`` (ASE's argument: a numpy Generator, a RandomState
+    or the ``numpy.random`` module) with a single draw in ``[0, 2**63)``,
+    so the same seeded generator gives the same run; None if neither
+    (:func:`checked_seed` draws one).  Both given: ValueError."""
+    if rng is None:
+        return seed
+    if seed is not None:
+        raise ValueError(
+            f'{dynamics} got both seed={seed!r} and rng: pass one (rng is '
+            'used once, to draw the seed).')
+    if isinstance(rng, np.random.Generator):
+        return int(rng.integers(2**63))
+    if isinstance(rng, np.random.RandomState) or rng is np.random:
+        return int(rng.randint(2**63, dtype=np.int64))
+    raise TypeError(
+        f'rng must be a numpy Generator (numpy.random.default_rng(...)), a '
+        f'numpy.random.RandomState or the numpy.random module, got '
+        f'{rng!r}; for an integer, pass seed= instead.')
 
 
 def refuse_plane_and_line_constraints(atoms, name='ReversibleLangevin',

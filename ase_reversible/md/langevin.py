@@ -28,23 +28,23 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 from typing import NamedTuple
 
 import numpy as np
 from ase import units
 
-from ..core.arguments import checked_positive
 from ..core.compositions import composition_for
 from ..core.infobuffer import (DIGIT_BITS, BufferUnderflowError,
                                InformationBuffer, friction_ratio)
 from ..core.noise import StepNoise, step_key
 from ..core import portable
-from ..errors import RetraceLimitError
+from ..errors import AnchorMovedWarning, RetraceLimitError
 from .buffered import (BufferedDynamics, BufferedMomentumStep, buffer_arrays,
                        load_buffer_arrays, resume_point)
 from .checks import (check_energy_watch, check_temperature_K,
                      check_timestep, checked_friction,
-                     refuse_plane_and_line_constraints)
+                     refuse_plane_and_line_constraints, seed_from)
 from .hamiltonian import largest_kick
 
 DRIFT, KICK, FRICTION = 'drift', 'kick', 'friction'
@@ -250,9 +250,11 @@ class ReversibleLangevin(BufferedDynamics):
     timestep : float
         ASE time units (``5 * ase.units.fs``).
     temperature_K : float
-        Target temperature, K (required; ASE's deprecated ``temperature``
-        in eV is refused with its value in K, and a value below 1 K is
-        warned about as likely eV).
+        Target temperature, K, in ASE's third place or as a keyword
+        (required).  ASE's deprecated ``temperature`` in eV is refused with
+        its value in K, whether as ``temperature=`` or positionally (a
+        value below 1: ``ReversibleLangevin(atoms, dt, 300 * units.kB,
+        friction)`` says to pass ``temperature_K=300``).
     friction : float
         Friction coefficient, 1 / ASE time unit (``0.01 / ase.units.fs``);
         ``friction * |timestep|`` may be at most 11 (``c >= 2**-16``).
@@ -267,6 +269,11 @@ class ReversibleLangevin(BufferedDynamics):
         ``fixcm=True`` for ``fixcm=False`` with ``ase.constraints.FixCom``;
         FixCom here holds the total momentum at exactly zero, friction
         included (:class:`Friction`), whatever ``fixcm`` says.
+    rng : numpy.random.Generator or RandomState, optional
+        As ASE's: used once, to draw the seed (a single draw from it), so
+        the same seeded generator gives the same run; the seed drawn is
+        recorded and resumes the run as one passed as ``seed`` would.
+        Not together with ``seed``.
     seed : int, optional
         Key of the noise, stored as ``seed``
         (:attr:`~ase_reversible.md.buffered.BufferedDynamics.seed`).
@@ -294,12 +301,17 @@ class ReversibleLangevin(BufferedDynamics):
     **kwargs
         Passed to :class:`ase.md.md.MolecularDynamics`.
 
+    ASE's ``temp`` (eV), ``set_temperature``, ``set_friction`` and
+    ``set_timestep`` are there, with ASE's names and units.
+
     Raises
     ------
     TypeError
-        An ``rng`` argument (pass ``seed``), or bad argument types.
+        ``temperature=`` (ASE's eV), an ``rng`` that is not a numpy
+        generator, or bad argument types.
     ValueError
-        A non-positive temperature, a negative friction, or ``friction *
+        A non-positive temperature or one below 1 K (eV), ``seed`` and
+        ``rng`` both given, a negative friction, or ``friction *
         |timestep|`` beyond 11 or too small to change a momentum.
     UnsupportedConstraintError
         A constraint other than FixAtoms, FixCartesian and FixCom.
@@ -308,20 +320,17 @@ class ReversibleLangevin(BufferedDynamics):
     record_sections = ('langevin',)
 
     def __init__(self, atoms, timestep, temperature_K=None, friction=None,
-                 fixcm=True, *, seed=None, buffer=None, trajectory=None,
+                 fixcm=True, *, temperature=None, rng=None, seed=None,
+                 buffer=None, trajectory=None,
                  logfile=None, loginterval=1, position_quantum=None,
                  momentum_quantum=None,
                  force_purity='auto', force_noise=None,
                  energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
                  **kwargs):
-        if 'rng' in kwargs:
-            raise TypeError(
-                'ReversibleLangevin draws its noise from a counter-based '
-                'generator, so the way back can draw it again: pass seed='
-                '<int> instead of rng.')
         timestep = check_timestep(timestep)
         self._temperature_K = check_temperature_K(
-            temperature_K, kwargs, 'ReversibleLangevin')
+            temperature_K, 'ReversibleLangevin', temperature)
+        seed = seed_from(seed, rng, 'ReversibleLangevin')
         if friction is None:
             raise TypeError(
                 'ReversibleLangevin needs friction, 1 / ASE time unit (e.g. '
@@ -395,6 +404,11 @@ class ReversibleLangevin(BufferedDynamics):
         return self._temperature_K
 
     @property
+    def temp(self) -> float:
+        """Target ``kB T``, eV: ASE's ``Langevin.temp``."""
+        return units.kB * self._temperature_K
+
+    @property
     def friction(self) -> float:
         """Friction coefficient asked for, 1 / ASE time unit (change it
         with :meth:`set_friction`)."""
@@ -413,11 +427,14 @@ class ReversibleLangevin(BufferedDynamics):
         """Whether the noise has zero net momentum (fixed at construction)."""
         return self._fixcm
 
-    def set_temperature(self, temperature_K):
+    def set_temperature(self, temperature_K=None, *, temperature=None):
         """Use ``temperature_K`` (K) from the next step on.  Steps before
         cannot be retraced with it: the anchor moves here
-        (:class:`~ase_reversible.AnchorMovedWarning` if steps were taken)."""
-        value = checked_positive(temperature_K, 'temperature_K', 'K')
+        (:class:`~ase_reversible.AnchorMovedWarning` if steps were taken).
+        ASE's ``temperature`` in eV is refused with its value in K, as a
+        keyword or positionally (a value below 1), as by the constructor."""
+        value = check_temperature_K(temperature_K, 'ReversibleLangevin',
+                                    temperature)
         self._change_setting('temperature', lambda: setattr(
             self, '_temperature_K', value))
 
@@ -427,6 +444,24 @@ class ReversibleLangevin(BufferedDynamics):
         value = checked_friction(friction, self.dt)
         self._change_setting('friction',
                              lambda: setattr(self, '_friction', value))
+
+    def set_timestep(self, timestep):
+        """ASE's ``Langevin.set_timestep``: the time step (ASE time units)
+        from the next step on, as setting
+        :attr:`~ase_reversible.md.base.ReversibleDynamics.dt` does -- a
+        negated step runs back, a new size moves the anchor of reversal
+        here (:class:`~ase_reversible.AnchorMovedWarning` if steps were
+        taken).
+        Refused, with nothing changed, where ``friction * |timestep|``
+        is out of range (as in the constructor)."""
+        timestep = check_timestep(timestep)
+        checked_friction(self._friction, timestep)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always', AnchorMovedWarning)
+            self.dt = timestep
+        for warning in caught:
+            # At the caller's line, where ``dyn.dt = ...`` puts it.
+            warnings.warn(warning.message, warning.category, stacklevel=2)
 
     def todict(self):
         """ASE's description plus the thermostat's settings and the

@@ -190,8 +190,8 @@ class ReversibleNose(ReversibleDynamics):
     """
 
     record_sections = ('nose',)
-    def __init__(self, atoms, timestep, temperature_K, tdamp, *,
-                 tchain=None, tloop=1, scheme=None,
+    def __init__(self, atoms, timestep, temperature_K, tdamp, tchain=None,
+                 tloop=1, *, scheme=None,
                  trajectory=None, logfile=None, loginterval=1, order=2,
                  composition=None, position_quantum=None,
                  momentum_quantum=None,

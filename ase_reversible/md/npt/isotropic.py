@@ -18,7 +18,7 @@ from ...core.record import read_record
 from ...errors import MachineChangedWarning
 from ..buffered import BufferedDynamics, resume_point
 from ..checks import (check_energy_watch, check_timestep, checked_friction,
-                      fixed)
+                      fixed, seed_from)
 from ..hamiltonian import largest_kick
 from ..langevin import FrictionSettings
 from ..machine import describe, digest, platform
@@ -58,8 +58,6 @@ _ASE_ONLY = {
             'every entry (ReversibleNPT); a cell with some vectors held '
             'fixed, as in ASE\'s MaskedMTKNPT, has no exact counterpart '
             'yet: leave mask out',
-    'rng': 'the noise comes from a counter-based generator the way back '
-           'can draw again: pass seed=<int> instead of rng',
 }
 
 
@@ -119,6 +117,15 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         common): the piston's mass is ASE's MTK mass ``(3N + 3) kT
         pdamp**2``, so the volume oscillates with a period of the order
         of ``pdamp``; the piston's friction is ``1 / pdamp``.
+    tchain, pchain, tloop, ploop
+        ASE's, in ASE's places: refused with a TypeError that says what
+        to pass instead (leave them out).
+    rng : numpy.random.Generator or RandomState, optional
+        Used once, to draw the seed (a single draw from it), so the same
+        seeded generator gives the same run; the seed drawn is recorded
+        and resumes the run as one passed as ``seed`` would.  Not together
+        with ``seed``.  (ASE's MTK classes are deterministic and take
+        none; ASE's ``LangevinBAOAB`` does.)
     seed : int, optional
         Key of the thermostat's noise.  Default: the seed of the atoms'
         restart record if it was written at this time step, else drawn
@@ -141,8 +148,7 @@ class ReversibleIsotropicNPT(BufferedDynamics):
     **kwargs
         Passed to :class:`ase.md.md.MolecularDynamics`.
 
-    ASE's ``tchain``, ``pchain``, ``tloop``, ``ploop`` and ``rng`` are
-    refused with a TypeError that says what to pass instead.  A frame the
+    A frame the
     run wrote resumes it (its restart record holds the reference cell,
     ``lambda``, ``p_lambda``, their quanta and a digest of the stress);
     with the file :meth:`write_buffer` wrote, bit for bit.
@@ -151,11 +157,12 @@ class ReversibleIsotropicNPT(BufferedDynamics):
     Raises
     ------
     TypeError
-        An argument of ASE's chain integrators, or bad argument types.
+        An argument of ASE's chain integrators, an ``rng`` that is not a
+        numpy generator, or bad argument types.
     ValueError
         A non-periodic cell, a calculator without stress, a non-positive
-        temperature, tdamp or pdamp, a non-finite pressure (before
-        anything is changed).
+        temperature, tdamp or pdamp, a non-finite pressure, ``seed`` and
+        ``rng`` both given (before anything is changed).
     UnsupportedConstraintError
         Any constraint.
     UnstableIntegrationError
@@ -182,14 +189,18 @@ class ReversibleIsotropicNPT(BufferedDynamics):
                 DRIFT: system.drift, KINETIC: KineticKick(system)}
 
     def __init__(self, atoms, timestep, temperature_K, pressure_au, tdamp,
-                 pdamp, *, seed=None, buffer=None, trajectory=None,
+                 pdamp, tchain=None, pchain=None, tloop=None, ploop=None, *,
+                 rng=None, seed=None, buffer=None, trajectory=None,
                  logfile=None, loginterval=1, position_quantum=None,
                  momentum_quantum=None, force_purity='auto',
                  force_noise=None, energy_check=ENERGY_CHECK_INTERVAL,
                  energy_tolerance=None, **kwargs):
         name = type(self).__name__
+        given = {**kwargs, **{arg: value for arg, value in (
+            ('tchain', tchain), ('pchain', pchain), ('tloop', tloop),
+            ('ploop', ploop)) if value is not None}}
         for arg, advice in _ASE_ONLY.items():
-            if arg in kwargs:
+            if arg in given:
                 raise TypeError(
                     f'{name} takes no {arg} (an argument of ASE\'s '
                     f'{self._ase_counterpart}): {advice}.')
@@ -204,6 +215,7 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         friction = checked_friction(1.0 / tdamp, timestep)
         energy_check, energy_tolerance = check_energy_watch(
             energy_check, energy_tolerance)
+        seed = seed_from(seed, rng, name)
         _refuse_cell(atoms, name)
         self._refuse_shape(atoms)
         _refuse_constraints(atoms, name)
