@@ -210,7 +210,8 @@ def test_a_frame_alone_resumes_the_exact_state(tmp_path):
         traj.write(atoms)
     frame = read(path)
     frame.calc = EMT()
-    again = npt(frame, seed=None)
+    with pytest.warns(AnchorMovedWarning, match='without the buffer file'):
+        again = npt(frame, seed=None)
     assert_same_counts(again, dyn)
     assert_back(again, again.engine.snapshot(), shown(frame))
     out_and_back(again, 20)

@@ -188,7 +188,8 @@ def test_a_frame_alone_resumes_the_draws_but_not_the_way_back(name,
     frame = read(str(traj), -1)
     frame.calc = CALCULATORS['ase-lj']()
     here = snapshot(frame)
-    resumed = resume(name, frame)
+    with pytest.warns(AnchorMovedWarning, match='without the buffer file'):
+        resumed = resume(name, frame)
     assert resumed.seed == 4 and resumed.step_index == 30
     forward_and_back(resumed, 20)
     assert_same_state(frame, here)

@@ -11,7 +11,9 @@ A variable that the atoms do not show (a thermostat's, say) is stored in
 the record itself as its list of counts, keyed by its name.
 
 Sections (dicts by name) hold what else a resumed run reads: a
-thermostat's settings, and with every frame the ``'machine'`` section --
+thermostat's settings, and with every frame the ``'dynamics'`` section --
+the class and time step that wrote it, which alone go on with its clock
+(:mod:`ase_reversible.md.restart`) -- and the ``'machine'`` section --
 the platform that wrote it and digests of the forces and positions at the
 frame -- by which a run resumed on another machine sees that its forces
 differ (:mod:`ase_reversible.md.machine`).
@@ -106,6 +108,9 @@ def record_mismatch(record: dict, shown: dict):
     set).  A frame the integrator wrote holds whole numbers of quanta,
     exactly; anything else -- a thermostat run, new velocities, moved atoms
     -- was edited since it was written, and its time would be wrong.
+    Values that each print exactly in a few decimal places
+    (:func:`printed_decimals`) were rounded by a text format, and the
+    reason says so.
     """
     try:
         quanta = {name: check_quantum(record[f'{name}_quantum'])
@@ -117,8 +122,40 @@ def record_mismatch(record: dict, shown: dict):
     if not all(np.abs(values).max(initial=0) < 0.5 * value_range(quanta[name])
                for name, values in present.items()):
         return 'the atoms lie outside its range'
-    if not all(on_grid(values, quanta[name])
-               for name, values in present.items()):
-        return ('the positions or momenta are not on its grid: they were '
-                'changed since the frame was written')
+    if all(on_grid(values, quanta[name]) for name, values in present.items()):
+        return None
+    places = [printed_decimals(values) for values in present.values()]
+    if None not in places:
+        shown_names = ' and '.join(_PLURALS.get(name, name)
+                                   for name in present)
+        return (f'the {shown_names} have at most {max(places)} decimal '
+                'places, rounded by a text format such as extxyz; write '
+                'frames with .traj to restart exactly')
+    return ('the positions or momenta are not on its grid: they were '
+            'changed since the frame was written (by another dynamics, '
+            "such as ASE's, or an edit)")
+
+
+#: The most decimal places a text format is taken to have printed: ASE's
+#: extended XYZ writes 8, PDB 3, where a value a run left off its grid
+#: (a thermostat's, an edit's) needs 15 or more significant digits.
+TEXT_DECIMALS = 10
+
+_PLURALS = {'position': 'positions', 'momentum': 'momenta'}
+
+
+def printed_decimals(values, most: int = TEXT_DECIMALS):
+    """The fewest decimal places, at most ``most``, in which every element
+    of ``values`` (float array, any shape) prints exactly, as a text format
+    wrote it and read it back; None if there are none.
+
+    Exact: a value read from ``k`` decimals is the float64 nearest
+    ``N / 10**k``, which ``rint(v * 10**k) / 10**k`` gives back (one
+    correctly rounded division of two exact numbers).
+    """
+    values = np.asarray(values, dtype=np.float64).ravel()
+    for places in range(most + 1):
+        scale = 10.0 ** places
+        if np.array_equal(np.rint(values * scale) / scale, values):
+            return places
     return None

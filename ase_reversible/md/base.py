@@ -52,9 +52,18 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         ``ase_arguments`` (``trajectory``, ``logfile``, ...), then watch
         the atoms, show the exact state and check that a resumed frame's
         forces are those of its ``record``.  ``purity_choice``:
-        ``(force_purity, force_noise)`` as the user passed them."""
+        ``(force_purity, force_noise)`` as the user passed them.
+
+        Only the dynamics that wrote ``record`` (same class, same
+        ``|timestep|``) goes on with its run: its clock and the check of
+        the frame's forces.  Another keeps the record's quanta, which the
+        system already holds, and starts its clock at 0, as a new ASE
+        dynamics does."""
         self.system, self.engine = system, engine
         self._purity_choice = purity_choice
+        self._warn_unfit_record(timestep)
+        if not self._goes_on_with_record(timestep):
+            record = self._resumed_machine = None
         # The clock goes on from the record's time, less the steps the
         # engine already counts (a buffered dynamics resumes its step).
         self._time0 = record['time'] - engine.elapsed() if record else 0.0
@@ -450,6 +459,7 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         needs from them: ``(masses_n, project, purity, record)``, the
         record None unless a restart record fits the atoms."""
         masses_n, project, purity = admit(atoms, force_purity, force_noise)
+        self._read_writer(atoms.info)
         record = self._resumable_record(atoms)
         # Compared with this machine's forces once the integrator stands.
         self._resumed_machine = record.get(MACHINE) if record else None

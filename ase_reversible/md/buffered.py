@@ -22,6 +22,9 @@ from ..core import portable
 from ..core.compositions import composition_for
 from ..core.engine import Engine, InvariantCheck
 from ..core.plans import SubStep
+from ..core.record import INFO_KEY
+from ..errors import AnchorMovedWarning
+from ..purity.advice import warn_at_user_line
 from .base import ReversibleDynamics
 from .checks import checked_seed
 from .machine import frame_section
@@ -311,9 +314,12 @@ class BufferedDynamics(ReversibleDynamics):
         step and ``settings`` (by name: the steps behind the frame retrace
         only under the settings they were taken with;
         ``settings_optional``: a file without one is taken).  A frame
-        whose record lost its machine section takes the file's."""
+        whose record lost its machine section takes the file's.  Without
+        a file, a frame of this dynamics' run that had steps behind it
+        warns (:meth:`_warn_without_buffer`)."""
         engine.step_index = engine.anchor_index = step
         if buffer is None:
+            self._warn_without_buffer(engine, step)
             return
         saved = self._read_buffer(buffer, engine, step, settings,
                                   settings_optional)
@@ -323,6 +329,43 @@ class BufferedDynamics(ReversibleDynamics):
         engine.anchor = {name: saved[f'anchor_{name}']
                          for name in engine.variables}
         load(saved)
+
+    def _writer_section(self):
+        # The step and the anchor's step say whether the way back past a
+        # frame needs its buffer file: at the anchor the buffers are empty.
+        engine = self.engine
+        return {**super()._writer_section(), 'step': engine.step_index,
+                'anchor_step': engine.anchor_index}
+
+    def _warn_without_buffer(self, engine, step):
+        """Warn once, at construction, if the atoms are a frame of this
+        dynamics' run at ``step`` with steps behind it since its anchor
+        and no buffer file was given: the buffers those steps filled are
+        gone, so the continuation differs from the run's and the way back
+        stops at the frame."""
+        writer = self._record_writer
+        if writer is None or not self._goes_on_with_record(engine.dt):
+            return
+        try:
+            resumed = int(writer['step']) == step
+            behind = step - int(writer['anchor_step'])
+        except (KeyError, TypeError, ValueError):
+            return
+        if not resumed or behind == 0:
+            return
+        name = type(self).__name__
+        warn_at_user_line(
+            f'These atoms are a frame of a {name} run, {abs(behind)} steps '
+            'from its anchor, resumed without the buffer file its '
+            'write_buffer() writes: the run goes on with the same random '
+            'draws and statistics but not bit for bit as the original '
+            'continuation (the digits its buffer held enter the rounding '
+            'of the steps to come), and the way back stops at this frame. '
+            'To go on exactly and run back past it, call '
+            'dyn.write_buffer(path) when the frame is written and pass '
+            'buffer=path here; to start a new run from these atoms '
+            f'instead, remove the record (atoms.info.pop({INFO_KEY!r})).',
+            AnchorMovedWarning)
 
     def _read_buffer(self, path, engine, step, settings, settings_optional):
         """The arrays of the buffer file at ``path`` by name, checked as

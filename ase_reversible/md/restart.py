@@ -2,21 +2,55 @@
 
 Every frame a reversible dynamics shows carries its restart record in
 ``atoms.info`` (:mod:`ase_reversible.core.record`): the quanta, the time,
-the subclass's sections and the ``'machine'`` section (:mod:`.machine`).
-A constructor resumes from a record that fits the atoms, and once it
-stands compares the forces there with the digest the record holds.
+the subclass's sections, the :data:`WRITER` section (which dynamics wrote
+it, at which time step) and the ``'machine'`` section (:mod:`.machine`).
+
+A constructor resumes from a record that fits the atoms.  The dynamics
+that wrote it (same class, same time step) goes on with its run, clock
+included, and once it stands compares the forces there with the digest
+the record holds.  Any other dynamics keeps only the quanta (the values
+stay exact) and starts its own run, clock at 0, as a new ASE dynamics
+does; a record that does not fit is then no concern of it either.
 """
 
 from __future__ import annotations
-
-import warnings
 
 from ase import units
 
 from ..core.record import INFO_KEY, read_record, record_mismatch
 from ..errors import AnchorMovedWarning, MachineChangedWarning
+from ..purity.advice import warn_at_user_line
 from .machine import SECTION as MACHINE, compare, differences, explain, \
     frame_section, platform
+
+#: The record's section that names the dynamics that wrote it:
+#: ``{'class': name, 'timestep': |dt|}`` (ASE time units), and for a
+#: dynamics with information buffers its ``'step'`` and ``'anchor_step'``.
+WRITER = 'dynamics'
+
+
+def written_by(info):
+    """The :data:`WRITER` section of the restart record in ``info``
+    (``atoms.info``), or None: no record, or one written before records
+    named their dynamics."""
+    record = read_record(info, names=(), sections=(WRITER,))
+    return record[WRITER] if record else None
+
+
+def same_dynamics(writer, name, timestep):
+    """Whether a frame whose record names ``writer`` (its :data:`WRITER`
+    section, or None) goes on with the run of the dynamics class ``name``
+    at the time step ``timestep`` (ASE time units, either sign): the class
+    and ``|timestep|`` are the record's.  Every dynamics goes on with a
+    record that names none (written before records named their
+    dynamics), as every dynamics did then."""
+    if writer is None:
+        return True
+    try:
+        return (writer['class'] == name
+                and float(writer['timestep']) == abs(timestep))
+    except (KeyError, TypeError, ValueError):
+        return False
 
 
 def grid_values(atoms):
@@ -44,18 +78,42 @@ class RestartRecord:
     at a resumed frame with the record's digest."""
 
     _forces_match_record = None
+    #: The :data:`WRITER` section of the record on the atoms at
+    #: construction, and why that record does not fit them (None: it does,
+    #: or there is none).
+    _record_writer = _record_unfit = None
     #: Sections of the restart record a subclass writes and reads besides
     #: the quanta and the time (written by ``_record_sections``).
     record_sections = ()
 
     def _write_frame_record(self):
         """The restart record of the present state into ``atoms.info``: the
-        subclass's sections and the platform with the digest of the forces
-        the run holds here (:mod:`.machine`)."""
+        subclass's sections, the dynamics that writes it and the platform
+        with the digest of the forces the run holds here
+        (:mod:`.machine`)."""
         sections = self._record_sections() or {}
+        sections[WRITER] = self._writer_section()
         sections[MACHINE] = frame_section(self.system, self.atoms.calc,
                                           self.system.purity.mode)
         self._write_record(self.atoms.info, self.get_time(), sections)
+
+    def _writer_section(self):
+        """The :data:`WRITER` section of this dynamics' records."""
+        return {'class': type(self).__name__,
+                'timestep': abs(self.engine.dt)}
+
+    def _read_writer(self, info):
+        """Before the record is read: note which dynamics wrote the one in
+        ``info`` (``atoms.info``)."""
+        self._record_writer = written_by(info)
+        self._record_unfit = None
+
+    def _goes_on_with_record(self, timestep):
+        """Whether this dynamics, at ``timestep`` (ASE time units), is the
+        one that wrote the record on its atoms (:func:`same_dynamics`):
+        then it goes on with that run, clock included."""
+        return same_dynamics(self._record_writer, type(self).__name__,
+                             timestep)
 
     def _record_sections(self):
         """``{name: dict}`` for the sections in :attr:`record_sections`, or
@@ -74,14 +132,24 @@ class RestartRecord:
             sections=(*self.record_sections, MACHINE))
         if mismatch is None:
             return record
-        warnings.warn(
-            f'The restart record in atoms.info does not fit these '
-            f'atoms ({mismatch}); this is a new run: new quanta, '
-            'time from 0. To resume a run exactly, start from an '
-            'unedited trajectory frame; to silence this, remove the '
-            f'record (atoms.info.pop({INFO_KEY!r})).',
-            AnchorMovedWarning, stacklevel=4)
+        # Warned by _warn_unfit_record once the time step is known: only
+        # the dynamics that wrote the record could have gone on with it.
+        self._record_unfit = mismatch
         return None
+
+    def _warn_unfit_record(self, timestep):
+        """Warn that the record on the atoms does not fit them, if it was
+        written by this dynamics at ``timestep``: the run it seemed to go
+        on with starts anew."""
+        if self._record_unfit is None \
+                or not self._goes_on_with_record(timestep):
+            return
+        warn_at_user_line(
+            f'The restart record in atoms.info does not fit these '
+            f'atoms: {self._record_unfit}. This is a new run: new quanta, '
+            'time from 0. To resume a run exactly, start from an '
+            'unedited .traj frame; to silence this, remove the '
+            f'record (atoms.info.pop({INFO_KEY!r})).', AnchorMovedWarning)
 
     @property
     def forces_match_record(self):
@@ -111,9 +179,9 @@ class RestartRecord:
             self._write_frame_record()  # with this machine's digest
             return True
         dropped = self._drop_steps_behind_frame()
-        warnings.warn(explain(same is False, there, here,
-                              self.get_time() / units.fs, dropped),
-                      MachineChangedWarning, stacklevel=4)
+        warn_at_user_line(explain(same is False, there, here,
+                                  self.get_time() / units.fs, dropped),
+                          MachineChangedWarning)
         return False if same is False else None
 
     def _drop_steps_behind_frame(self):
