@@ -157,3 +157,18 @@ def test_gradients_include_the_spring(kind):
                                   steps)) / (2 * h)
     assert abs(np.vdot(g.positions, u_nc) - reference) \
         < 1e-6 * abs(reference)
+
+
+def test_a_spring_added_between_runs_pulls_from_the_next_step():
+    # Forces are kept per position value: a new constraint must not leave
+    # the spring out of forces computed before it was added.
+    atoms = adsorbed_dimer()
+    dyn = ReversibleVerlet(atoms, DT)
+    dyn.run(10)
+    with pytest.warns(Warning, match='the constraints'):
+        atoms.set_constraint([FixAtoms(indices=range(8)), spring('point')])
+        theirs = atoms.copy()
+        dyn.run(STEPS)
+    theirs.calc = EMT()
+    VelocityVerlet(theirs, DT).run(STEPS)
+    assert np.allclose(atoms.positions, theirs.positions, rtol=0, atol=1e-8)
