@@ -502,6 +502,42 @@ def test_timestep_after_reversible_nve_and_one_summary_line_per_run(
     assert 'recomputed from clean forces (an increment' not in done.stdout
 
 
+@pytest.mark.parametrize('path', paths(quick=PATHS))
+def test_a_run_back_reports_a_positive_rate(path, tmp_path):
+    # LAMMPS's Performance line multiplies by the signed timestep: a run
+    # back leaves it out and reports its rate on the exact run's line.
+    script = write_script(tmp_path, [
+        'reversible nve', 'reversible anchor', 'timestep 0.001953125',
+        'run 20', 'timestep -0.001953125', 'run 20', 'reversible check'],
+        path)
+    log = tmp_path / 'log.lammps'
+    done = launch(1, '-m', 'ase_reversible.lammps', script, '-log', log,
+                  cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert 'reversible check: all 864 atoms are at the anchor' in done.stdout
+    for text in (done.stdout, log.read_text()):
+        assert not re.search(r'-[\d.]+ (ns|tau)/day', text)
+        # The run out keeps LAMMPS's own summary.
+        assert len(re.findall(r'^Performance: [\d.]+ ns/day', text,
+                              re.M)) == 1
+        rates = re.findall(r'^exact run of 20 steps \(20 to 40\): .*; back '
+                           r'at ([\d.e+]+) ns/day, ([\d.e+]+) steps/s$',
+                           text, re.M)
+        assert len(rates) == 1 and all(float(r) > 0 for r in rates[0])
+
+
+def test_rate_back_in_each_unit_style():
+    from ase_reversible.lammps.integrator import rate_back
+    # 1000 steps of 2^-9 ps in 8 s: 86400 / 8 * 1000 * 2^-9 ps a day.
+    assert rate_back('metal', -2.0**-9, 1000, 8.0) == \
+        '; back at 21.09 ns/day, 125 steps/s'
+    assert rate_back('real', -0.5, 1000, 8.0) == \
+        '; back at 5.4 ns/day, 125 steps/s'
+    assert rate_back('lj', -2.0**-8, 1000, 8.0) == \
+        '; back at 4.219e+04 tau/day, 125 steps/s'
+    assert rate_back('metal', -2.0**-9, 0, 0.0) == ''
+
+
 @pytest.mark.parametrize('path', paths())
 @pytest.mark.parametrize('name, steps', [
     ('in.melt', 30), pytest.param('in.min', 100, marks=SLOW)])

@@ -182,7 +182,7 @@ def test_script_runs_out_and_back_and_from_a_restart_file(tmp_path):
     assert done.returncode == 0, done.stderr[-3000:]
     assert 'thermostat from the restart file: s 0.' in done.stdout
     assert re.search(r'exact run of 100 steps \(100 to 200\).*thermostat s '
-                     r'1 pi 0 .*real time 0\n', done.stdout)
+                     r'1 pi 0 .*real time 0; back at \S+ tau/day', done.stdout)
     start = sections(tmp_path / 'start.data')
     assert len(start) == 2 * 256
     assert sections(tmp_path / 'end.data') == start

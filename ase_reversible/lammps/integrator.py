@@ -36,6 +36,7 @@ retried with bins half the size.
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -213,13 +214,20 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
         step) for a time step that is not a power of two, or a fix, pair
         style or long-range solver exact runs cannot take.  Prints one
         line at its end: the steps, how many were recomputed from clean
-        forces, and the largest force.
+        forces, and the largest force; for a run back (a negative
+        timestep), also its rate (:func:`rate_back`), as LAMMPS's own
+        summary with its Performance line is left out.
         """
         nsteps = int(nsteps)
         if nsteps < 0:
             raise ValueError(f'nsteps must be >= 0, got {nsteps}; to run '
                              'back, negate the timestep')
         self._prepare()
+        dt = float(self.lmp.extract_global('dt'))
+        # LAMMPS's post-run summary computes its Performance line from the
+        # signed timestep: a run back would print a negative ns/day.
+        self._post = ' post no' if dt < 0 else ''
+        started = time.perf_counter()
         first = self.step
         target = first + nsteps
         counts = self.clean_recomputations, self.sort_retries
@@ -231,6 +239,7 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
         finally:
             self._detach()
             self._noisy = None
+        seconds = time.perf_counter() - started
         clean = self.clean_recomputations - counts[0]
         retries = self.sort_retries - counts[1]
         self.largest_force = float(self.world.max(self._run_force)[0])
@@ -238,7 +247,9 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
         self._print(f'exact run of {nsteps} steps ({first} to {target}): '
                     f'{clean} recomputed from clean forces{rate}, '
                     f'{retries} sort retries, max|F| '
-                    f'{self.largest_force:.3g}{self._summary()}')
+                    f'{self.largest_force:.3g}{self._summary()}'
+                    + (rate_back(str(self.lmp.extract_global('units')), dt,
+                                 nsteps, seconds) if self._post else ''))
 
     def _summary(self):
         """More for the line that ends a run (subclasses)."""
@@ -251,7 +262,7 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
             segment_mode = self._mode
             self._begin_segment()
             before = self.step
-            self.lmp.command(f'run {target - before}')
+            self.lmp.command(f'run {target - before}{self._post}')
             self._end_segment()
             if self._flag == 0:
                 break
@@ -450,3 +461,23 @@ def fix_vector(lmp, fix_id, index):
 
 
 __all__ = ['ReversibleLammps', 'FORCE_NOISE']
+
+
+#: Simulated nanoseconds per LAMMPS time unit, by units style (``lj``: the
+#: rate is in tau/day).
+NS_PER_TIME_UNIT = {'metal': 1e-3, 'real': 1e-6}
+
+
+def rate_back(units, dt, nsteps, seconds):
+    """The end line's rate of a run back, ``'; back at R ns/day, S
+    steps/s'``: ``|dt|`` (LAMMPS time units of style ``units``) times
+    ``nsteps`` steps over the wall-clock ``seconds`` of the whole exact
+    run, setups included (LAMMPS's Performance line counts its loop only,
+    and with the signed timestep); '' for no steps or no time."""
+    if nsteps <= 0 or not seconds > 0:
+        return ''
+    per_day = 86400.0 / seconds * nsteps * abs(dt)
+    scale = NS_PER_TIME_UNIT.get(units)
+    simulated = (f'{per_day:.4g} tau/day' if scale is None
+                 else f'{per_day * scale:.4g} ns/day')
+    return f'; back at {simulated}, {nsteps / seconds:.4g} steps/s'

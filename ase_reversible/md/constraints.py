@@ -15,20 +15,36 @@ Cartesian component, so the total momentum is exactly zero at every step;
 with equal masses the position increments are balanced the same way, so
 the sum of the position counts -- the centre of mass -- never changes.
 
+Hookean adds a restoring force instead: ASE's ``atoms.get_forces(md=True)``,
+the call every force provider makes, adds the force of each constraint that
+has a potential energy (``adjust_potential_energy``) to the calculator's
+forces.  Hookean's force is a numpy function of ``atoms.positions`` alone
+(the exact grid positions the atoms show), deterministic for the same inputs
+on one machine, so the kick stays ``P(rint(h F(x)))`` with ``F`` the sum,
+rounded once; it is left out of the projection.  ``get_potential_energy``
+adds Hookean's energy the same way, so the energy check sees it once.  The
+calculator's products for the adjoint leave it out, so the kick's adjoint
+adds :func:`added_force_product`.
+
 Constraints that move atoms by a float correction (FixBondLengths,
-Hookean, ...) would add an increment that is not a function of the other
-variable, so they are refused.
+FixInternals, ...) would add an increment that is not a function of the
+other variable, so they are refused.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from ase.constraints import (FixAtoms, FixCartesian, FixCom, FixedLine,
-                             FixedPlane)
+                             FixedPlane, Hookean)
+from ase.geometry import find_mic
 
 from ..errors import UnsupportedConstraintError
 
-SUPPORTED = (FixAtoms, FixCartesian, FixedPlane, FixedLine, FixCom)
+#: Constraints that add a force of the positions (and its energy) through
+#: ``atoms.get_forces(md=True)`` and ``get_potential_energy``: no projection.
+ADDED_FORCES = (Hookean,)
+SUPPORTED = (FixAtoms, FixCartesian, FixedPlane, FixedLine, FixCom) + \
+    ADDED_FORCES
 
 
 def no_projection(y_nc):
@@ -170,7 +186,8 @@ def constraint_projection(atoms):
             _refuse(c, 'cannot be applied exactly in fixed point and would '
                     'break exact reversal')
     centred = any(isinstance(c, FixCom) for c in constraints)
-    constraints = [c for c in constraints if not isinstance(c, FixCom)]
+    constraints = [c for c in constraints
+                   if not isinstance(c, (FixCom,) + ADDED_FORCES)]
     if centred:
         for c in constraints:
             if isinstance(c, (FixedPlane, FixedLine)):
@@ -194,3 +211,57 @@ def constraint_projection(atoms):
         project(free_nc)
         project.centre = FixedCentre(atoms.get_masses(), free_nc)
     return project
+
+
+def added_force_product(atoms, w_nc):
+    """``(dF/dx)^T w`` ``[n_atoms, 3]`` (eV/Å² x unit of ``w_nc``
+    ``[n_atoms, 3]``) of the forces the atoms' Hookean constraints add at
+    their positions, or None where no constraint adds a force: the part of
+    the kick's adjoint that the calculator's product does not hold."""
+    product_nc = None
+    for c in atoms.constraints:
+        if isinstance(c, Hookean):
+            if product_nc is None:
+                product_nc = np.zeros_like(w_nc)
+            _hookean_product(c, atoms, w_nc, product_nc)
+    return product_nc
+
+
+def _hookean_product(spring, atoms, w_nc, out_nc):
+    """Add the Hookean ``spring``'s ``(dF/dx)^T w`` to ``out_nc``.
+
+    Its Hessian is symmetric.  Plane: ``F = -k d n`` above it, so ``-k n
+    (n . w)``.  Bond and point: ``F_1 = g(r_vec)`` with ``r_vec`` from atom
+    1 to atom 2 (or the point) beyond the threshold ``r_t``, ``dg/dr_vec =
+    M = k (u u^T + (1 - r_t / r)(I - u u^T))``; ``r_vec`` moves against
+    atom 1 and with atom 2 (whose force is ``-g``), so atom 1 gets ``M
+    (w_2 - w_1)`` and atom 2 its negative (for a point, ``w_2 = 0``).
+    """
+    x_nc, k = atoms.positions, spring.spring
+    if spring._type == 'plane':
+        normal_c = np.asarray(spring.plane[:3], dtype=float)
+        norm = np.linalg.norm(normal_c)
+        i = spring.index
+        if (normal_c @ x_nc[i] + spring.plane[3]) / norm < 0:
+            return  # below the plane: no force (as adjust_forces)
+        n_c = normal_c / norm
+        out_nc[i] -= k * (n_c @ w_nc[i]) * n_c
+        return
+    if spring._type == 'two atoms':
+        i, j = spring.indices
+        r_c = x_nc[j] - x_nc[i]
+        w_c = w_nc[j] - w_nc[i]
+    else:
+        i, j = spring.index, None
+        r_c = spring.origin - x_nc[i]
+        w_c = -w_nc[i]
+    r_c, _ = find_mic(r_c, atoms.cell, atoms.pbc)
+    r = np.linalg.norm(r_c)
+    if not r > spring.threshold:
+        return
+    u_c = r_c / r
+    along_c = (u_c @ w_c) * u_c
+    mw_c = k * (along_c + (1.0 - spring.threshold / r) * (w_c - along_c))
+    out_nc[i] += mw_c
+    if j is not None:
+        out_nc[j] -= mw_c

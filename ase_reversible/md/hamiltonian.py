@@ -21,7 +21,7 @@ from ase import units
 from ..core.codec import round_odd
 from ..core.plans import SubStep, compose
 from ..core.variables import ExactVariable
-from .constraints import no_projection
+from .constraints import added_force_product, no_projection
 from ..errors import NonFiniteForcesError, QuantumRangeError
 
 #: Temperature (K) whose kinetic energy is the smallest default tolerance
@@ -332,6 +332,11 @@ class Kick(SubStep):
                              f'{dx_nc.shape}, expected {w_nc.shape}')
         cotangents.products += 1
         cotangents['position'] += ch * dx_nc
+        # Forces a constraint adds (Hookean's), which the calculator's
+        # product does not see.
+        added_nc = added_force_product(s.atoms, w_nc)
+        if added_nc is not None:
+            cotangents['position'] += ch * added_nc
         grads = cotangents.grad_parameters
         for name in grads:
             grads[name] = grads[name] + ch * np.asarray(dtheta[name],
