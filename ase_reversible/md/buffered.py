@@ -180,17 +180,24 @@ class BufferedMomentumStep(BufferedStep, SubStep):
             free_k[3 * i + c] = False
         return held
 
-    def _commit(self, x_k, new_k, held, inverse_mass_k):
-        """Move the momentum counts from ``x_k`` to ``new_k`` (flat int64),
-        the held coordinates balanced, and add the kinetic energy that
-        adds, ``sum (x'**2 - x**2) q**2 / 2m``, to :attr:`heat`."""
-        p = self.system.p
+    def hold_total(self, new_k, held):
+        """Under FixCom, make each held coordinate (``held``, as
+        :meth:`_hold_one_per_component` returned, or None) of the new
+        counts ``new_k`` (flat int64, changed in place) minus the others'
+        sum in its component, so that the total is exactly zero."""
         if held is not None:
             new_nc = new_k.reshape(self.shape)
             # One held coordinate per component: each total is read once.
             total_c = np.dot(self._ones_n, new_nc)
             for i, c in held:
                 new_nc[i, c] -= total_c[c]
+
+    def _commit(self, x_k, new_k, held, inverse_mass_k):
+        """Move the momentum counts from ``x_k`` to ``new_k`` (flat int64),
+        the held coordinates balanced, and add the kinetic energy that
+        adds, ``sum (x'**2 - x**2) q**2 / 2m``, to :attr:`heat`."""
+        p = self.system.p
+        self.hold_total(new_k, held)
         r_k = (new_k - x_k).astype(np.float64)
         both_k = (new_k + x_k).astype(np.float64)
         both_k *= inverse_mass_k

@@ -287,6 +287,8 @@ class CellKick(ScaledKick):
             f_used_nc = s.purity.rounded_kick(
                 s.atoms, self.forces(), scale * growth, transform,
                 out=self._r_nc, scratch=self._y_nc)
+            if s.centre is not None:
+                s.centre.balance(self._r_nc)
             self._f_cache = (key[0], f_used_nc)
             self._r_key = (key[0], scale * growth)
             self._applied = key
@@ -331,6 +333,8 @@ class CellKick(ScaledKick):
         cotangents.flush()
         s = self.system
         a_nc = np.array(cotangents['momentum'])
+        if s.centre is not None:
+            s.centre.pull_back(a_nc)
         if not a_nc.any():
             return
         m = s.matrices()[0]
@@ -445,6 +449,7 @@ class CellFriction(ScaledFriction):
     def apply(self, prepared):
         atoms_part, piston_part = prepared
         forward, buffer, mask_k, sigma_k, key, zero_sum = atoms_part[:6]
+        held = atoms_part.held
         s = self.system
         p = s.p
         x_k = p.ints.reshape(-1)
@@ -457,6 +462,7 @@ class CellFriction(ScaledFriction):
         before = s.kinetic_energy()
         new_k = exact_o_step(buffer, x_k, noise_k, forward, mask_k,
                              past_the_anchor(s))
+        self.hold_total(new_k, held)
         p.add_integers((new_k - x_k).astype(np.float64).reshape(self.shape))
         self.heat += s.kinetic_energy() - before
         if piston_part is not None:

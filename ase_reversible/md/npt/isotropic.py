@@ -73,6 +73,21 @@ def _fixed_setting(name, attribute, doc):
     return property(show, refuse)
 
 
+def _starts_at_rest(system, section):
+    """Whether the run holds the atoms' total momentum at exactly zero: a
+    resumed run as its record says (a record without the mark is of a
+    run that did not), a new one if its net momentum is zero but for
+    rounding -- at most one count of ``pi`` per atom in each component,
+    what snapping momenta with a zero float sum to the grid leaves (ASE's
+    ``Stationary``, momenta absent or zero).  A thermal start that is not
+    at rest has a net momentum of about ``sqrt(N m kT)``, far above that,
+    and keeps the bits it had before the balance existed."""
+    if section is not None:
+        return section.get('zero_momentum') is True
+    net_c = np.abs(system.p.ints.sum(axis=0))
+    return bool(np.all(net_c <= system.p.ints.shape[0]))
+
+
 def _settings(system):
     """The ensemble's settings a buffer file is tied to."""
     return {'temperature_K': system.temperature_K,
@@ -239,6 +254,8 @@ class ReversibleIsotropicNPT(BufferedDynamics):
                             pressure_au, tdamp, pdamp)
         if section is not None:
             section = self._resume_scaled(system, section)
+        if _starts_at_rest(system, section):
+            system.hold_zero_momentum()
         if section is None and record is not None:
             record = None  # a new run: time from 0
         self._friction = friction
@@ -424,6 +441,8 @@ class ReversibleIsotropicNPT(BufferedDynamics):
                    'pressure_au': system.pressure, 'tdamp': system.tdamp,
                    'pdamp': system.pdamp, 'seed': self._seed,
                    'step': engine.step_index, 'timestep': abs(engine.dt)}
+        if system.centre is not None:
+            section['zero_momentum'] = True
         stress = system.kick.held_stress()
         if stress is not None:
             # Checked on resume as the forces are (:mod:`..machine`): a
@@ -478,6 +497,8 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         if momenta is None:
             momenta = np.zeros((len(atoms), 3))
         rho, pi = system.counts_of(atoms.positions, momenta)
+        if system.centre is not None:
+            pi = system.centre.balanced_counts(pi)
         return {'position': rho, 'momentum': pi,
                 LAMBDA: system.lam.ints, P_LAMBDA: system.p_lam.ints}
 

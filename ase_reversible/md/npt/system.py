@@ -18,6 +18,7 @@ from ...core.portable import dot
 from ...core.variables import ExactVariable
 from ...errors import UnstableIntegrationError
 from ...purity.settings import TARGET_CLEAN_RATE
+from ..constraints import FixedCentre
 from ..hamiltonian import Drift, Hamiltonian, Kick
 
 LAMBDA, P_LAMBDA = 'barostat_position', 'barostat_momentum'
@@ -99,6 +100,24 @@ class NPTHamiltonian(Hamiltonian):
         self.W = self.barostat_mass(len(self.m_n1), self.kT, pdamp)
 
     barostat_mass = staticmethod(barostat_mass)
+
+    def set_dynamics(self, masses_n, project, purity):
+        # A held total momentum outlives new masses or a new calculator.
+        held = getattr(self, 'centre', None) is not None
+        super().set_dynamics(masses_n, project, purity)
+        if held:
+            self.centre = FixedCentre(masses_n, np.ones(self.p.ints.shape))
+
+    def hold_zero_momentum(self):
+        """Hold the atoms' total momentum (the sum of the counts of ``pi``
+        in each component) at exactly zero from now on: FixCom's integer
+        balance (:class:`~ase_reversible.md.constraints.FixedCentre`) on
+        every kick and O step, the present net momentum removed in
+        proportion to mass.  ``p = pi / lambda`` (``pi M^-1`` for the
+        whole cell) is linear in ``pi``, so the atoms' momenta then sum to
+        zero up to the float rounding of each."""
+        self.centre = FixedCentre(self.m_n1[:, 0], np.ones(self.p.ints.shape))
+        self.p.reset(self.centre.balanced_counts(self.p.ints))
 
     def lam_value(self) -> float:
         """``lambda``, its exact float image."""
@@ -294,6 +313,8 @@ class ScaledKick(Kick):
             f_used_nc = s.purity.rounded_kick(
                 s.atoms, self.forces(), effective, s.project, out=self._r_nc,
                 scratch=self._y_nc)
+            if s.centre is not None:
+                s.centre.balance(self._r_nc)
             self._f_cache = (key[0], f_used_nc)
             self._r_key = (key[0], effective)
             self._applied = key
@@ -336,6 +357,8 @@ class ScaledKick(Kick):
         cotangents.flush()
         s = self.system
         w_nc = np.array(cotangents['momentum'])
+        if s.centre is not None:
+            s.centre.pull_back(w_nc)
         if not w_nc.any():
             return
         lam = s.lam_value()
