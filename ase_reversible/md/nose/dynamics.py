@@ -17,13 +17,13 @@ from ...errors import AnchorMovedWarning
 from ..admission import projected_momenta
 from ..base import ReversibleDynamics
 from ..checks import check_energy_watch, check_timestep, fixed
-from ..constraints import no_projection
 from ..hamiltonian import largest_kick
 from .system import (CLOCK, DRIFT, KICK, PI, PI_KICK, S, SCHEME_DEFAULT,
                      SCHEMES, TICK, NoseHamiltonian, ThermostatDrift,
-                     ThermostatKick, Tick, chain_names, link, step_scheme)
-from .thermostat import (CENTRE_OF_MASS_TOLERANCE, RECOVERABLE, S_QUANTUM,
-                         chain_masses, clock_quantum, pi_quantum)
+                     ThermostatKick, Tick, chain_names, link,
+                     momentum_conserved, step_scheme)
+from .thermostat import (RECOVERABLE, S_QUANTUM, chain_masses, clock_quantum,
+                         pi_quantum)
 
 #: Default length of the chain (``tchain``): the single thermostat.  A
 #: chain samples a crystal better, but its coordinates wander near zero,
@@ -89,7 +89,8 @@ def _chain_of_record(atoms, tchain, scheme):
 def _warn_if_moving(system):
     """Warn if unconstrained atoms move as a whole: the thermostat then
     scales the centre's motion too, which it cannot make canonical."""
-    if system.at_rest or system.project is not no_projection:
+    if system.at_rest or not momentum_conserved(system.atoms,
+                                                system.project):
         return
     momentum_c = system.p.floats.sum(axis=0)
     drift = 0.5 * dot(momentum_c, momentum_c) / float(system.m_n1.sum())
