@@ -17,13 +17,13 @@ from ...errors import AnchorMovedWarning
 from ..admission import projected_momenta
 from ..base import ReversibleDynamics
 from ..checks import check_energy_watch, check_timestep, fixed
-from ..constraints import no_projection
 from ..hamiltonian import largest_kick
 from .system import (CLOCK, DRIFT, KICK, PI, PI_KICK, S, SCHEME_DEFAULT,
                      SCHEMES, TICK, NoseHamiltonian, ThermostatDrift,
-                     ThermostatKick, Tick, chain_names, link, step_scheme)
-from .thermostat import (CENTRE_OF_MASS_TOLERANCE, RECOVERABLE, S_QUANTUM,
-                         chain_masses, clock_quantum, pi_quantum)
+                     ThermostatKick, Tick, chain_names, link,
+                     momentum_conserved, step_scheme)
+from .thermostat import (RECOVERABLE, S_QUANTUM, chain_masses, clock_quantum,
+                         pi_quantum)
 
 #: Default length of the chain (``tchain``): the single thermostat.  A
 #: chain samples a crystal better, but its coordinates wander near zero,
@@ -88,19 +88,37 @@ def _chain_of_record(atoms, tchain, scheme):
 
 def _warn_if_moving(system):
     """Warn if unconstrained atoms move as a whole: the thermostat then
-    cannot give the internal motion the canonical distribution."""
-    if system.project is not no_projection:
+    scales the centre's motion too, which it cannot make canonical."""
+    if system.at_rest or not momentum_conserved(system.atoms,
+                                                system.project):
         return
     momentum_c = system.p.floats.sum(axis=0)
     drift = 0.5 * dot(momentum_c, momentum_c) / float(system.m_n1.sum())
-    if drift > CENTRE_OF_MASS_TOLERANCE * system.kT:
-        warnings.warn(
-            f'The atoms move as a whole (centre-of-mass kinetic energy '
-            f'{drift / system.kT:.3g} kT). Without constraints ReversibleNose '
-            'conserves the total (virtual) momentum and thermostats 3N - 3 '
-            'degrees of freedom: the frames are canonical only at zero '
-            'total momentum. Call ase.md.velocitydistribution.Stationary('
-            'atoms) before constructing it.', UserWarning, stacklevel=3)
+    warnings.warn(
+        f'The atoms move as a whole (centre-of-mass kinetic energy '
+        f'{drift / system.kT:.3g} kT). ReversibleNose thermostats their '
+        f'{system.degrees_of_freedom} degrees of freedom, the centre\'s '
+        'included, as ASE\'s NoseHooverChainNVT does; but the total '
+        '(virtual) momentum is conserved, so the centre\'s kinetic energy '
+        'follows s and is not canonical. For canonical frames, call '
+        'ase.md.velocitydistribution.Stationary(atoms) before constructing '
+        'it (then 3N - 3 are thermostatted).', UserWarning, stacklevel=3)
+
+
+def _warn_if_at_rest(system):
+    """Warn if the atoms have no kinetic energy: Nosé's thermostat heats
+    by scaling the momenta, and zero scaled stays zero."""
+    if system.p.ints.any():
+        return
+    warnings.warn(
+        'The atoms are at rest (every momentum is zero): Nosé\'s thermostat '
+        'heats by scaling the momenta and cannot warm atoms at rest; s '
+        'would fall to zero and the run stop, whatever tdamp or time step. '
+        f'Give the atoms thermal momenta first, e.g. '
+        f'ase.md.velocitydistribution.MaxwellBoltzmannDistribution(atoms, '
+        f'temperature_K={system.temperature_K:g}) and Stationary(atoms) '
+        '(or use ReversibleLangevin, which can).',
+        UserWarning, stacklevel=3)
 
 
 class ReversibleNose(ReversibleDynamics):
@@ -217,12 +235,14 @@ class ReversibleNose(ReversibleDynamics):
             atoms, largest_kick(plan, composition, timestep, KICK),
             position_quantum, momentum_quantum,
             force_purity, force_noise, system_class=NoseHamiltonian)
+        system.count_centre(units.kB * temperature_K)
         counts, quanta = self._thermostat_start(system, record, timestep,
                                                 temperature_K, tdamp, tchain)
         system.set_thermostat(counts, quanta, temperature_K, tdamp, tchain)
         if record is not None and record.get('nose') is not None:
             self._resume_virtual_momenta(system, record['nose'])
         _warn_if_moving(system)
+        _warn_if_at_rest(system)
         substep = {KICK: system.kick, DRIFT: system.drift,
                    PI_KICK: ThermostatKick(system), TICK: Tick(system)}
         for j in range(1, tchain + 1):

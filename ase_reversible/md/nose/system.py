@@ -15,10 +15,11 @@ from ...core.plans import SubStep
 from ...core.portable import dot
 from ...core.variables import ExactVariable
 from ...errors import QuantumRangeError, UnstableIntegrationError
-from ..constraints import no_projection
+from ..constraints import ADDED_FORCES, no_projection
 from ..hamiltonian import Drift, Hamiltonian
 from .thermostat import (chain_masses, confinement, confinement_curvature,
-                         confinement_force, free_degrees_of_freedom)
+                         confinement_force, centre_at_rest,
+                         free_degrees_of_freedom)
 
 S, PI, CLOCK = 'thermostat_position', 'thermostat_momentum', 'time'
 DRIFT, KICK, S_DRIFT, PI_KICK, TICK = ('drift', 'kick', 's-drift',
@@ -71,13 +72,28 @@ SCHEME_DEFAULT = 'velocity'
 SCHEME = step_scheme(SCHEME_DEFAULT)
 
 
-def degrees_of_freedom(n_atoms, project):
-    """``N_f``: the free momentum coordinates, less 3 without constraints
-    (the total momentum is then conserved), less one per Cartesian
+def momentum_conserved(atoms, project):
+    """Whether the forces and constraints conserve the atoms' total
+    momentum: no projection (FixCom holds it at zero by its own count) and
+    no Hookean spring to a point or plane (one between two atoms pulls
+    both equally)."""
+    return project is no_projection and not any(
+        isinstance(c, ADDED_FORCES) and getattr(c, '_type', None)
+        != 'two atoms' for c in atoms.constraints)
+
+
+def degrees_of_freedom(atoms, project, at_rest):
+    """``N_f``: the free momentum coordinates as ASE counts them
+    (``atoms.get_number_of_degrees_of_freedom()``), less one per Cartesian
     component with a free coordinate under FixCom (its total momentum is
-    held at zero)."""
+    held at zero), less 3 where nothing else constrains the momenta, the
+    total momentum is conserved and ``at_rest`` (it started at rest, so it
+    stays there: :func:`~.thermostat.free_degrees_of_freedom`)."""
+    n_atoms = len(atoms)
     if project is no_projection:
-        return free_degrees_of_freedom(n_atoms)
+        return free_degrees_of_freedom(
+            n_atoms, centre_at_rest=at_rest and momentum_conserved(
+                atoms, project))
     trace = 0.0
     for c in range(3):
         unit_nc = np.zeros((n_atoms, 3))
@@ -101,6 +117,8 @@ class NoseHamiltonian(Hamiltonian):
     def __init__(self, atoms, grid, counts, masses_n, project, purity):
         self.kT = self.tdamp = None
         self.tchain = 1
+        #: Whether the centre of mass started at rest (:meth:`count_centre`).
+        self.at_rest = True
         super().__init__(atoms, grid, counts, masses_n, project, purity)
         self.drift = ScaledDrift(self)
         self._shown_nc = np.empty(self.p.ints.shape)
@@ -132,7 +150,21 @@ class NoseHamiltonian(Hamiltonian):
 
     def set_dynamics(self, masses_n, project, purity):
         super().set_dynamics(masses_n, project, purity)
-        self.degrees_of_freedom = degrees_of_freedom(len(masses_n), project)
+        self._count()
+
+    def count_centre(self, kT):
+        """Decide, once, from the momenta at the start, whether the centre
+        of mass is at rest at ``kT`` (eV), and count ``N_f`` and ``g =
+        N_f + 1`` so."""
+        # From the counts: their sum is exact, the same on every machine.
+        self.at_rest = centre_at_rest(
+            self.p.ints.sum(axis=0) * self.p.quantum,
+            float(self.m_n1.sum()), kT)
+        self._count()
+
+    def _count(self):
+        self.degrees_of_freedom = degrees_of_freedom(self.atoms, self.project,
+                                                     self.at_rest)
         if self.degrees_of_freedom < 1:
             raise ValueError('ReversibleNose needs at least one free degree '
                              'of freedom; every momentum is constrained.')
@@ -267,6 +299,29 @@ _CHAIN_ADVICE = (
     'The step was not taken; the state is valid and reversible.')
 
 
+#: Kinetic temperature, as a fraction of the target, below which ``s``
+#: falling to zero is blamed on atoms too cold to be warmed by scaling.
+COLD = 0.1
+
+
+def _cold_atoms(system):
+    """The cause and remedy of ``s`` at zero if the atoms' kinetic
+    temperature is below :data:`COLD` of the target, else ''."""
+    kinetic_K = (2.0 * system.kinetic_energy()
+                 / (system.degrees_of_freedom * units.kB))
+    if not kinetic_K < COLD * system.temperature_K:
+        return ''
+    return (
+        f'the atoms are (nearly) at rest ({kinetic_K:.3g} K against the '
+        f'target {system.temperature_K:g} K). Nosé\'s thermostat heats by '
+        'scaling the momenta, which cannot warm atoms at rest, whatever '
+        'tdamp or time step. Give the atoms thermal momenta first, e.g. '
+        'ase.md.velocitydistribution.MaxwellBoltzmannDistribution(atoms, '
+        f'temperature_K={system.temperature_K:g}) and Stationary(atoms) '
+        '(or thermalize with ReversibleLangevin first). The step was not '
+        'taken; the state is valid and reversible.')
+
+
 class ThermostatDrift(SubStep):
     """The flow of the chain's link ``j`` (from 1), ``pi_j**2 / (2 Q_j
     s_(j+1)**2) + phi(s_(j+1))``, a function of ``pi_j`` and ``s_(j+1)``:
@@ -301,6 +356,12 @@ class ThermostatDrift(SubStep):
                     f'point at link {j} ({error}): {_CHAIN_ADVICE}'
                 ) from error
         if not s_j.floats[0] > 0.0:
+            cold = _cold_atoms(sys)
+            if cold:
+                name = 's' if sys.tchain == 1 else f's_{j}'
+                raise UnstableIntegrationError(
+                    f'The Nosé thermostat coordinate {name} reached zero: '
+                    f'{cold}')
             if sys.tchain == 1:
                 raise UnstableIntegrationError(
                     'The Nosé thermostat coordinate s reached zero: the '

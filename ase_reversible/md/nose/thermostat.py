@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 from ...core.codec import power_of_two_below
+from ...core.portable import dot
 
 #: Confinement of the chain's coordinates ``s_j``, ``j >= 2``: each has the
 #: potential ``kT (a (s - 1) - (a - 1) ln s)`` (docs/thermostats.md,
@@ -83,7 +84,23 @@ def clock_quantum(timestep):
     return math.ldexp(power_of_two_below(abs(timestep)), -CLOCK_BITS)
 
 
-def free_degrees_of_freedom(n_atoms, dimension=3):
-    """``N_f`` of ``n_atoms`` free atoms in ``dimension`` dimensions:
-    ``d N - d``, since the total momentum is conserved."""
-    return dimension * n_atoms - dimension
+def free_degrees_of_freedom(n_atoms, dimension=3, centre_at_rest=True):
+    """``N_f`` of ``n_atoms`` free atoms in ``dimension`` dimensions.
+
+    ``d N - d`` where the centre of mass is at rest: the forces conserve
+    the total momentum, so zero stays zero and the thermostat has nothing
+    to scale there (LAMMPS's fix nvt always counts so: its temperature
+    compute removes ``d``).  ``d N`` where it moves: Nosé's scaling acts on
+    the total momentum too, so the centre is one more thermostatted set of
+    ``d`` (ASE's ``NoseHooverChainNVT`` counts ``3N`` always).
+    """
+    return dimension * n_atoms - (dimension if centre_at_rest else 0)
+
+
+def centre_at_rest(momentum_c, total_mass, kT):
+    """Whether a total momentum ``momentum_c`` ``[3]`` (amu Å / ASE time)
+    of atoms of ``total_mass`` (amu) is at rest at ``kT`` (eV): its kinetic
+    energy at most :data:`CENTRE_OF_MASS_TOLERANCE` kT, as ``Stationary``
+    leaves it (a few momentum quanta); a thermal centre has 1.5 kT."""
+    drift = 0.5 * dot(momentum_c, momentum_c) / total_mass
+    return drift <= CENTRE_OF_MASS_TOLERANCE * kT
