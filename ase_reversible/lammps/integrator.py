@@ -215,7 +215,7 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
         style or long-range solver exact runs cannot take.  Prints one
         line at its end: the steps, how many were recomputed from clean
         forces, and the largest force; for a run back (a negative
-        timestep), also its rate (:func:`rate_back`), as LAMMPS's own
+        timestep), also its rate (``rate_back`` below), as LAMMPS's own
         summary with its Performance line is left out.
         """
         nsteps = int(nsteps)

@@ -182,7 +182,7 @@ class BufferedMomentumStep(BufferedStep, SubStep):
 
     def hold_total(self, new_k, held):
         """Under FixCom, make each held coordinate (``held``, as
-        :meth:`_hold_one_per_component` returned, or None) of the new
+        ``_hold_one_per_component`` returned, or None) of the new
         counts ``new_k`` (flat int64, changed in place) minus the others'
         sum in its component, so that the total is exactly zero."""
         if held is not None:
