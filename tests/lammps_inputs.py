@@ -131,8 +131,9 @@ def verdict(done):
         error = done.stderr.strip().splitlines()
         return 'refused' if 'reversible check' not in done.stderr \
             else 'DIFFERS', error[-1] if error else '?'
+    # The line of a run back goes on after max|F| ('; back at ...').
     runs = re.findall(r'exact run of (\d+) steps .*?: (\d+) recomputed '
-                      r'.*?max\|F\| (\S+)', out)
+                      r'.*?max\|F\| ([^\s;]+)', out)
     steps = sum(int(n) for n, _, _ in runs)
     clean = sum(int(c) for _, c, _ in runs)
     exact = 'atoms are at the anchor, bit for bit' in out

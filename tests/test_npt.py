@@ -571,7 +571,10 @@ with warnings.catch_warnings(record=True) as seen:
 print(dyn.forces_match_record, [str(w.message)[:40] for w in seen])
 '''
     run_leg('avx2', write, tmp_path)
-    assert run_leg('avx2', resume, tmp_path).startswith('True []')
+    # Resumed without its buffer file the frame warns that the way back
+    # stops there, on any machine; of the stress only on another one.
+    here = run_leg('avx2', resume, tmp_path)
+    assert here.startswith('True') and 'The stress at this restart' not in here
     there = run_leg('sse4', resume, tmp_path)
     assert there.startswith('False') and 'The stress at this restart' in there
 
