@@ -25,6 +25,7 @@ from ase.md.velocitydistribution import (MaxwellBoltzmannDistribution,
 from ase_reversible import ReversibleNose, UnstableIntegrationError
 
 from conftest import CALCULATORS, argon_cluster, needs_asap3
+from tiers import SLOW
 
 TARGET_K = 300.0
 
@@ -68,6 +69,7 @@ def mean_temperature(atoms, centre_moves):
     return dyn.degrees_of_freedom, float(np.mean(temperatures))
 
 
+@SLOW
 def test_at_rest_the_internal_motion_is_at_the_target():
     """ASE's start: the centre at rest stays there, so 3N - 3 are
     thermostatted and ASE's centre-of-mass corrected temperature, <T> N /
@@ -79,6 +81,7 @@ def test_at_rest_the_internal_motion_is_at_the_target():
     assert abs(mean_K * n / (n - 1) - TARGET_K) < 0.67 / n * TARGET_K
 
 
+@SLOW
 def test_a_moving_centre_is_thermostatted_as_ases():
     """A thermal centre: Nosé's scaling acts on it too, so 3N are
     thermostatted, as ASE's NoseHooverChainNVT does, and <T> over 3N is

@@ -18,6 +18,7 @@ from ase.md.velocitydistribution import Stationary
 from ase_reversible import ReversibleIsotropicNPT, ReversibleNPT
 from ase_reversible.core.codec import encode
 from conftest import copper_bulk
+from tiers import SLOW, tiered
 
 DT = 2 * units.fs
 CLASSES = {'isotropic': (ReversibleIsotropicNPT, (2, 2, 2)),
@@ -41,7 +42,7 @@ def net_counts(dyn):
     return dyn.system.p.ints.sum(axis=0)
 
 
-@pytest.mark.parametrize('kind', CLASSES)
+@pytest.mark.parametrize('kind', tiered(CLASSES, quick=['isotropic']))
 def test_a_start_at_rest_keeps_a_total_momentum_of_exactly_zero(kind):
     cls, shape = CLASSES[kind]
     atoms = start(shape)
@@ -104,6 +105,7 @@ def test_momenta_set_between_runs_keep_a_zero_total():
     assert np.array_equal(net_counts(dyn), np.zeros(3, np.int64))
 
 
+@SLOW
 @pytest.mark.parametrize('cls', (ReversibleIsotropicNPT, ReversibleNPT))
 def test_ase_mtk_test_system_keeps_a_zero_total(cls):
     # ASE's MTK test system: hcp Cu, a cell with a tilt.
