@@ -18,6 +18,7 @@ from ase.md.verlet import VelocityVerlet
 from ase_reversible import ReversibleLangevin, ReversibleVerlet
 
 from exactness import assert_runs_back
+from tiers import SLOW, tiered
 
 DT = 2 * units.fs
 STEPS = 100
@@ -64,7 +65,8 @@ def largest_spring_energy(dyn, constraint):
 
 
 @pytest.mark.parametrize('kind', KINDS)
-@pytest.mark.parametrize('dynamics', ['verlet', 'langevin'])
+@pytest.mark.parametrize('dynamics', tiered(['verlet', 'langevin'],
+                                            quick=['verlet']))
 def test_out_and_back_bit_for_bit(kind, dynamics):
     constraint = spring(kind)
     atoms = adsorbed_dimer(constraint)
@@ -80,6 +82,7 @@ def test_out_and_back_bit_for_bit(kind, dynamics):
     assert max(energies) > 0.05
 
 
+@SLOW
 @pytest.mark.parametrize('kind', KINDS)
 def test_follows_ase_velocity_verlet(kind):
     # Physics, not exactness: ASE's float integrator with the same
