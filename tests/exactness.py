@@ -92,3 +92,19 @@ def run_until_refused(dyn, steps, error, match):
         dyn.run(steps)
     assert_atoms_show_committed_state(dyn)
     return start, dyn.nsteps
+
+
+def weight_gradients_of_displacement(dyn, steps):
+    """Run ``steps``, retrace them for ``L = <x_T - x_0, x_T>``'s gradient
+    for every parameter of the torch calculator, check the atoms are back
+    bit for bit, and assign the gradients to the model; returns the
+    ``Gradients``."""
+    atoms = dyn.atoms
+    calc = atoms.calc
+    start = snapshot(atoms)
+    dyn.run(steps)
+    g = dyn.backpropagate(steps, atoms.get_positions() - start[0],
+                          parameters=calc.differentiable_parameters)
+    assert_same_state(atoms, start)
+    calc.assign_gradients(g.parameters)
+    return g
