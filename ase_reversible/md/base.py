@@ -172,7 +172,7 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
             self._sync()
             self.max_steps = self.nsteps + steps
             if self.nsteps == 0:
-                self._ready()
+                self._refresh_properties()
                 self.log()
                 self.call_observers()
             yield self.nsteps == self.max_steps
@@ -182,6 +182,7 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
             while self.nsteps < self.max_steps:
                 self.step()
                 self.nsteps += 1
+                self._refresh_properties()
                 self.log()
                 self.call_observers()
                 yield self.nsteps == self.max_steps
@@ -214,8 +215,15 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         finally:
             self._committed()
 
-    def _ready(self):
-        """Before the first step: what ASE's loop would have computed."""
+    def _refresh_properties(self):
+        """ASE's hook, called in ASE's order (before the first step and
+        after each step the loop watches): the forces the logger and
+        observers may read, where a step leaves them at hand.  A step
+        that ends with a kick has computed them already (a cached
+        lookup); one that ends with a drift does not need them, so none
+        are computed for it (a logger or observer that reads them asks)."""
+        if self.engine.plan[0][0] is self.system.kick:
+            self.system.kick.forces()
 
     def step(self):
         """One time step (called by ``run``/``irun``; ``dt`` may be negative).

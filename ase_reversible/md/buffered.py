@@ -258,9 +258,6 @@ class BufferedDynamics(ReversibleDynamics):
             'state is valid and reverse() leads back exactly. If the change '
             'is expected, raise energy_tolerance or pass energy_check=0.')
 
-    def _ready(self):
-        self.system.kick.forces()
-
     def _install(self, counts):
         # Steps before the new anchor cannot be retraced: their digits go.
         self.buffered_step.forget()

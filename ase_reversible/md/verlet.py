@@ -172,13 +172,6 @@ class ReversibleVerlet(ReversibleDynamics):
     def _explain_drift(self, number, drift, tolerance):
         return explain_energy_drift(number, drift, tolerance, self.dt)
 
-    def _ready(self):
-        # Kick-drift-kick starts with the forces at the present positions,
-        # as ASE's loop would compute them; drift-kick-drift computes them
-        # only when a logger or observer asks.
-        if self.engine.plan[0][0] is self.system.kick:
-            self.system.kick.forces()
-
     # Fixed at construction: an assignment would otherwise be ignored.
     @property
     def scheme(self):

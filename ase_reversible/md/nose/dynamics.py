@@ -101,8 +101,10 @@ def _warn_if_moving(system):
         'included, as ASE\'s NoseHooverChainNVT does; but the total '
         '(virtual) momentum is conserved, so the centre\'s kinetic energy '
         'follows s and is not canonical. For canonical frames, call '
-        'ase.md.velocitydistribution.Stationary(atoms) before constructing '
-        'it (then 3N - 3 are thermostatted).', UserWarning, stacklevel=3)
+        'ase.md.velocitydistribution.Stationary(atoms) and add '
+        'ase.constraints.FixCom() before constructing it (then 3N - 3 are '
+        'thermostatted and the centre stays at rest).', UserWarning,
+        stacklevel=3)
 
 
 def _warn_if_at_rest(system):
@@ -235,7 +237,8 @@ class ReversibleNose(ReversibleDynamics):
             atoms, largest_kick(plan, composition, timestep, KICK),
             position_quantum, momentum_quantum,
             force_purity, force_noise, system_class=NoseHamiltonian)
-        system.count_centre(units.kB * temperature_K)
+        system.count_centre(units.kB * temperature_K,
+                            (record or {}).get('nose'))
         counts, quanta = self._thermostat_start(system, record, timestep,
                                                 temperature_K, tdamp, tchain)
         system.set_thermostat(counts, quanta, temperature_K, tdamp, tchain)
@@ -364,9 +367,6 @@ class ReversibleNose(ReversibleDynamics):
             'state is valid and reverse() leads back exactly. If the change '
             'is expected, raise energy_tolerance or pass energy_check=0.')
 
-    def _ready(self):
-        self.system.kick.forces()
-
     def get_time(self):
         """Real time in ASE time units (``sum dt / s`` over the steps),
         continued from a restart record; goes back when run backwards."""
@@ -377,7 +377,8 @@ class ReversibleNose(ReversibleDynamics):
         section = {S: int(system.s.ints[0]), PI: int(system.pi.ints[0]),
                    'temperature_K': system.temperature_K,
                    'tdamp': system.tdamp, 'tchain': system.tchain,
-                   'scheme': self._scheme}
+                   'scheme': self._scheme,
+                   'degrees_of_freedom': system.degrees_of_freedom}
         if system.tchain > 1:
             section['chain'] = [[int(s.ints[0]), int(pi.ints[0])]
                                 for s, pi in zip(system.chain_s[1:],

@@ -82,18 +82,19 @@ def momentum_conserved(atoms, project):
         != 'two atoms' for c in atoms.constraints)
 
 
-def degrees_of_freedom(atoms, project, at_rest):
+def degrees_of_freedom(atoms, project, centre_held=False):
     """``N_f``: the free momentum coordinates as ASE counts them
-    (``atoms.get_number_of_degrees_of_freedom()``), less one per Cartesian
-    component with a free coordinate under FixCom (its total momentum is
-    held at zero), less 3 where nothing else constrains the momenta, the
-    total momentum is conserved and ``at_rest`` (it started at rest, so it
-    stays there: :func:`~.thermostat.free_degrees_of_freedom`)."""
+    (``atoms.get_number_of_degrees_of_freedom()``: ``3N`` less what
+    FixAtoms, FixCartesian, FixedPlane and FixedLine remove), less one per
+    Cartesian component with a free coordinate under FixCom (its total
+    momentum is held at zero).  Free atoms count ``3N`` even when their
+    centre is at rest, as ASE's ``NoseHooverChainNVT`` thermostats them.
+    ``centre_held``: less 3 more for free atoms whose centre is at rest,
+    the count a restart record without ``'degrees_of_freedom'`` was
+    written with (:meth:`NoseHamiltonian.count_centre`)."""
     n_atoms = len(atoms)
     if project is no_projection:
-        return free_degrees_of_freedom(
-            n_atoms, centre_at_rest=at_rest and momentum_conserved(
-                atoms, project))
+        return free_degrees_of_freedom(n_atoms, centre_at_rest=centre_held)
     trace = 0.0
     for c in range(3):
         unit_nc = np.zeros((n_atoms, 3))
@@ -119,6 +120,8 @@ class NoseHamiltonian(Hamiltonian):
         self.tchain = 1
         #: Whether the centre of mass started at rest (:meth:`count_centre`).
         self.at_rest = True
+        #: Whether ``N_f`` leaves out a centre at rest (a record's count).
+        self.centre_held = False
         super().__init__(atoms, grid, counts, masses_n, project, purity)
         self.drift = ScaledDrift(self)
         self._shown_nc = np.empty(self.p.ints.shape)
@@ -152,19 +155,26 @@ class NoseHamiltonian(Hamiltonian):
         super().set_dynamics(masses_n, project, purity)
         self._count()
 
-    def count_centre(self, kT):
+    def count_centre(self, kT, section=None):
         """Decide, once, from the momenta at the start, whether the centre
         of mass is at rest at ``kT`` (eV), and count ``N_f`` and ``g =
-        N_f + 1`` so."""
+        N_f + 1``.  ``section``: the restart record's ``'nose'`` section
+        being resumed, if any.  Records that do not carry
+        ``'degrees_of_freedom'`` were written when a centre at rest was
+        left out of ``N_f``; resuming them so keeps their runs exact."""
         # From the counts: their sum is exact, the same on every machine.
         self.at_rest = centre_at_rest(
             self.p.ints.sum(axis=0) * self.p.quantum,
             float(self.m_n1.sum()), kT)
+        self.centre_held = (
+            isinstance(section, dict)
+            and 'degrees_of_freedom' not in section and self.at_rest
+            and momentum_conserved(self.atoms, self.project))
         self._count()
 
     def _count(self):
-        self.degrees_of_freedom = degrees_of_freedom(self.atoms, self.project,
-                                                     self.at_rest)
+        self.degrees_of_freedom = degrees_of_freedom(
+            self.atoms, self.project, self.centre_held)
         if self.degrees_of_freedom < 1:
             raise ValueError('ReversibleNose needs at least one free degree '
                              'of freedom; every momentum is constrained.')
