@@ -603,6 +603,23 @@ def test_a_replay_refuses_another_time_step(tmp_path, capsys):
         capsys.readouterr().err
 
 
+def test_a_frame_of_another_run_than_the_headers_is_refused(tmp_path,
+                                                            capsys):
+    # A run appended to a file keeps the first run's header: its frames
+    # would be replayed with the wrong dynamics.
+    path = tmp_path / 'md.traj'
+    atoms = copper_cell()
+    ReversibleVerlet(atoms, 2 * units.fs, trajectory=str(path)).run(2)
+    ReversibleNose(atoms, 2 * units.fs, 300, 50 * units.fs,
+                   trajectory=str(path), append_trajectory=True).run(2)
+    with pytest.raises(SystemExit):
+        cli.flipbook([str(path), '--calculator', 'emt', '--png', '1',
+                      '--out', str(tmp_path / 'frame.png')])
+    assert 'md.traj: the header names ReversibleVerlet at 2 fs but the ' \
+        "frame's restart record was written by ReversibleNose at 2 fs" in \
+        capsys.readouterr().err
+
+
 def test_a_header_the_class_cannot_take_is_refused():
     with pytest.raises(ValueError, match='lacks temperature_K, taut'):
         replay_from_header({'md-type': 'ReversibleBussi', 'timestep': 1.0})

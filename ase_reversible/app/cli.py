@@ -247,10 +247,13 @@ def recorded_dynamics(path, atoms, buffer=None):
     header = _trajectory_header(path)
     try:
         replay = replay_from_header(header)
+    except ValueError as error:
+        raise ValueError(f'{name} was {error}. {new_run}') from None
+    try:
         if replay is not None:
             replay.check_frame(atoms.info)
     except ValueError as error:
-        raise ValueError(f'{name} was {error}. {new_run}') from None
+        raise ValueError(f'{name}: {error}. {new_run}') from None
     if replay is None:
         record = atoms.info.get(INFO_KEY)
         sections = sorted(key for key, value in record.items()

@@ -104,6 +104,7 @@ class Replay(NamedTuple):
                     and float(writer['timestep']) == self.timestep)
         except (KeyError, TypeError, ValueError):
             same = False
+        writer = writer if isinstance(writer, dict) else {}
         if not same:
             raise ValueError(
                 f'the header names {name} at '
