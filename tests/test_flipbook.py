@@ -9,22 +9,28 @@ import matplotlib
 import numpy as np
 import pytest
 from ase import units
+from ase.calculators.emt import EMT
 from ase.calculators.lj import LennardJones as AseLennardJones
 from ase.io import Trajectory
+from ase.md.velocitydistribution import Stationary
 from ase.md.verlet import VelocityVerlet
 from matplotlib.backend_bases import KeyEvent
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from PIL import Image
 
-from ase_reversible import ReversibleVerlet, UnstableIntegrationError
+from ase_reversible import (ReversibleBussi, ReversibleIsotropicNPT,
+                            ReversibleLangevin, ReversibleNose, ReversibleNPT,
+                            ReversibleVerlet, UnstableIntegrationError)
 from ase_reversible.calculators import PendulumChain, make_chain
 from ase_reversible.app import cli
 from ase_reversible.app.flipbook import Flipbook
 from ase_reversible.app.scenes import SCENES
 from ase_reversible.app.view import AtomsView
+from ase_reversible.md.replay import replay_from_header
 
-from conftest import AR_EPSILON, AR_RC, AR_SIGMA, DT, argon_cluster
+from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, DT, argon_cluster,
+                      copper_bulk)
 
 matplotlib.use('Agg')
 
@@ -307,8 +313,9 @@ def test_a_flipbook_on_a_trajectory_frame_retraces_the_files_frames(
         capsys.readouterr().out
     assert books[0].stride == 3
     book, = books
+    assert book.first == -1  # the file's frame 0, before frame 1
     with Trajectory(str(path)) as frames:
-        for frame in (3, 0, 2):
+        for frame in (3, 0, -1, 2):
             book.goto(frame)
             assert np.array_equal(book.atoms.positions,
                                   frames[1 + frame].positions)
@@ -383,25 +390,6 @@ def langevin_trajectory(path, **kwargs):
     return atoms
 
 
-def test_a_thermostat_trajectory_is_refused_with_the_reason(tmp_path,
-                                                            capsys):
-    # Replayed by Verlet at 5 fs its frames would not be the file's; the
-    # command says which dynamics wrote it, what replaying would need and
-    # how to start a new run instead, and draws nothing.
-    path = tmp_path / 'nvt.traj'
-    langevin_trajectory(path)
-    png = tmp_path / 'frame.png'
-    with pytest.raises(SystemExit) as exit_:
-        cli.flipbook([str(path), '--index', '1', '--calculator', 'lj-argon',
-                      '--png', '2', '--out', str(png)])
-    assert exit_.value.code == 2
-    message = capsys.readouterr().err
-    for part in ('written by ReversibleLangevin', 'timestep 2 fs', 'seed 4',
-                 'interval 3', 'write_buffer', '--new-run'):
-        assert part in message, part
-    assert not png.exists()
-
-
 def test_a_thermostat_frame_without_a_header_is_refused(tmp_path, capsys):
     # A frame saved on its own keeps the thermostat's restart record.
     atoms = langevin_trajectory(tmp_path / 'nvt.traj')
@@ -422,8 +410,9 @@ def test_ase_dynamics_trajectories_are_refused(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cli.flipbook([str(path), '--calculator', 'lj-argon', '--png', '1',
                       '--out', str(tmp_path / 'x.png')])
-    assert 'written by VelocityVerlet (timestep 2 fs' in \
-        capsys.readouterr().err
+    message = capsys.readouterr().err
+    assert 'written by VelocityVerlet (timestep 2 fs' in message
+    assert '--new-run' in message
 
 
 def test_new_run_starts_from_a_thermostat_frame_and_says_so(
@@ -454,3 +443,189 @@ def test_a_structure_file_starts_a_new_run_and_says_so(tmp_path, capsys):
     assert 'no dynamics recorded in start.traj: a new ReversibleVerlet ' \
         'run from frame -1 at 5 fs, 1 steps per frame' in \
         capsys.readouterr().out
+
+
+# -- each dynamics' own trajectory, replayed -----------------------------
+
+def copper_cell():
+    """32 Cu atoms in a periodic cell with ASE's EMT: what
+    ``--calculator emt`` attaches, with a stress for the barostats."""
+    atoms = copper_bulk((2, 2, 2), 300)
+    Stationary(atoms)
+    atoms.calc = EMT()
+    return atoms
+
+
+#: Each dynamics with a buffer or a state of its own, some settings away
+#: from their defaults: a setting the replay dropped would show.
+REPLAYED = {
+    'ReversibleNose': lambda atoms, **kw: ReversibleNose(
+        atoms, 2 * units.fs, 300, 50 * units.fs, tchain=3, **kw),
+    'ReversibleLangevin': lambda atoms, **kw: ReversibleLangevin(
+        atoms, 2 * units.fs, 300, 0.02 / units.fs, fixcm=False, seed=5,
+        **kw),
+    'ReversibleBussi': lambda atoms, **kw: ReversibleBussi(
+        atoms, 2 * units.fs, 300, 40 * units.fs, seed=6, **kw),
+    'ReversibleIsotropicNPT': lambda atoms, **kw: ReversibleIsotropicNPT(
+        atoms, 2 * units.fs, 300, 1e4 * units.bar, 50 * units.fs,
+        400 * units.fs, seed=7, **kw),
+    'ReversibleNPT': lambda atoms, **kw: ReversibleNPT(
+        atoms, 2 * units.fs, 300, 1e4 * units.bar, 50 * units.fs,
+        400 * units.fs, seed=8, **kw),
+}
+
+
+def replayed_trajectory(tmp_path, name):
+    """``REPLAYED[name]`` run 15 steps on :func:`copper_cell`, a frame every
+    3 steps into ``md.traj`` (frames 0 to 5) and, for a dynamics with
+    information buffers, the buffer file of each frame (``buffer-{step}
+    .npz``); returns the trajectory's path."""
+    path = tmp_path / 'md.traj'
+    dyn = REPLAYED[name](copper_cell(), trajectory=str(path), loginterval=3)
+    if hasattr(dyn, 'write_buffer'):
+        dyn.attach(lambda: dyn.write_buffer(
+            tmp_path / f'buffer-{dyn.step_index}.npz'), interval=3)
+    dyn.run(15)
+    return path
+
+
+def assert_frames_are_the_files(book, path, index, frames):
+    """Frame ``k`` of ``book`` is frame ``index + k`` of the file at
+    ``path``, bit for bit (positions, momenta, cell), visited in the order
+    of ``frames``."""
+    with Trajectory(str(path)) as written:
+        for frame in frames:
+            shown = exact_views(book.goto(frame).atoms)
+            wanted = exact_views(written[index + frame])
+            for what in shown:
+                assert np.array_equal(shown[what], wanted[what]), \
+                    (frame, what)
+
+
+def exact_views(atoms):
+    return {'positions': atoms.positions, 'momenta': atoms.get_momenta(),
+            'cell': atoms.cell[:]}
+
+
+@pytest.mark.parametrize('name', REPLAYED)
+def test_a_flipbook_replays_each_dynamics_own_trajectory_exactly(
+        name, tmp_path, monkeypatch, capsys):
+    # Frame 2 of 0..5 (step 6), with the buffer file written with it where
+    # the dynamics keeps one: the frames shown are the file's, forward
+    # past the frame and back past it to the file's first.
+    path = replayed_trajectory(tmp_path, name)
+    argv = [str(path), '--index', '2', '--calculator', 'emt', '--png', '1',
+            '--out', str(tmp_path / 'frame.png')]
+    if name != 'ReversibleNose':
+        argv += ['--buffer', str(tmp_path / 'buffer-6.npz')]
+    books = books_made(monkeypatch)
+    assert cli.flipbook(argv) == 0
+    out = capsys.readouterr().out
+    assert f'from the trajectory header: {name}, time step 2 fs' in out
+    assert 'frame 0 is frame 2 of md.traj, back to frame -2' in out
+    book, = books
+    assert type(book.dyn).__name__ == name
+    assert (book.stride, book.first) == (3, -2)
+    assert_frames_are_the_files(book, path, 2, (3, 1, -2, 0, -1, 3, 2))
+
+
+@pytest.mark.parametrize('name', ['ReversibleLangevin', 'ReversibleBussi',
+                                  'ReversibleIsotropicNPT'])
+def test_a_buffered_frame_without_its_buffer_is_refused_naming_it(
+        name, tmp_path, capsys):
+    # Without the buffer the continuation would differ from the file's
+    # frames in the last bits and the way back would stop at the frame:
+    # the command says which dynamics wrote the file, what the frame needs
+    # and how to start a new run instead, and draws nothing.
+    path = replayed_trajectory(tmp_path, name)
+    png = tmp_path / 'frame.png'
+    with pytest.raises(SystemExit) as exit_:
+        cli.flipbook([str(path), '--index', '2', '--calculator', 'emt',
+                      '--png', '1', '--out', str(png)])
+    assert exit_.value.code == 2
+    message = capsys.readouterr().err
+    for part in (f'written by {name} (timestep 2 fs', 'interval 3',
+                 '6 steps past its anchor', '--buffer FILE',
+                 'write_buffer(path)', '--new-run'):
+        assert part in message, part
+    assert not png.exists()
+
+
+def test_a_buffered_runs_first_frame_needs_no_buffer(tmp_path, monkeypatch,
+                                                     capsys):
+    # At the run's anchor the buffers are empty: the frame goes on exactly
+    # without a file, and there is nothing before it.
+    path = replayed_trajectory(tmp_path, 'ReversibleLangevin')
+    books = books_made(monkeypatch)
+    assert cli.flipbook([str(path), '--index', '0', '--calculator', 'emt',
+                         '--png', '1', '--out',
+                         str(tmp_path / 'frame.png')]) == 0
+    assert "no frames before it (the run's anchor)" in \
+        capsys.readouterr().out
+    book, = books
+    assert book.first == 0
+    assert_frames_are_the_files(book, path, 0, (2, 5, 1, 0))
+
+
+@pytest.mark.parametrize('buffer, message', [
+    ('buffer-9.npz', 'written at step 9'),   # another frame's
+    ('nowhere.npz', 'No such file'),
+])
+def test_a_buffer_that_is_not_the_frames_is_refused(buffer, message,
+                                                    tmp_path, capsys):
+    path = replayed_trajectory(tmp_path, 'ReversibleBussi')
+    with pytest.raises(SystemExit):
+        cli.flipbook([str(path), '--index', '2', '--calculator', 'emt',
+                      '--buffer', str(tmp_path / buffer), '--png', '1',
+                      '--out', str(tmp_path / 'frame.png')])
+    error = capsys.readouterr().err
+    assert f'--buffer {tmp_path / buffer} (for frame 2 of md.traj)' in error
+    assert message in error
+
+
+def test_a_buffer_for_dynamics_without_one_is_refused(tmp_path, capsys):
+    path = replayed_trajectory(tmp_path, 'ReversibleNose')
+    with pytest.raises(SystemExit):
+        cli.flipbook([str(path), '--calculator', 'emt', '--buffer',
+                      str(tmp_path / 'buffer.npz'), '--png', '1', '--out',
+                      str(tmp_path / 'frame.png')])
+    assert 'ReversibleNose, which keeps no buffer' in capsys.readouterr().err
+
+
+def test_a_replay_refuses_another_time_step(tmp_path, capsys):
+    # The file's frames are steps of its own time step; another one is a
+    # new run, which --new-run asks for.
+    path = replayed_trajectory(tmp_path, 'ReversibleNose')
+    with pytest.raises(SystemExit):
+        cli.flipbook([str(path), '--calculator', 'emt', '--timestep', '1',
+                      '--png', '1', '--out', str(tmp_path / 'frame.png')])
+    assert 'at its own time step (2 fs); pass --new-run' in \
+        capsys.readouterr().err
+
+
+def test_a_frame_of_another_run_than_the_headers_is_refused(tmp_path,
+                                                            capsys):
+    # A run appended to a file keeps the first run's header: its frames
+    # would be replayed with the wrong dynamics.
+    path = tmp_path / 'md.traj'
+    atoms = copper_cell()
+    ReversibleVerlet(atoms, 2 * units.fs, trajectory=str(path)).run(2)
+    ReversibleNose(atoms, 2 * units.fs, 300, 50 * units.fs,
+                   trajectory=str(path), append_trajectory=True).run(2)
+    with pytest.raises(SystemExit):
+        cli.flipbook([str(path), '--calculator', 'emt', '--png', '1',
+                      '--out', str(tmp_path / 'frame.png')])
+    assert 'md.traj: the header names ReversibleVerlet at 2 fs but the ' \
+        "frame's restart record was written by ReversibleNose at 2 fs" in \
+        capsys.readouterr().err
+
+
+def test_a_header_the_class_cannot_take_is_refused():
+    with pytest.raises(ValueError, match='lacks temperature_K, taut'):
+        replay_from_header({'md-type': 'ReversibleBussi', 'timestep': 1.0})
+    with pytest.raises(ValueError, match='does not take: tloop'):
+        replay_from_header({'md-type': 'ReversibleVerlet', 'timestep': 1.0,
+                            'tloop': 1})
+    with pytest.raises(ValueError, match='written by Langevin .timestep 2 fs'):
+        replay_from_header({'md-type': 'Langevin', 'timestep': 2 * units.fs})
+    assert replay_from_header({}) is None

@@ -17,6 +17,7 @@ from ase import units
 
 from ..core.record import INFO_KEY
 from ..md import ReversibleVerlet
+from ..md.replay import describe, replay_from_header, steps_back, steps_behind
 from . import demo
 from .flipbook import Flipbook
 from .scenes import SCENES
@@ -85,17 +86,25 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
     parser.add_argument('--calculator', choices=sorted(CALCULATORS),
                         help='calculator for a trajectory file')
     parser.add_argument('--timestep', type=float,
-                        help='fs (default: the scene\'s; for a file, its '
-                             'trajectory header\'s, else 5)')
+                        help='fs (default: the scene\'s; for a new run from '
+                             'a file, 5)')
     parser.add_argument('--stride', type=int,
                         help='steps per frame (default: the scene\'s; for '
                              'a file, the steps between its frames, else 1)')
+    parser.add_argument('--buffer', metavar='FILE',
+                        help='for a file written by ReversibleLangevin, '
+                             'ReversibleBussi or an NPT class: the file its '
+                             'write_buffer(path) wrote with the frame '
+                             'opened; with it the frames are the file\'s, '
+                             'bit for bit, forward and back past the frame')
     parser.add_argument('--new-run', action='store_true',
                         help='for a file: start a new ReversibleVerlet run '
                              'from the frame (clock at 0, --timestep and '
                              '--stride or their defaults) instead of '
-                             'replaying the dynamics that wrote the file; '
-                             'needed for a file written by other dynamics')
+                             'replaying the dynamics that wrote the file '
+                             '(read from its header: class, time step, '
+                             'settings, steps between frames); needed for '
+                             'a file written by other dynamics')
     parser.add_argument('--plane', choices=sorted(PLANES),
                         help='axes shown (default: the scene\'s; xy)')
     parser.add_argument('--png', type=int, metavar='FRAME',
@@ -114,12 +123,13 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
                   file=sys.stderr)
             return 2
 
-    dynamics = {}
+    first = 0
     if args.source in SCENES:
         scene = SCENES[args.source]()
         atoms, timestep, stride, view = (scene.atoms, scene.timestep,
                                          scene.stride, scene.view)
         print(scene.description)
+        dyn = None
     else:
         path = Path(args.source)
         if not path.exists():
@@ -135,14 +145,17 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
         except ImportError:
             parser.error(f'--calculator {args.calculator} needs {module}, '
                          'which is not installed')
+        replay = None
         if args.new_run:
-            dynamics = {}
+            if args.buffer is not None:
+                parser.error('--buffer resumes the run that wrote the file; '
+                             'a --new-run starts its own and needs none.')
             # A new run: the frame's record (quanta, clock, a thermostat's
             # state) belongs to the run that wrote it.
             atoms.info.pop(INFO_KEY, None)
         else:
             try:
-                dynamics = recorded_dynamics(path, atoms)
+                replay = recorded_dynamics(path, atoms, args.buffer)
             except ValueError as error:
                 parser.error(str(error))
             # The flipbook replays the run with a calculator of the user's
@@ -151,14 +164,32 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
             record = atoms.info.get(INFO_KEY)
             if isinstance(record, dict):
                 record.pop('machine', None)
-        timestep, stride, view = (dynamics.pop('timestep', 5 * units.fs),
-                                  dynamics.pop('stride', 1), AtomsView())
-        if dynamics:
-            print(f'from the trajectory header: time step '
-                  f'{timestep / units.fs:g} fs, scheme {dynamics["scheme"]}, '
-                  f'order {dynamics["order"]} ({dynamics["composition"]}), '
-                  f'{stride} steps per frame')
+        timestep, view = 5 * units.fs, AtomsView()
+        if replay is not None:
+            if args.timestep is not None:
+                parser.error(
+                    f'--timestep: the flipbook replays the run of '
+                    f'{path.name} at its own time step '
+                    f'({replay.timestep / units.fs:g} fs); pass --new-run '
+                    'to start a new run at another.')
+            index = _frames_before(path, args.index)
+            try:
+                dyn = replay.start(atoms, buffer=args.buffer)
+            except (ValueError, OSError) as error:
+                parser.error(f'--buffer {args.buffer} (for frame {index} of '
+                             f'{path.name}): {error}')
+            stride = args.stride or replay.stride
+            first = -frames_back(dyn, stride, replay.stride * index)
+            print(f'from the trajectory header: {replay.summary()}, '
+                  f'{stride} steps per frame; frame 0 is frame {index} of '
+                  f'{path.name}, '
+                  + (f'back to frame {first}' if first else
+                     'no frames before it'
+                     + (' (the run\'s anchor)' if replay.buffered else ''))
+                  + (f' (buffer {Path(args.buffer).name})'
+                     if args.buffer else ''))
         else:
+            dyn, stride = None, 1
             # Never a silent default: the frames shown are a new run's.
             why = '--new-run' if args.new_run \
                 else f'no dynamics recorded in {path.name}'
@@ -175,8 +206,9 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
     if (args.png is not None or args.gif is not None) and not args.out:
         parser.error('--png and --gif need --out FILE')
 
-    book = Flipbook(ReversibleVerlet(atoms, timestep, **dynamics),
-                    stride=stride, view=view)
+    if dyn is None:
+        dyn = ReversibleVerlet(atoms, timestep)
+    book = Flipbook(dyn, stride=stride, view=view, first=first)
     if args.png is not None:
         print('wrote', book.render(args.png, args.out))
         return 0
@@ -190,72 +222,89 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
     return 0
 
 
-def recorded_dynamics(path, atoms=None):
-    """What a file records of the ReversibleVerlet run that wrote it, from
-    a ``.traj`` file's header: ``timestep`` (ASE time units), ``scheme``,
-    ``order``, ``composition`` and, as ``stride``, the steps between its
-    frames; empty where no dynamics are recorded (a structure file, a
-    format without a header whose frame's restart record names no
-    thermostat).
+def recorded_dynamics(path, atoms, buffer=None):
+    """The :class:`~ase_reversible.md.replay.Replay` of the run that wrote
+    the frame ``atoms`` of the file at ``path``, from a ``.traj`` file's
+    header: the class its ``md-type`` names with every setting the class
+    wrote there, the steps between frames as its stride; None where no
+    dynamics are recorded (a structure file, a format without a header
+    whose frame's restart record names no thermostat).
 
-    Without these a frame would be browsed with other dynamics than the
-    run's, still exactly reversible but not retracing the file's frames;
-    so a file written by any other dynamics (a thermostat, a barostat,
-    ASE's own classes, named by the header's ``md-type`` or by a section
-    of ``atoms``' restart record, ``atoms.info['reversible']``) raises
-    ``ValueError`` saying which dynamics and why they are not replayed.
+    ``buffer``: the file the run's ``write_buffer`` wrote with this frame,
+    which a frame of Langevin, Bussi or a barostat past its run's anchor
+    needs to continue the run bit for bit and to go back past it.
+
+    Raises ValueError, saying which dynamics wrote the file, why its
+    frames cannot be shown as the file has them and what to pass instead
+    (``--buffer``, ``--new-run``): ASE's own classes and any unknown
+    ones, a thermostat frame without its header, or without its buffer
+    file, a frame of another run than the header's, a buffer for a
+    dynamics that keeps none.
     """
+    name = Path(path).name
+    new_run = ('Pass --new-run to start a new ReversibleVerlet run from the '
+               'frame instead (not the file\'s frames).')
     header = _trajectory_header(path)
-    md_type = header.get('md-type')
-    keys = ('timestep', 'scheme', 'order', 'composition')
-    if md_type == 'ReversibleVerlet':
-        missing = [key for key in keys if key not in header]
-        if missing:
+    try:
+        replay = replay_from_header(header)
+    except ValueError as error:
+        raise ValueError(f'{name} was {error}. {new_run}') from None
+    try:
+        if replay is not None:
+            replay.check_frame(atoms.info)
+    except ValueError as error:
+        raise ValueError(f'{name}: {error}. {new_run}') from None
+    if replay is None:
+        record = atoms.info.get(INFO_KEY)
+        sections = sorted(key for key, value in record.items()
+                          if isinstance(value, dict)
+                          and key not in ('machine', 'dynamics')) \
+            if isinstance(record, dict) else []
+        if sections:
             raise ValueError(
-                f'{Path(path).name} was written by ReversibleVerlet, but its '
-                f'header lacks {", ".join(missing)}: its frames cannot be '
-                'replayed; pass --new-run (with --timestep and --stride) to '
-                'start a new run from the frame instead.')
-        # The sign says which way the run went when the file was opened.
-        return {'timestep': abs(float(header['timestep'])),
-                'scheme': header['scheme'], 'order': int(header['order']),
-                'composition': header['composition'],
-                'stride': max(1, int(header.get('interval', 1)))}
-    record = {} if atoms is None else atoms.info.get(INFO_KEY)
-    sections = sorted(name for name, value in (record or {}).items()
-                      if isinstance(value, dict) and name != 'machine') \
-        if isinstance(record, dict) else []
-    if md_type is None and not sections:
-        return {}
-    if md_type is not None:
-        settings = ', '.join(
-            f'{key} {_setting(key, value)}' for key, value in header.items()
-            if key in ('timestep', 'temperature_K', 'friction', 'taut',
-                       'tdamp', 'pressure_au', 'seed', 'interval'))
-        what = f'{md_type}' + (f' ({settings})' if settings else '')
-    else:
-        what = (f'dynamics whose restart record has a '
-                f'{" and ".join(repr(s) for s in sections)} section')
-    if 'seed' in header or {'langevin', 'bussi'} & set(sections):
-        need = ('replaying it would need that thermostat, its seed and the '
-                'noise buffer the run wrote (write_buffer), and the '
-                'flipbook replays only ReversibleVerlet runs')
-    else:
-        need = 'the flipbook replays only ReversibleVerlet runs'
-    raise ValueError(
-        f'{Path(path).name} was written by {what}: {need}, so its frames '
-        'cannot be shown as the file has them. Pass --new-run to start a '
-        'new ReversibleVerlet run from the frame instead (not the file\'s '
-        'frames).')
+                f'{name} holds a frame of dynamics whose restart record has '
+                f'a {" and ".join(repr(s) for s in sections)} section, but '
+                'no header with their settings (a .traj file the run wrote '
+                'has one), so its frames cannot be replayed. ' + new_run)
+        if buffer is not None:
+            raise ValueError(f'--buffer: {name} records no dynamics to '
+                             'resume; drop --buffer.')
+        return None
+    dynamics = replay.dynamics.__name__
+    if buffer is not None and not replay.buffered:
+        raise ValueError(
+            f'--buffer: {name} was written by {dynamics}, which keeps no '
+            'buffer: its frames replay exactly without one; drop --buffer.')
+    if buffer is None and replay.needs_buffer(atoms.info):
+        behind = steps_behind(atoms.info)
+        where = 'past its anchor' if behind is None \
+            else f'{behind} steps past its anchor'
+        raise ValueError(
+            f'{name} was written by {describe(header)}. This frame is '
+            f'{where}: without the information buffer the run held there, '
+            f'{dynamics} would go on with other bits than the file\'s frames '
+            'and could not go back past the frame. Pass --buffer FILE, the '
+            'file the run\'s write_buffer(path) wrote together with this '
+            f'frame. {new_run}')
+    return replay
 
 
-def _setting(key, value):
-    """A header value for a message, times in fs."""
-    if key in ('timestep', 'taut', 'tdamp') and isinstance(value, float):
-        return f'{abs(value) / units.fs:g} fs'  # negative: run reversed
-    if key == 'friction' and isinstance(value, float):
-        return f'{value * units.fs:g} / fs'
-    return f'{value}'
+def frames_back(dyn, stride, steps_in_file):
+    """Frames of ``stride`` steps a flipbook on ``dyn`` may go back from
+    its frame 0: as many as the file holds before it (``steps_in_file``
+    steps), and, for a dynamics with information buffers, no further than
+    its anchor of reversal."""
+    back = steps_back(dyn)
+    steps = steps_in_file if back is None else min(back, steps_in_file)
+    return steps // stride
+
+
+def _frames_before(path, index):
+    """Frames of the trajectory at ``path`` before its frame ``index``
+    (negative counts from the end)."""
+    from ase.io.trajectory import Trajectory
+    with Trajectory(str(path)) as trajectory:
+        return index if index >= 0 else len(trajectory) + index
 
 
 def _trajectory_header(path):

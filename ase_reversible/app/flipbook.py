@@ -1,9 +1,12 @@
 """Browse a simulation back and forth without storing its frames.
 
 A :class:`Flipbook` holds a reversible dynamics
-(:class:`~ase_reversible.ReversibleVerlet`, or a thermostat:
+(:class:`~ase_reversible.ReversibleVerlet`, a thermostat:
 :class:`~ase_reversible.ReversibleNose`,
-:class:`~ase_reversible.ReversibleLangevin`) and a frame number.  Asking
+:class:`~ase_reversible.ReversibleLangevin`,
+:class:`~ase_reversible.ReversibleBussi`, or a barostat:
+:class:`~ase_reversible.ReversibleIsotropicNPT`,
+:class:`~ase_reversible.ReversibleNPT`) and a frame number.  Asking
 for another frame runs the dynamics to it: forward if it is later,
 backward (time step negated, exactly retracing the path) if it is
 earlier.  Because every step is undone bit for bit, frame ``k``
@@ -20,7 +23,8 @@ Three ways to look:
   both) to an animated GIF.
 
 ``python -m ase_reversible flipbook`` opens one on a built-in scene or on
-a trajectory frame (``--help`` lists the options).
+a trajectory frame, replayed with the dynamics that wrote the file
+(:mod:`ase_reversible.md.replay`; ``--help`` lists the options).
 
 matplotlib is imported only when something is drawn, and with no display
 the Agg backend renders off screen.
@@ -51,8 +55,9 @@ class Flipbook:
     Parameters
     ----------
     dyn : ReversibleDynamics
-        The dynamics, at the state that becomes frame 0.  A
-        ReversibleLangevin cannot go before its anchor (it raises
+        The dynamics, at the state that becomes frame 0.  A dynamics
+        with information buffers (ReversibleLangevin, ReversibleBussi,
+        the barostats) cannot go before its anchor (it raises
         :class:`~ase_reversible.RetraceLimitError` there), so frame 0 is
         as far back as it goes if it is at its anchor.  Its observers
         (trajectory writers, loggers) are not called while the flipbook
@@ -77,7 +82,8 @@ class Flipbook:
         if not isinstance(dyn, ReversibleDynamics):
             raise TypeError(
                 f'Flipbook needs a reversible dynamics (ReversibleVerlet, '
-                f'ReversibleNose, ReversibleLangevin), got '
+                f'ReversibleNose, ReversibleLangevin, ReversibleBussi, '
+                f'ReversibleIsotropicNPT, ReversibleNPT), got '
                 f'{type(dyn).__name__}: other dynamics cannot step back to '
                 'an earlier frame without storing it.')
         if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) \
