@@ -409,3 +409,13 @@ def test_docstring_check_sees_what_is_missing():
 
     Documented.__module__ = 'ase_reversible.scratch'
     assert member_docstring(Documented, 'method') is None
+
+
+def test_the_readme_says_how_to_get_the_cpu_torch():
+    """PyPI's pinned torch is a CUDA build of about 3 GB on most machines:
+    the README's torch line gives the CPU index that installs the 190 MB
+    wheel, with both pip spellings."""
+    readme = (ROOT / 'README.md').read_text()
+    text = ' '.join(readme.split())
+    assert '--extra-index-url https://download.pytorch.org/whl/cpu' in text
+    assert "`--index-url` the same address for `pip install 'torch==" in text

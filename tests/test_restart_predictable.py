@@ -187,26 +187,22 @@ def test_a_frame_rounded_by_extxyz_is_named_so_at_the_users_line(tmp_path):
     assert dyn.get_time() == 0.0
 
 
-def test_a_frame_edited_by_a_thermostat_is_told_from_one_rounded(tmp_path):
-    frame_path = tmp_path / 'frame.traj'
+@pytest.mark.parametrize('from_a_frame', [False, True],
+                         ids=['fresh-atoms', 'a-frame-of-a-reversible-run'])
+def test_atoms_equilibrated_with_ases_langevin_are_a_quiet_new_start(
+        from_a_frame, tmp_path):
+    """The common workflow: equilibrate with ASE's Langevin, then run
+    ReversibleVerlet -- on fresh atoms, or on a frame of an earlier
+    reversible run whose record the atoms still carry: a new run, its
+    clock from 0, and nothing to say (ASE's dynamics start so too)."""
     atoms = copper()
-    ReversibleVerlet(atoms, 5 * units.fs).run(10)
-    with Trajectory(frame_path, 'w') as traj:
-        traj.write(atoms)
-    frame = read(frame_path)
-    frame.calc = EMT()
-    Langevin(frame, 5 * units.fs, temperature_K=300, friction=FRICTION,
-             fixcm=False, rng=np.random.default_rng(0)).run(5)
-    with pytest.warns(AnchorMovedWarning) as caught:
-        ReversibleVerlet(frame, 5 * units.fs)
-    message = str(caught[0].message)
-    assert 'changed since the frame was written' in message
-    assert 'text format' not in message
-    assert caught[0].filename == __file__
-
-
-def test_atoms_equilibrated_with_ases_langevin_are_a_quiet_new_start():
-    atoms = copper()
+    if from_a_frame:
+        ReversibleVerlet(atoms, 5 * units.fs).run(10)
+        with Trajectory(tmp_path / 'frame.traj', 'w') as traj:
+            traj.write(atoms)
+        atoms = read(tmp_path / 'frame.traj')
+        atoms.calc = EMT()
+        assert 'reversible' in atoms.info
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', FutureWarning)
         Langevin(atoms, 5 * units.fs, temperature_K=300, friction=FRICTION,
@@ -214,6 +210,9 @@ def test_atoms_equilibrated_with_ases_langevin_are_a_quiet_new_start():
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
         dyn = ReversibleVerlet(atoms, 5 * units.fs)
+        start = snapshot(atoms)
         dyn.run(10)
     assert ours(caught) == []
     assert dyn.get_time() == 10 * 5 * units.fs
+    dyn.reverse().run(10)
+    assert_same_state(atoms, start)

@@ -131,9 +131,16 @@ def record_mismatch(record: dict, shown: dict):
         return (f'the {shown_names} have at most {max(places)} decimal '
                 'places, rounded by a text format such as extxyz; write '
                 'frames with .traj to restart exactly')
-    return ('the positions or momenta are not on its grid: they were '
-            'changed since the frame was written (by another dynamics, '
-            "such as ASE's, or an edit)")
+    return EDITED
+
+
+#: :func:`record_mismatch`'s reason for a frame whose positions or momenta
+#: were changed after it was written (by another dynamics, ASE's Langevin
+#: in an equilibration, or an edit): the atoms are a new start, which
+#: needs no warning, as a new dynamics in ASE starts at 0.
+EDITED = ('the positions or momenta are not on its grid: they were changed '
+          "since the frame was written (by another dynamics, such as ASE's, "
+          'or an edit)')
 
 
 #: The most decimal places a text format is taken to have printed: ASE's

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from ase import units
 
-from ..core.record import INFO_KEY, read_record, record_mismatch
+from ..core.record import EDITED, INFO_KEY, read_record, record_mismatch
 from ..errors import AnchorMovedWarning, MachineChangedWarning
 from ..purity.advice import warn_at_user_line
 from .machine import SECTION as MACHINE, compare, differences, explain, \
@@ -139,9 +139,12 @@ class RestartRecord:
 
     def _warn_unfit_record(self, timestep):
         """Warn that the record on the atoms does not fit them, if it was
-        written by this dynamics at ``timestep``: the run it seemed to go
-        on with starts anew."""
-        if self._record_unfit is None \
+        written by this dynamics at ``timestep`` and the atoms seem to be
+        its frame (rounded by a text format, or outside the record's range
+        or quanta): the run it seemed to go on with starts anew.  Atoms
+        changed since the frame was written (:data:`EDITED`) are a new
+        start the user made, told by nothing."""
+        if self._record_unfit in (None, EDITED) \
                 or not self._goes_on_with_record(timestep):
             return
         warn_at_user_line(
