@@ -19,9 +19,10 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from PIL import Image
 
-from ase_reversible import (ReversibleBussi, ReversibleIsotropicNPT,
-                            ReversibleLangevin, ReversibleNose, ReversibleNPT,
-                            ReversibleVerlet, UnstableIntegrationError)
+from ase_reversible import (LennardJones, ReversibleBussi,
+                            ReversibleIsotropicNPT, ReversibleLangevin,
+                            ReversibleNose, ReversibleNPT, ReversibleVerlet,
+                            UnstableIntegrationError)
 from ase_reversible.calculators import PendulumChain, make_chain
 from ase_reversible.app import cli
 from ase_reversible.app.flipbook import Flipbook
@@ -242,8 +243,9 @@ def test_command_line_png_and_gif(tmp_path, capsys):
 
 def test_command_line_from_a_trajectory(tmp_path):
     atoms = argon_cluster(2, 60.0)
-    atoms.calc = AseLennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON,
-                                 rc=AR_RC)
+    # What --calculator lj-argon attaches: the replay checks that it
+    # reaches the file's next frame.
+    atoms.calc = LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC)
     path = tmp_path / 'md.traj'
     ReversibleVerlet(atoms, DT, trajectory=str(path)).run(4)
     png = tmp_path / 'frame.png'
@@ -255,8 +257,7 @@ def test_command_line_from_a_trajectory(tmp_path):
 def test_a_flipbook_on_a_trajectory_frame_shows_the_frames_own_time(
         tmp_path, monkeypatch):
     atoms = argon_cluster(2, 60.0)
-    atoms.calc = AseLennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON,
-                                 rc=AR_RC)
+    atoms.calc = LennardJones(sigma=AR_SIGMA, epsilon=AR_EPSILON, rc=AR_RC)
     path = tmp_path / 'md.traj'
     run = ReversibleVerlet(atoms, DT, trajectory=str(path))
     written = []  # the run's clock at each frame, in the order written
@@ -629,3 +630,24 @@ def test_a_header_the_class_cannot_take_is_refused():
     with pytest.raises(ValueError, match='written by Langevin .timestep 2 fs'):
         replay_from_header({'md-type': 'Langevin', 'timestep': 2 * units.fs})
     assert replay_from_header({}) is None
+
+
+@pytest.mark.parametrize('index', [2, -1], ids=['next-frame', 'last-frame'])
+def test_a_replay_with_another_calculator_is_refused(index, tmp_path,
+                                                     capsys):
+    # The header gives the dynamics, not the calculator: frames replayed
+    # with another one are not the file's, so the command checks the
+    # file's neighbouring frame (the next, or the one before the last)
+    # and refuses.
+    path = replayed_trajectory(tmp_path, 'ReversibleNose')
+    png = tmp_path / 'frame.png'
+    with pytest.raises(SystemExit) as exit_:
+        cli.flipbook([str(path), '--index', str(index), '--calculator',
+                      'lj-argon', '--png', '1', '--out', str(png)])
+    assert exit_.value.code == 2
+    message = capsys.readouterr().err
+    neighbour = 3 if index == 2 else 4
+    for part in (f'does not reach its frame {neighbour} bit for bit',
+                 '--calculator lj-argon', '--new-run'):
+        assert part in message, part
+    assert not png.exists()

@@ -17,7 +17,8 @@ from ase import units
 
 from ..core.record import INFO_KEY
 from ..md import ReversibleVerlet
-from ..md.replay import describe, replay_from_header, steps_back, steps_behind
+from ..md.replay import (describe, first_difference, replay_from_header,
+                         steps_back, steps_behind)
 from . import demo
 from .flipbook import Flipbook
 from .scenes import SCENES
@@ -180,6 +181,8 @@ def flipbook(argv=None, prog='ase-reversible flipbook'):
                              f'{path.name}): {error}')
             stride = args.stride or replay.stride
             first = -frames_back(dyn, stride, replay.stride * index)
+            _check_replay(parser, dyn, path, index, replay.stride,
+                          args.calculator)
             print(f'from the trajectory header: {replay.summary()}, '
                   f'{stride} steps per frame; frame 0 is frame {index} of '
                   f'{path.name}, '
@@ -287,6 +290,32 @@ def recorded_dynamics(path, atoms, buffer=None):
             'file the run\'s write_buffer(path) wrote together with this '
             f'frame. {new_run}')
     return replay
+
+
+def _check_replay(parser, dyn, path, index, interval, calculator):
+    """Refuse (``parser.error``) unless ``dyn`` on frame ``index`` of the
+    file at ``path`` reaches the file's next frame (``interval`` steps on)
+    or, if there is none and ``dyn`` can run back that far, its previous
+    one, bit for bit: the calculator is the user's choice, not the
+    header's."""
+    back = steps_back(dyn)
+    from ase.io.trajectory import Trajectory
+    with Trajectory(str(path)) as trajectory:
+        if index + 1 < len(trajectory):
+            neighbour, steps = index + 1, interval
+        elif index > 0 and (back is None or back >= interval):
+            neighbour, steps = index - 1, -interval
+        else:
+            return
+        missed = first_difference(dyn, trajectory[neighbour], steps)
+    if missed is not None:
+        parser.error(
+            f'the replay of frame {index} of {path.name} does not reach '
+            f'its frame {neighbour} bit for bit (the {missed} differ): the '
+            f'calculator (--calculator {calculator}) is not the one the run '
+            'used, or the file was written otherwise than its header says. '
+            'Pass the run\'s calculator, or --new-run to start a new run '
+            'from the frame (not the file\'s frames).')
 
 
 def frames_back(dyn, stride, steps_in_file):

@@ -22,6 +22,7 @@ from __future__ import annotations
 import inspect
 from typing import NamedTuple
 
+import numpy as np
 from ase import units
 
 from .buffered import BufferedDynamics
@@ -170,6 +171,40 @@ def replay_from_header(header):
             'wrote it?), so its run cannot be rebuilt')
     return Replay(dynamics, abs(float(header['timestep'])), settings,
                   max(1, int(header.get('interval', 1))))
+
+
+def first_difference(dyn, frame, steps):
+    """What of the file's ``frame`` (``ase.Atoms``, the frame ``steps``
+    steps from where ``dyn`` stands; negative: before it) ``dyn`` does not
+    reach bit for bit when run there -- ``'positions'``, ``'momenta'`` or
+    ``'cell'`` -- or None if it reaches all three.  ``dyn`` is run back
+    exactly, so it ends where it started.
+
+    The header gives the dynamics' settings but not the calculator, which
+    the user names: a frame the replay misses means another calculator
+    (or another setting) than the run's, and the frames shown would not be
+    the file's."""
+    def run(n):
+        if n < 0:
+            dyn.reverse()
+        try:
+            dyn.run(abs(n))
+        finally:
+            if n < 0:
+                dyn.reverse()
+
+    run(steps)
+    try:
+        atoms = dyn.atoms
+        for what, shown, wanted in (
+                ('positions', atoms.positions, frame.positions),
+                ('momenta', atoms.get_momenta(), frame.get_momenta()),
+                ('cell', atoms.cell[:], frame.cell[:])):
+            if not np.array_equal(shown, wanted):
+                return what
+        return None
+    finally:
+        run(-steps)
 
 
 def steps_behind(info):
