@@ -32,6 +32,7 @@ from ase_reversible.md.replay import replay_from_header
 
 from conftest import (AR_EPSILON, AR_RC, AR_SIGMA, DT, argon_cluster,
                       copper_bulk)
+from tiers import tiered
 
 matplotlib.use('Agg')
 
@@ -508,7 +509,9 @@ def exact_views(atoms):
             'cell': atoms.cell[:]}
 
 
-@pytest.mark.parametrize('name', REPLAYED)
+# The barostats' replays take the longest: the long tier.
+@pytest.mark.parametrize('name', tiered(list(REPLAYED), quick=[
+    'ReversibleNose', 'ReversibleLangevin', 'ReversibleBussi']))
 def test_a_flipbook_replays_each_dynamics_own_trajectory_exactly(
         name, tmp_path, monkeypatch, capsys):
     # Frame 2 of 0..5 (step 6), with the buffer file written with it where
