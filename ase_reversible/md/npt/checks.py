@@ -10,7 +10,9 @@ import numpy as np
 from ase import units
 from ase.calculators.calculator import PropertyNotImplementedError
 
+from ...core.arguments import checked_positive
 from ...errors import AnchorMovedWarning, UnsupportedConstraintError
+from ..checks import check_energy_watch, check_timestep
 from .system import cell_volume
 
 
@@ -43,6 +45,42 @@ def _checked_pressure(value):
             f'{value:g} GPa pass {value:g} * ase.units.GPa, for {value:g} bar '
             f'{value:g} * ase.units.bar.', UserWarning, stacklevel=3)
     return value
+
+
+#: The thermostats: Langevin's friction and noise (the default) or Nosé's
+#: chain (:mod:`.nose`).
+THERMOSTATS = ('langevin', 'nose')
+
+
+def checked_thermostat(thermostat, expected, name):
+    """Refuse a ``thermostat`` that is not one of :data:`THERMOSTATS`, or
+    one this class ``name`` (taking ``expected``) does not run."""
+    if thermostat not in THERMOSTATS:
+        raise ValueError(f"thermostat must be one of {THERMOSTATS}, got "
+                         f'{thermostat!r}')
+    if thermostat != expected:
+        raise ValueError(
+            f"{name} has no {thermostat!r} thermostat: thermostat="
+            f"'nose' is taken by ReversibleIsotropicNPT only (the whole "
+            "cell's piston has no Nosé thermostat yet). Use thermostat="
+            f"{expected!r} (the default) here.")
+
+
+def checked_settings(timestep, temperature_K, pressure_au, tdamp, pdamp,
+                      energy_check, energy_tolerance):
+    """``(timestep, (temperature_K, pressure_au, tdamp, pdamp),
+    energy_check, energy_tolerance)``, each checked."""
+    timestep = check_timestep(timestep)
+    temperature_K = checked_positive(temperature_K, 'temperature_K', 'K')
+    pressure_au = _checked_pressure(pressure_au)
+    tdamp = checked_positive(tdamp, 'tdamp', 'ASE time units, e.g. '
+                             '100 * ase.units.fs')
+    pdamp = checked_positive(pdamp, 'pdamp', 'ASE time units, e.g. '
+                             '1000 * ase.units.fs')
+    energy_check, energy_tolerance = check_energy_watch(
+        energy_check, energy_tolerance)
+    return (timestep, (temperature_K, pressure_au, tdamp, pdamp),
+            energy_check, energy_tolerance)
 
 
 def _refuse_cell(atoms, name):
