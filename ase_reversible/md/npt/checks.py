@@ -121,3 +121,18 @@ def _refuse_stressless(atoms, name='ReversibleIsotropicNPT'):
     if np.shape(stress) != (6,) or not np.isfinite(stress).all():
         raise ValueError(f'The stress of {type(atoms.calc).__name__} is not '
                          f'six finite numbers: {stress!r}.')
+
+
+def _starts_at_rest(system, section):
+    """Whether the run holds the atoms' total momentum at exactly zero: a
+    resumed run as its record says (a record without the mark is of a
+    run that did not), a new one if its net momentum is zero but for
+    rounding -- at most one count of ``pi`` per atom in each component,
+    what snapping momenta with a zero float sum to the grid leaves (ASE's
+    ``Stationary``, momenta absent or zero).  A thermal start that is not
+    at rest has a net momentum of about ``sqrt(N m kT)``, far above that,
+    and keeps the bits it had before the balance existed."""
+    if section is not None:
+        return section.get('zero_momentum') is True
+    net_c = np.abs(system.p.ints.sum(axis=0))
+    return bool(np.all(net_c <= system.p.ints.shape[0]))

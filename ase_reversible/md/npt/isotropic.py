@@ -24,8 +24,9 @@ from .friction import PistonFriction, ScaledFriction
 from .system import (DRIFT, FRICTION, KICK, KINETIC, LAMBDA, LAMBDA_QUANTUM,
                      P_LAMBDA, PISTON, RECOVERABLE, VIRIAL, KineticKick,
                      NPTHamiltonian, Piston, VirialKick, p_lambda_quantum)
-from .checks import (checked_settings, _refuse_cell, _refuse_constraints,
-                     _refuse_stressless, _warn_new_run, checked_thermostat)
+from .checks import (_refuse_cell, _refuse_constraints, _refuse_stressless,
+                     _starts_at_rest, _warn_new_run, checked_settings,
+                     checked_thermostat)
 
 #: ``B/2 P/2 T/2 O T/2 P/2 B/2`` (docs/pressure.md, "The derivation"): a
 #: palindrome, so the same sequence run with -h undoes a step.  The two
@@ -69,21 +70,6 @@ def _fixed_setting(name, attribute, doc):
         fixed(name)
     show.__doc__ = doc
     return property(show, refuse)
-
-
-def _starts_at_rest(system, section):
-    """Whether the run holds the atoms' total momentum at exactly zero: a
-    resumed run as its record says (a record without the mark is of a
-    run that did not), a new one if its net momentum is zero but for
-    rounding -- at most one count of ``pi`` per atom in each component,
-    what snapping momenta with a zero float sum to the grid leaves (ASE's
-    ``Stationary``, momenta absent or zero).  A thermal start that is not
-    at rest has a net momentum of about ``sqrt(N m kT)``, far above that,
-    and keeps the bits it had before the balance existed."""
-    if section is not None:
-        return section.get('zero_momentum') is True
-    net_c = np.abs(system.p.ints.sum(axis=0))
-    return bool(np.all(net_c <= system.p.ints.shape[0]))
 
 
 def _settings(system):

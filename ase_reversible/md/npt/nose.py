@@ -20,17 +20,18 @@ from ase import units
 
 from ...core.codec import encode
 from ...core.plans import SubStep
+from ...core.portable import dot
 from ...core.record import read_record
 from ..buffered import BufferedStep
 from ..nose.dynamics import (NoseChainViews, checked_tchain,
                              thermostat_start)
-from ..nose.system import (PI, PI_KICK, S, TICK, NoseChain,
-                           ThermostatDrift, Tick, link)
+from ..nose.system import (CLOCK, PI, PI_KICK, S, TICK, NoseChain,
+                           ThermostatDrift, Tick, chain_names, link)
 from ..nose.thermostat import free_degrees_of_freedom
 from .checks import checked_settings, checked_thermostat
 from .isotropic import (ASE_ONLY, ENERGY_CHECK_INTERVAL,
                         ReversibleIsotropicNPT)
-from .system import (DRIFT, KICK, KINETIC, PISTON, VIRIAL,
+from .system import (DRIFT, KICK, KINETIC, LAMBDA, P_LAMBDA, PISTON, VIRIAL,
                      KineticKick, NPTHamiltonian, Piston, ScaledDrift,
                      VirialKick)
 
@@ -113,15 +114,6 @@ class NoseNPTHamiltonian(NoseChain, NPTHamiltonian):
                 - 2.0 * self.kT * math.log(self.lam_value()))
 
 
-def _refuse_adjoint(substep, cotangents=None, ch=None):
-    """The adjoint of a sub-step of the Nosé thermostat on the barostat:
-    not implemented, raises NotImplementedError (``backpropagate`` refuses
-    first, with the advice)."""
-    raise NotImplementedError(
-        f'{type(substep).__name__} has no adjoint: backpropagate is refused '
-        "for thermostat='nose' before it gets here.")
-
-
 class NoseScaledDrift(ScaledDrift):
     """``rho += round_odd(c h pi' / (m lambda**2 s**2) / q_x)``."""
 
@@ -131,7 +123,19 @@ class NoseScaledDrift(ScaledDrift):
         self._drift(prepared, (s.p.label, s.lam.label, s.s.label,
                                prepared[0]), 1.0 / (ls * ls))
 
-    adjoint = _refuse_adjoint
+    def adjoint(self, cotangents, ch):
+        """``a_pi' += c h a_rho / (m lambda**2 s**2)``; ``a_lambda -= 2 c h
+        a_rho . pi' / (m lambda**3 s**2)``; ``a_s -= 2 c h a_rho . pi' /
+        (m lambda**2 s**3)``."""
+        cotangents.flush()
+        s = self.system
+        lam, s_value = s.lam_value(), s.s_value()
+        ls = lam * s_value
+        w_nc = np.divide(cotangents['position'], s.m_n1)
+        both = 2.0 * ch / (ls * ls) * dot(w_nc, s.p.floats)
+        cotangents[LAMBDA] -= both / lam
+        cotangents[S] -= both / s_value
+        cotangents['momentum'] += (ch / (ls * ls)) * w_nc
 
 
 class NoseKinetic(KineticKick):
@@ -152,7 +156,22 @@ class NoseKinetic(KineticKick):
             self._key = key
         s.p_lam.add_rounded(scale * self._force)
 
-    adjoint = _refuse_adjoint
+    def adjoint(self, cotangents, ch):
+        """``a_pi' += 2 c h a_p_lambda pi' / (m lambda**3 s**2)``;
+        ``a_lambda -= 3 c h a_p_lambda M / (lambda**4 s**2)``; ``a_s -= 2
+        c h a_p_lambda M / (lambda**3 s**3)``, ``M = sum pi'**2 / m``."""
+        cotangents.flush()
+        a = float(cotangents[P_LAMBDA][0])
+        if a == 0.0:
+            return
+        s = self.system
+        lam, s_value = s.lam_value(), s.s_value()
+        push = ch * a * self.force()  # c h a M / (lambda**3 s**2)
+        cotangents[LAMBDA] -= 3.0 * push / lam
+        cotangents[S] -= 2.0 * push / s_value
+        lam3 = lam * lam * lam
+        cotangents['momentum'] += (2.0 * ch * a / (lam3 * s_value * s_value)
+                                   ) * (s.p.floats / s.m_n1)
 
 
 class NosePiston(Piston):
@@ -165,7 +184,14 @@ class NosePiston(Piston):
         s_value = s.s_value()
         return float(s.p_lam.floats[0]) / (s_value * s_value)
 
-    adjoint = _refuse_adjoint
+    def adjoint(self, cotangents, ch):
+        """``a_p_lambda' += c h a_lambda / (W s**2)``; ``a_s -= 2 c h
+        a_lambda p_lambda' / (W s**3)``."""
+        s = self.system
+        a = float(cotangents[LAMBDA][0])
+        s_value = s.s_value()
+        cotangents[P_LAMBDA] += ch * a / (s.W * s_value * s_value)
+        cotangents[S] -= 2.0 * ch * a * self.momentum() / (s.W * s_value)
 
 
 class _ThermostatPush(SubStep):
@@ -188,8 +214,6 @@ class _ThermostatPush(SubStep):
             self._key = key
         self.system.pi.add_rounded(scale * self._force)
 
-    adjoint = _refuse_adjoint
-
 
 class AtomsThermostatKick(_ThermostatPush):
     """``pi_1 += round_odd(c h (sum pi'**2 / (m lambda**2 s**3) - g kT /
@@ -208,6 +232,23 @@ class AtomsThermostatKick(_ThermostatPush):
         return sys.momentum_square() / (lam * lam * (s * s * s)) \
             - sys.g * sys.kT / s
 
+    def adjoint(self, cotangents, ch):
+        """``a_pi' += 2 c h a_pi pi' / (m lambda**2 s**3)``; ``a_lambda -=
+        2 c h a_pi M / (lambda**3 s**3)``; ``a_s += c h a_pi (g kT / s**2
+        - 3 M / (lambda**2 s**4))``, ``M = sum pi'**2 / m``."""
+        cotangents.flush()
+        sys = self.system
+        a = float(cotangents[PI][0])
+        if a == 0.0:
+            return
+        lam, s = sys.lam_value(), sys.s_value()
+        kinetic = sys.momentum_square() / (lam * lam * (s * s * s))
+        cotangents[LAMBDA] -= 2.0 * ch * a * kinetic / lam
+        cotangents[S] += ch * a * (sys.g * sys.kT / (s * s)
+                                   - 3.0 * kinetic / s)
+        cotangents['momentum'] += (2.0 * ch * a / (lam * lam * (s * s * s))
+                                   ) * (sys.p.floats / sys.m_n1)
+
 
 class PistonThermostatKick(_ThermostatPush):
     """``pi_1 += round_odd(c h p_lambda'**2 / (W s**3) / q)``: the
@@ -223,6 +264,17 @@ class PistonThermostatKick(_ThermostatPush):
         sys = self.system
         p, s = float(sys.p_lam.floats[0]), sys.s_value()
         return p * p / (sys.W * (s * s * s))
+
+    def adjoint(self, cotangents, ch):
+        """``a_p_lambda' += 2 c h a_pi p_lambda' / (W s**3)``; ``a_s -= 3 c
+        h a_pi p_lambda'**2 / (W s**4)``."""
+        sys = self.system
+        a = float(cotangents[PI][0])
+        if a == 0.0:
+            return
+        p, s = float(sys.p_lam.floats[0]), sys.s_value()
+        cotangents[P_LAMBDA] += 2.0 * ch * a * p / (sys.W * (s * s * s))
+        cotangents[S] -= 3.0 * ch * a * self.force() / s
 
 
 def nose_substeps(system):
@@ -276,6 +328,18 @@ def check_nose_arguments(name, tchain, tloop, seed, rng, buffer):
             'with no sub-cycles. For a finer integration of the chain, use '
             'a smaller time step.')
     return checked_tchain(tchain)
+
+
+def carry_names(tchain):
+    """``(exact variable, key in Gradients.thermostat)`` of the barostat's
+    and the chain's variables: ``'lambda'`` and ``'p_lambda'`` (the
+    virtual ``p_lambda' = s p_lambda``), ``'s'``, ``'pi'``, then ``'s2'``,
+    ``'pi2'``, ... for a chain."""
+    names = [(LAMBDA, 'lambda'), (P_LAMBDA, 'p_lambda')]
+    for j in range(1, tchain + 1):
+        names += zip(chain_names(j), ('s', 'pi') if j == 1
+                     else (f's{j}', f'pi{j}'))
+    return names
 
 
 def nose_record_section(system):
@@ -377,14 +441,46 @@ class NoseBarostat(NoseChainViews):
             'write: a frame (its restart record) resumes the run bit for '
             'bit and runs back past it by itself.')
 
-    def backpropagate(self, *args, **kwargs):
-        """Refused: the adjoints of the Nosé thermostat's sub-steps on the
-        barostat are not implemented."""
-        raise NotImplementedError(
-            f"{type(self).__name__} with thermostat='nose' gives no "
-            'gradients yet (the adjoints of its thermostat on the barostat '
-            "are not implemented). Use thermostat='langevin' (the default) "
-            'for backpropagate.')
+    # -- gradients: the user's are on (x, p) at fixed lambda, p_lambda',
+    # s and the chain; the exact variables are (rho, pi', lambda,
+    # p_lambda', s, ...) with x = lambda rho and p = pi' / (lambda s).
+
+    def _cotangents_of(self, ax_nc, ap_nc, carry):
+        carried = self._carried(carry, 'barostat')
+        added = self._loss_cotangents(ax_nc, ap_nc)
+        cotangents = {'position': added['position'],
+                      'momentum': added['momentum'], CLOCK: np.zeros(1)}
+        for name, key in carry_names(self.system.tchain):
+            cotangents[name] = np.array([float(carried.get(key, 0.0))])
+        cotangents[LAMBDA] += added[LAMBDA]
+        cotangents[S] += added[S]
+        return cotangents
+
+    def _loss_cotangents(self, ax_nc, ap_nc):
+        s = self.system
+        lam, s_value = s.lam_value(), s.s_value()
+        n = s.x.ints.shape
+        ax_nc = np.zeros(n) if ax_nc is None else np.asarray(ax_nc, float)
+        ap_nc = np.zeros(n) if ap_nc is None else np.asarray(ap_nc, float)
+        p_dot = dot(ap_nc, s.shown_momenta())
+        return {'position': lam * ax_nc, 'momentum': ap_nc / (lam * s_value),
+                LAMBDA: np.array([dot(ax_nc, s.x.floats) - p_dot / lam]),
+                S: np.array([-p_dot / s_value])}
+
+    def _gradients_of(self, cotangents):
+        # Back to (x, p): dL/dx = a_rho / lambda, dL/dp = lambda s a_pi';
+        # at fixed (x, p), dL/dlambda = a_lambda - a_rho . rho / lambda +
+        # a_pi' . pi' / lambda and dL/ds = a_s + a_pi' . pi' / s.
+        s = self.system
+        lam, s_value = s.lam_value(), s.s_value()
+        a_rho, a_pi = cotangents['position'], cotangents['momentum']
+        pulled = dot(a_pi, s.p.floats)
+        gradients = {key: float(cotangents[name][0])
+                     for name, key in carry_names(s.tchain)}
+        gradients['lambda'] += (pulled - dot(a_rho, s.x.floats)) / lam
+        gradients['s'] += pulled / s_value
+        self._retrace_end = self._retrace_key()
+        return a_rho / lam, a_pi * (lam * s_value), gradients
 
     @property
     def thermostat(self) -> str:
@@ -441,7 +537,15 @@ class ReversibleIsotropicNoseNPT(NoseBarostat, ReversibleIsotropicNPT):
     momentum is held at exactly zero when they start at rest (ASE's
     ``Stationary``), and ``N_f = 3N - 3`` then; else ``N_f = 3N``.
     Steps are equal in Nosé's virtual time; :meth:`get_time` is real
-    time.  :meth:`backpropagate` and :meth:`write_buffer` are refused.
+    time.  :meth:`backpropagate` gives the gradients on the positions and
+    momenta and, in ``.thermostat``, on ``'lambda'`` (at fixed positions
+    and momenta), ``'p_lambda'`` (the virtual ``p_lambda'``), ``'s'`` (at
+    fixed momenta), ``'pi'`` and the chain's ``'s2'``, ``'pi2'``, ...
+    (no potential parameters); :meth:`write_buffer` is refused.  Use
+    ``tchain=3``: one thermostat scales the atoms and the piston
+    together and damps the volume's oscillation only slowly
+    (docs/pressure.md, "A check of the ensemble with Nosé's
+    thermostat").
     """
 
     def __init__(self, atoms, timestep, temperature_K, pressure_au, tdamp,
