@@ -15,6 +15,7 @@ from ase.io import read, write
 from ase.md.velocitydistribution import Stationary, thermalize_momenta
 
 from ase_reversible import ReversibleIsotropicNPT, ReversibleNPT
+from ase_reversible.md.npt.cell_nose import ReversibleNoseNPT
 from ase_reversible.md.npt.nose import ReversibleIsotropicNoseNPT
 from ase_reversible.core.record import read_record
 from ase_reversible.md.machine import compare
@@ -235,16 +236,67 @@ def test_what_the_nose_thermostat_refuses(given, error, match):
                                thermostat='nose', **kwargs)
 
 
-def test_unknown_thermostats_and_the_whole_cell_are_refused():
+def test_unknown_thermostats_and_langevin_chains_are_refused():
     with pytest.raises(ValueError, match="must be one of"):
         ReversibleIsotropicNPT(hcp_copper(), DT, 300, PRESSURE, TDAMP, PDAMP,
                                thermostat='bussi')
-    with pytest.raises(ValueError, match="has no 'nose' thermostat"):
-        ReversibleNPT(hcp_copper(), DT, 300, PRESSURE, TDAMP, PDAMP,
-                      thermostat='nose')
     with pytest.raises(TypeError, match='leave tchain out'):
         ReversibleIsotropicNPT(hcp_copper(), DT, 300, PRESSURE, TDAMP, PDAMP,
                                tchain=3, seed=1)
+
+
+# -- the whole cell: ReversibleNPT(..., thermostat='nose') -----------------
+
+def cell_nose_npt(atoms, tchain=1, **kwargs):
+    return ReversibleNPT(atoms, DT, 300, PRESSURE, TDAMP, PDAMP,
+                         tchain=tchain, thermostat='nose', **kwargs)
+
+
+@pytest.mark.parametrize('tchain', [1, 3])
+def test_the_whole_cell_runs_back_and_holds_ases_mtk_assertions(tchain):
+    """ASE's MTKNPT test conditions (measured: the conserved energy moved
+    by 2.2e-4 eV, tchain 1, and 2.1e-4 eV, tchain 3; ASE's EMT)."""
+    atoms = hcp_copper()
+    dyn = cell_nose_npt(atoms, tchain)
+    assert type(dyn) is ReversibleNoseNPT and dyn.thermostat == 'nose'
+    assert dyn.system.g == 3 * len(atoms) - 3 + 7
+    start, seen = counts(dyn), shown(atoms)
+    e0 = dyn.get_conserved_energy()
+    dyn.run(100)
+    assert np.allclose(np.sum(atoms.get_momenta(), axis=0), 0.0)
+    assert abs(dyn.get_conserved_energy() - e0) < 1e-3
+    assert not np.allclose(atoms.positions, seen[0])
+    assert not np.allclose(atoms.cell.array, seen[2])
+    assert dyn.barostat_momentum.shape == (6,)
+    dyn.reverse().run(100)
+    assert_counts_equal(dyn, start)
+    assert_shown_equal(atoms, seen)
+
+
+def test_a_whole_cell_frame_resumes_the_run_bit_for_bit(tmp_path):
+    path = tmp_path / 'cell.traj'
+    atoms = hcp_copper(calc=EMT())
+    dyn = cell_nose_npt(atoms, 3, trajectory=str(path), loginterval=10)
+    dyn.run(30)
+    whole, whole_time = shown(atoms), dyn.get_time()
+    frame = read(path, index=2)
+    frame.calc = EMT()
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        resumed = cell_nose_npt(frame, None)
+    assert type(resumed) is ReversibleNoseNPT and resumed.tchain == 3
+    resumed.run(10)
+    assert_shown_equal(frame, whole)
+    assert resumed.get_time() == whole_time
+    resumed.reverse().run(30)   # back past the frame
+    assert np.array_equal(frame.positions, read(path, index=0).positions)
+
+
+def test_the_whole_cells_gradients_are_refused():
+    dyn = cell_nose_npt(hcp_copper())
+    dyn.run(1)
+    with pytest.raises(NotImplementedError, match="thermostat='langevin'"):
+        dyn.backpropagate(1, grad_positions=np.ones((16, 3)))
 
 
 def test_buffer_files_are_refused(tmp_path):

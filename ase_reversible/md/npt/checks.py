@@ -12,7 +12,7 @@ from ase.calculators.calculator import PropertyNotImplementedError
 
 from ...core.arguments import checked_positive
 from ...errors import AnchorMovedWarning, UnsupportedConstraintError
-from ..checks import check_energy_watch, check_timestep
+from ..checks import check_energy_watch, check_timestep, fixed
 from .system import cell_volume
 
 
@@ -60,10 +60,9 @@ def checked_thermostat(thermostat, expected, name):
                          f'{thermostat!r}')
     if thermostat != expected:
         raise ValueError(
-            f"{name} has no {thermostat!r} thermostat: thermostat="
-            f"'nose' is taken by ReversibleIsotropicNPT only (the whole "
-            "cell's piston has no Nosé thermostat yet). Use thermostat="
-            f"{expected!r} (the default) here.")
+            f"{name} runs the {expected!r} thermostat, not {thermostat!r}: "
+            "construct ReversibleIsotropicNPT or ReversibleNPT with "
+            f"thermostat={thermostat!r} instead.")
 
 
 def checked_settings(timestep, temperature_K, pressure_au, tdamp, pdamp,
@@ -136,3 +135,15 @@ def _starts_at_rest(system, section):
         return section.get('zero_momentum') is True
     net_c = np.abs(system.p.ints.sum(axis=0))
     return bool(np.all(net_c <= system.p.ints.shape[0]))
+
+
+def _fixed_setting(name, attribute, doc):
+    """A property that shows the system's ``attribute`` as ``name`` and
+    refuses assignment (the setting is fixed at construction)."""
+    def show(self):
+        return getattr(self.system, attribute)
+
+    def refuse(self, value):
+        fixed(name)
+    show.__doc__ = doc
+    return property(show, refuse)

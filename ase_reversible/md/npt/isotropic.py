@@ -16,7 +16,7 @@ from ...core.portable import dot
 from ...core.record import read_record
 from ...errors import MachineChangedWarning
 from ..buffered import BufferedDynamics, resume_point
-from ..checks import checked_friction, fixed, seed_from
+from ..checks import checked_friction, seed_from
 from ..hamiltonian import largest_kick
 from ..langevin import FrictionSettings
 from ..machine import describe, digest, platform
@@ -24,9 +24,9 @@ from .friction import PistonFriction, ScaledFriction
 from .system import (DRIFT, FRICTION, KICK, KINETIC, LAMBDA, LAMBDA_QUANTUM,
                      P_LAMBDA, PISTON, RECOVERABLE, VIRIAL, KineticKick,
                      NPTHamiltonian, Piston, VirialKick, p_lambda_quantum)
-from .checks import (_refuse_cell, _refuse_constraints, _refuse_stressless,
-                     _starts_at_rest, _warn_new_run, checked_settings,
-                     checked_thermostat)
+from .checks import (_fixed_setting, _refuse_cell, _refuse_constraints,
+                     _refuse_stressless, _starts_at_rest, _warn_new_run,
+                     checked_settings, checked_thermostat)
 
 #: ``B/2 P/2 T/2 O T/2 P/2 B/2`` (docs/pressure.md, "The derivation"): a
 #: palindrome, so the same sequence run with -h undoes a step.  The two
@@ -58,18 +58,6 @@ ASE_ONLY = {
             'fixed, as in ASE\'s MaskedMTKNPT, has no exact counterpart '
             'yet: leave mask out',
 }
-
-
-def _fixed_setting(name, attribute, doc):
-    """A property that shows the system's ``attribute`` as ``name`` and
-    refuses assignment (the setting is fixed at construction)."""
-    def show(self):
-        return getattr(self.system, attribute)
-
-    def refuse(self, value):
-        fixed(name)
-    show.__doc__ = doc
-    return property(show, refuse)
 
 
 def _settings(system):
@@ -118,7 +106,16 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         of ``pdamp``; the piston's friction is ``1 / pdamp``.
     tchain, pchain, tloop, ploop
         ASE's, in ASE's places: refused with a TypeError that says what
-        to pass instead (leave them out).
+        to pass instead (leave them out); with ``thermostat='nose'``,
+        ``tchain`` is taken and ``tloop`` as 1.
+    thermostat : {'langevin', 'nose'}
+        ``'langevin'`` (default): Langevin friction and noise, as below.
+        ``'nose'``: a chain of Nosé thermostats, deterministic, with no
+        buffer and a conserved extended energy; the object is then a
+        :class:`~ase_reversible.md.npt.nose.ReversibleIsotropicNoseNPT`
+        (:class:`~ase_reversible.md.npt.cell_nose.ReversibleNoseNPT` for
+        :class:`~ase_reversible.ReversibleNPT`), whose docstring says
+        what it takes.
     rng : numpy.random.Generator or RandomState, optional
         Used once, to draw the seed (a single draw from it), so the same
         seeded generator gives the same run; the seed drawn is recorded
@@ -190,10 +187,15 @@ class ReversibleIsotropicNPT(BufferedDynamics):
     def __new__(cls, *args, thermostat='langevin', **kwargs):
         # ASE users choose the thermostat by an argument: the Nosé one is
         # a class of its own (:mod:`.nose`), a subclass of this one.
-        if thermostat == 'nose' and cls is ReversibleIsotropicNPT:
-            from .nose import ReversibleIsotropicNoseNPT
-            cls = ReversibleIsotropicNoseNPT
+        if thermostat == 'nose' and 'nose' not in cls.record_sections:
+            cls = cls._nose_class()
         return super().__new__(cls)
+
+    @staticmethod
+    def _nose_class():
+        """The class ``thermostat='nose'`` constructs."""
+        from .nose import ReversibleIsotropicNoseNPT
+        return ReversibleIsotropicNoseNPT
 
     def __init__(self, atoms, timestep, temperature_K, pressure_au, tdamp,
                  pdamp, tchain=None, pchain=None, tloop=None, ploop=None, *,

@@ -578,8 +578,7 @@ class ReversibleIsotropicNoseNPT(NoseBarostat, ReversibleIsotropicNPT):
         self._resumed_stress = None if record is None else \
             section.get('stress')
         self._open_nose(system)
-        substep = {KICK: system.kick, VIRIAL: VirialKick(system),
-                   **nose_substeps(system)}
+        substep = {KICK: system.kick, **self._nose_substeps(system)}
         engine = self._buffered_engine(system, plan, substep, timestep,
                                        energy_check, energy_tolerance)
         system.show_cell()
@@ -589,6 +588,11 @@ class ReversibleIsotropicNoseNPT(NoseBarostat, ReversibleIsotropicNPT):
 
     _system_class = NoseNPTHamiltonian
     record_sections = ('npt', 'nose')
+
+    @staticmethod
+    def _nose_substeps(system):
+        """The sub-steps of :func:`nose_scheme` but the atoms' kick."""
+        return {VIRIAL: VirialKick(system), **nose_substeps(system)}
 
     def _before_resume(self, system, record, at_rest):
         timestep, tchain = self._nose_start
