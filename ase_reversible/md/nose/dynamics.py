@@ -51,7 +51,9 @@ def _check_tloop(tloop):
             'smaller time step (or order=4).')
 
 
-def _checked_tchain(tchain):
+def checked_tchain(tchain):
+    """``tchain`` as an int, or None if None; anything but a whole number
+    from 1 raises ValueError."""
     if tchain is None:
         return None
     if (isinstance(tchain, bool) or not isinstance(tchain, (int, np.integer))
@@ -84,6 +86,44 @@ def _chain_of_record(atoms, tchain, scheme):
             'exactly, or remove the record (atoms.info.pop(\'reversible\')) '
             'to start a new run from these atoms.')
     return wanted
+
+
+def thermostat_start(system, record, timestep, temperature_K, tdamp,
+                     tchain=1):
+    """Counts and quanta of ``s_j``, ``pi_j`` and the clock: from the
+    record's ``'nose'`` section if it has one, else ``s_j = 1``,
+    ``pi_j = 0``.  The clock counts from 0 (the record's time is
+    added).  ``system.g`` must be counted; a ``record`` whose section
+    does not describe a chain of ``tchain`` has it set to None."""
+    kT = units.kB * temperature_K
+    names = [name for j in range(1, tchain + 1)
+             for name in chain_names(j)]
+    quanta = {CLOCK: clock_quantum(timestep)}
+    counts = {CLOCK: np.zeros(1, np.int64)}
+    for j, Q in enumerate(chain_masses(system.g, kT, tdamp, tchain), 1):
+        s_name, pi_name = chain_names(j)
+        quanta[s_name] = S_QUANTUM
+        quanta[pi_name] = pi_quantum(Q, kT)
+        counts[s_name] = np.array([round(1.0 / S_QUANTUM)], np.int64)
+        counts[pi_name] = np.zeros(1, np.int64)
+    section = record.get('nose') if record else None
+    if section is not None:
+        saved = read_record(system.atoms.info, names=names)
+        try:
+            pairs = [(int(section[S]), int(section[PI]))]
+            pairs += [(int(s), int(pi))
+                      for s, pi in section.get('chain', ())]
+        except (KeyError, TypeError, ValueError):
+            saved = None
+        if (saved is not None and len(pairs) == tchain
+                and all(s > 0 for s, _ in pairs)):
+            for j, pair in enumerate(pairs, 1):
+                for name, count in zip(chain_names(j), pair):
+                    quanta[name] = saved[f'{name}_quantum']
+                    counts[name][0] = count
+        else:
+            record['nose'] = None
+    return counts, quanta
 
 
 def _warn_if_moving(system):
@@ -123,7 +163,41 @@ def _warn_if_at_rest(system):
         UserWarning, stacklevel=3)
 
 
-class ReversibleNose(ReversibleDynamics):
+class NoseChainViews:
+    """The views of a Nosé chain (``system.chain_s``, ``chain_pi``) that
+    :class:`ReversibleNose` and the barostat with Nosé's thermostat
+    (:class:`~ase_reversible.md.npt.nose.ReversibleIsotropicNoseNPT`)
+    share."""
+
+    @property
+    def thermostat_position(self) -> float:
+        """Nosé's ``s`` (dimensionless): real time runs at ``1 / s`` of
+        virtual time."""
+        return self.system.s_value()
+
+    @property
+    def thermostat_momentum(self) -> float:
+        """Nosé's ``pi``, eV ASE time."""
+        return float(self.system.pi.floats[0])
+
+    @property
+    def tchain(self) -> int:
+        """The number of thermostats in the chain (fixed at
+        construction)."""
+        return self.system.tchain
+
+    @property
+    def thermostat_positions(self) -> tuple:
+        """The chain's ``s_1, ..., s_M`` (dimensionless)."""
+        return tuple(float(s.floats[0]) for s in self.system.chain_s)
+
+    @property
+    def thermostat_momenta(self) -> tuple:
+        """The chain's ``pi_1, ..., pi_M``, eV ASE time."""
+        return tuple(self.system.pi_values())
+
+
+class ReversibleNose(NoseChainViews, ReversibleDynamics):
     """Nosé's constant-temperature dynamics in fixed point, run back
     exactly with no buffer: a deterministic NVT.
 
@@ -219,7 +293,7 @@ class ReversibleNose(ReversibleDynamics):
                  energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
                  **kwargs):
         _check_tloop(tloop)
-        tchain = _checked_tchain(tchain)
+        tchain = checked_tchain(tchain)
         if scheme is not None and scheme not in SCHEMES:
             raise ValueError(f'scheme must be one of {SCHEMES}, got '
                              f'{scheme!r}')
@@ -239,8 +313,8 @@ class ReversibleNose(ReversibleDynamics):
             force_purity, force_noise, system_class=NoseHamiltonian)
         system.count_centre(units.kB * temperature_K,
                             (record or {}).get('nose'))
-        counts, quanta = self._thermostat_start(system, record, timestep,
-                                                temperature_K, tdamp, tchain)
+        counts, quanta = thermostat_start(system, record, timestep,
+                                          temperature_K, tdamp, tchain)
         system.set_thermostat(counts, quanta, temperature_K, tdamp, tchain)
         if record is not None and record.get('nose') is not None:
             self._resume_virtual_momenta(system, record['nose'])
@@ -263,43 +337,6 @@ class ReversibleNose(ReversibleDynamics):
                    loginterval=loginterval, **kwargs)
 
     # -- construction -------------------------------------------------------
-
-    @staticmethod
-    def _thermostat_start(system, record, timestep, temperature_K, tdamp,
-                          tchain=1):
-        """Counts and quanta of ``s_j``, ``pi_j`` and the clock: from the
-        record's ``'nose'`` section if it has one, else ``s_j = 1``,
-        ``pi_j = 0``.  The clock counts from 0 (the record's time is
-        added)."""
-        kT = units.kB * temperature_K
-        names = [name for j in range(1, tchain + 1)
-                 for name in chain_names(j)]
-        quanta = {CLOCK: clock_quantum(timestep)}
-        counts = {CLOCK: np.zeros(1, np.int64)}
-        for j, Q in enumerate(chain_masses(system.g, kT, tdamp, tchain), 1):
-            s_name, pi_name = chain_names(j)
-            quanta[s_name] = S_QUANTUM
-            quanta[pi_name] = pi_quantum(Q, kT)
-            counts[s_name] = np.array([round(1.0 / S_QUANTUM)], np.int64)
-            counts[pi_name] = np.zeros(1, np.int64)
-        section = record.get('nose') if record else None
-        if section is not None:
-            saved = read_record(system.atoms.info, names=names)
-            try:
-                pairs = [(int(section[S]), int(section[PI]))]
-                pairs += [(int(s), int(pi))
-                          for s, pi in section.get('chain', ())]
-            except (KeyError, TypeError, ValueError):
-                saved = None
-            if (saved is not None and len(pairs) == tchain
-                    and all(s > 0 for s, _ in pairs)):
-                for j, pair in enumerate(pairs, 1):
-                    for name, count in zip(chain_names(j), pair):
-                        quanta[name] = saved[f'{name}_quantum']
-                        counts[name][0] = count
-            else:
-                record['nose'] = None
-        return counts, quanta
 
     def _resume_virtual_momenta(self, system, section):
         """Set ``p'`` from a frame: stored in the record, or recovered from
@@ -455,38 +492,11 @@ class ReversibleNose(ReversibleDynamics):
         fixed('composition (and order)')
 
     @property
-    def thermostat_position(self) -> float:
-        """Nosé's ``s`` (dimensionless): real time runs at ``1 / s`` of
-        virtual time."""
-        return self.system.s_value()
-
-    @property
-    def thermostat_momentum(self) -> float:
-        """Nosé's ``pi``, eV ASE time."""
-        return float(self.system.pi.floats[0])
-
-    @property
-    def tchain(self) -> int:
-        """The number of thermostats in the chain (fixed at
-        construction)."""
-        return self.system.tchain
-
-    @property
     def scheme(self) -> str:
         """``'velocity'`` or ``'position'``
         (:func:`~ase_reversible.md.nose.system.step_scheme`; fixed at
         construction)."""
         return self._scheme
-
-    @property
-    def thermostat_positions(self) -> tuple:
-        """The chain's ``s_1, ..., s_M`` (dimensionless)."""
-        return tuple(float(s.floats[0]) for s in self.system.chain_s)
-
-    @property
-    def thermostat_momenta(self) -> tuple:
-        """The chain's ``pi_1, ..., pi_M``, eV ASE time."""
-        return tuple(self.system.pi_values())
 
     @property
     def degrees_of_freedom(self) -> int:

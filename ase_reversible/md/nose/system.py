@@ -106,26 +106,13 @@ def degrees_of_freedom(atoms, project, centre_held=False):
     return int(round(trace)) - held
 
 
-class NoseHamiltonian(Hamiltonian):
-    """The atoms with Nosé's thermostat: ``'momentum'`` holds the virtual
-    momenta ``p' = s p``, the atoms show ``p = p' / s``; ``s``, ``pi`` and
-    the real time are exact variables of shape ``[1]``.
-
-    Parameters as for :class:`~.hamiltonian.Hamiltonian`; the thermostat is
-    set with :meth:`set_thermostat`.
-    """
-
-    def __init__(self, atoms, grid, counts, masses_n, project, purity):
-        self.kT = self.tdamp = None
-        self.tchain = 1
-        #: Whether the centre of mass started at rest (:meth:`count_centre`).
-        self.at_rest = True
-        #: Whether ``N_f`` leaves out a centre at rest (a record's count).
-        self.centre_held = False
-        super().__init__(atoms, grid, counts, masses_n, project, purity)
-        self.drift = ScaledDrift(self)
-        self._shown_nc = np.empty(self.p.ints.shape)
-        self._shown_key = None
+class NoseChain:
+    """The chain of Nosé thermostats a system carries (``s_j``, ``pi_j``,
+    their masses ``Q_j`` and the real-time clock): what
+    :class:`NoseHamiltonian` and the barostat's Nosé system
+    (:class:`~ase_reversible.md.npt.nose.NoseNPTHamiltonian`) share.  The
+    system sets ``g`` (the thermostat's count) before
+    :meth:`set_thermostat`."""
 
     def set_thermostat(self, counts, quanta, temperature_K, tdamp,
                        tchain=1):
@@ -150,6 +137,54 @@ class NoseHamiltonian(Hamiltonian):
         self.temperature_K = temperature_K
         self.kT = units.kB * temperature_K
         self._set_mass()
+
+    def _set_mass(self):
+        self.masses_Q = chain_masses(self.g, self.kT, self.tdamp,
+                                     self.tchain)
+        self.Q = self.masses_Q[0]
+
+    def s_value(self) -> float:
+        """``s``, its exact float image."""
+        return float(self.s.floats[0])
+
+    def thermostat_energy(self) -> float:
+        """The chain's energy, eV: ``sum_j pi_j**2 / (2 Q_j s_(j+1)**2)``
+        (no ``s`` after the last) ``+ g kT ln s_1 + sum_(j>1) phi(s_j)``."""
+        # libm's log may differ between CPUs in the last bit: harmless,
+        # only the energy check reads this, never a step.
+        s_j = [float(v.floats[0]) for v in self.chain_s] + [1.0]
+        energy = 0.0
+        for j, (pi, Q) in enumerate(zip(self.pi_values(), self.masses_Q)):
+            energy += 0.5 * pi * pi / (Q * s_j[j + 1] * s_j[j + 1])
+            if j:
+                energy += confinement(self.kT, s_j[j])
+        return energy + self.g * self.kT * math.log(s_j[0])
+
+    def pi_values(self):
+        """``pi_j``, their exact float images."""
+        return [float(v.floats[0]) for v in self.chain_pi]
+
+
+class NoseHamiltonian(NoseChain, Hamiltonian):
+    """The atoms with Nosé's thermostat: ``'momentum'`` holds the virtual
+    momenta ``p' = s p``, the atoms show ``p = p' / s``; ``s``, ``pi`` and
+    the real time are exact variables of shape ``[1]``.
+
+    Parameters as for :class:`~.hamiltonian.Hamiltonian`; the thermostat is
+    set with :meth:`set_thermostat`.
+    """
+
+    def __init__(self, atoms, grid, counts, masses_n, project, purity):
+        self.kT = self.tdamp = None
+        self.tchain = 1
+        #: Whether the centre of mass started at rest (:meth:`count_centre`).
+        self.at_rest = True
+        #: Whether ``N_f`` leaves out a centre at rest (a record's count).
+        self.centre_held = False
+        super().__init__(atoms, grid, counts, masses_n, project, purity)
+        self.drift = ScaledDrift(self)
+        self._shown_nc = np.empty(self.p.ints.shape)
+        self._shown_key = None
 
     def set_dynamics(self, masses_n, project, purity):
         super().set_dynamics(masses_n, project, purity)
@@ -182,16 +217,7 @@ class NoseHamiltonian(Hamiltonian):
         if self.kT is not None:
             self._set_mass()
 
-    def _set_mass(self):
-        self.masses_Q = chain_masses(self.g, self.kT, self.tdamp,
-                                     self.tchain)
-        self.Q = self.masses_Q[0]
-
     # -- what the atoms show ----------------------------------------------
-
-    def s_value(self) -> float:
-        """``s``, its exact float image."""
-        return float(self.s.floats[0])
 
     def shown_momenta(self):
         return self.divided_momenta(self.s)
@@ -206,23 +232,6 @@ class NoseHamiltonian(Hamiltonian):
         return round_odd(y_nc).astype(np.int64)
 
     # -- energies ---------------------------------------------------------
-
-    def thermostat_energy(self) -> float:
-        """The chain's energy, eV: ``sum_j pi_j**2 / (2 Q_j s_(j+1)**2)``
-        (no ``s`` after the last) ``+ g kT ln s_1 + sum_(j>1) phi(s_j)``."""
-        # libm's log may differ between CPUs in the last bit: harmless,
-        # only the energy check reads this, never a step.
-        s_j = [float(v.floats[0]) for v in self.chain_s] + [1.0]
-        energy = 0.0
-        for j, (pi, Q) in enumerate(zip(self.pi_values(), self.masses_Q)):
-            energy += 0.5 * pi * pi / (Q * s_j[j + 1] * s_j[j + 1])
-            if j:
-                energy += confinement(self.kT, s_j[j])
-        return energy + self.g * self.kT * math.log(s_j[0])
-
-    def pi_values(self):
-        """``pi_j``, their exact float images."""
-        return [float(v.floats[0]) for v in self.chain_pi]
 
     def kinetic_energy(self):
         """The atoms' real kinetic energy ``sum p'**2 / (2 m s**2)``, eV."""

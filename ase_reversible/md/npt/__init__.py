@@ -5,6 +5,8 @@ The package: :mod:`.system` (the exact variables in scaled coordinates,
 what the atoms show, the drift, kicks and piston), :mod:`.friction` (the
 O step on the atoms and the piston), :mod:`.isotropic` (the integrator),
 :mod:`.cell` (``ReversibleNPT``: the whole cell free, ASE's ``MTKNPT``),
+:mod:`.nose` and :mod:`.cell_nose` (Nosé's chain instead of the Langevin
+thermostat: ``thermostat='nose'``),
 :mod:`.checks` (arguments, atoms, records and buffer files).
 
 Andersen's barostat (H. C. Andersen, J. Chem. Phys. 72, 2384 (1980)) as an

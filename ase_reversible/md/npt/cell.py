@@ -495,7 +495,8 @@ class ReversibleNPT(ReversibleIsotropicNPT):
     :class:`ase.md.nose_hoover_chain.MTKNPT`.
 
     As :class:`~ase_reversible.ReversibleIsotropicNPT` (the same
-    arguments, restarts, refusals and Langevin thermostat), but the cell
+    arguments, restarts, refusals and Langevin thermostat, or Nosé's with
+    ``thermostat='nose'``: :mod:`.cell_nose`), but the cell
     changes shape too: the six entries of a lower-triangular deformation
     ``M`` and their momenta are exact variables (:mod:`.cell`).  The
     atoms' cell must be lower triangular in ASE's rows (``a`` along x,
@@ -513,6 +514,12 @@ class ReversibleNPT(ReversibleIsotropicNPT):
     _ase_counterpart = 'MTKNPT'
     _system_class = CellHamiltonian
     _friction_class = CellFriction
+
+    @staticmethod
+    def _nose_class():
+        """The class ``thermostat='nose'`` constructs."""
+        from .cell_nose import ReversibleNoseNPT
+        return ReversibleNoseNPT
 
     @staticmethod
     def _refuse_shape(atoms):

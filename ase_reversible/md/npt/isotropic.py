@@ -11,14 +11,12 @@ import warnings
 import numpy as np
 from ase import units
 
-from ...core.arguments import checked_positive
 from ...core.compositions import composition_for
 from ...core.portable import dot
 from ...core.record import read_record
 from ...errors import MachineChangedWarning
 from ..buffered import BufferedDynamics, resume_point
-from ..checks import (check_energy_watch, check_timestep, checked_friction,
-                      fixed, seed_from)
+from ..checks import checked_friction, seed_from
 from ..hamiltonian import largest_kick
 from ..langevin import FrictionSettings
 from ..machine import describe, digest, platform
@@ -26,8 +24,9 @@ from .friction import PistonFriction, ScaledFriction
 from .system import (DRIFT, FRICTION, KICK, KINETIC, LAMBDA, LAMBDA_QUANTUM,
                      P_LAMBDA, PISTON, RECOVERABLE, VIRIAL, KineticKick,
                      NPTHamiltonian, Piston, VirialKick, p_lambda_quantum)
-from .checks import (_checked_pressure, _refuse_cell, _refuse_constraints,
-                     _refuse_stressless, _warn_new_run)
+from .checks import (_fixed_setting, _refuse_cell, _refuse_constraints,
+                     _refuse_stressless, _starts_at_rest, _warn_new_run,
+                     checked_settings, checked_thermostat)
 
 #: ``B/2 P/2 T/2 O T/2 P/2 B/2`` (docs/pressure.md, "The derivation"): a
 #: palindrome, so the same sequence run with -h undoes a step.  The two
@@ -45,7 +44,7 @@ PISTON_FRICTION = True
 ENERGY_CHECK_INTERVAL = 100
 
 #: What ASE's chain integrators take and this class has no use for.
-_ASE_ONLY = {
+ASE_ONLY = {
     'tchain': 'the thermostat is Langevin friction and noise on every '
               'momentum (no chain): leave tchain out',
     'pchain': 'the barostat is one piston, thermalised through the atoms '
@@ -59,33 +58,6 @@ _ASE_ONLY = {
             'fixed, as in ASE\'s MaskedMTKNPT, has no exact counterpart '
             'yet: leave mask out',
 }
-
-
-def _fixed_setting(name, attribute, doc):
-    """A property that shows the system's ``attribute`` as ``name`` and
-    refuses assignment (the setting is fixed at construction)."""
-    def show(self):
-        return getattr(self.system, attribute)
-
-    def refuse(self, value):
-        fixed(name)
-    show.__doc__ = doc
-    return property(show, refuse)
-
-
-def _starts_at_rest(system, section):
-    """Whether the run holds the atoms' total momentum at exactly zero: a
-    resumed run as its record says (a record without the mark is of a
-    run that did not), a new one if its net momentum is zero but for
-    rounding -- at most one count of ``pi`` per atom in each component,
-    what snapping momenta with a zero float sum to the grid leaves (ASE's
-    ``Stationary``, momenta absent or zero).  A thermal start that is not
-    at rest has a net momentum of about ``sqrt(N m kT)``, far above that,
-    and keeps the bits it had before the balance existed."""
-    if section is not None:
-        return section.get('zero_momentum') is True
-    net_c = np.abs(system.p.ints.sum(axis=0))
-    return bool(np.all(net_c <= system.p.ints.shape[0]))
 
 
 def _settings(system):
@@ -134,7 +106,16 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         of ``pdamp``; the piston's friction is ``1 / pdamp``.
     tchain, pchain, tloop, ploop
         ASE's, in ASE's places: refused with a TypeError that says what
-        to pass instead (leave them out).
+        to pass instead (leave them out); with ``thermostat='nose'``,
+        ``tchain`` is taken and ``tloop`` as 1.
+    thermostat : {'langevin', 'nose'}
+        ``'langevin'`` (default): Langevin friction and noise, as below.
+        ``'nose'``: a chain of Nosé thermostats, deterministic, with no
+        buffer and a conserved extended energy; the object is then a
+        :class:`~ase_reversible.md.npt.nose.ReversibleIsotropicNoseNPT`
+        (:class:`~ase_reversible.md.npt.cell_nose.ReversibleNoseNPT` for
+        :class:`~ase_reversible.ReversibleNPT`), whose docstring says
+        what it takes.
     rng : numpy.random.Generator or RandomState, optional
         Used once, to draw the seed (a single draw from it), so the same
         seeded generator gives the same run; the seed drawn is recorded
@@ -203,59 +184,42 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         return {VIRIAL: VirialKick(system), PISTON: Piston(system),
                 DRIFT: system.drift, KINETIC: KineticKick(system)}
 
+    def __new__(cls, *args, thermostat='langevin', **kwargs):
+        # ASE users choose the thermostat by an argument: the Nosé one is
+        # a class of its own (:mod:`.nose`), a subclass of this one.
+        if thermostat == 'nose' and 'nose' not in cls.record_sections:
+            cls = cls._nose_class()
+        return super().__new__(cls)
+
+    @staticmethod
+    def _nose_class():
+        """The class ``thermostat='nose'`` constructs."""
+        from .nose import ReversibleIsotropicNoseNPT
+        return ReversibleIsotropicNoseNPT
+
     def __init__(self, atoms, timestep, temperature_K, pressure_au, tdamp,
                  pdamp, tchain=None, pchain=None, tloop=None, ploop=None, *,
-                 rng=None, seed=None, buffer=None, trajectory=None,
-                 logfile=None, loginterval=1, position_quantum=None,
-                 momentum_quantum=None, force_purity='auto',
-                 force_noise=None, energy_check=ENERGY_CHECK_INTERVAL,
-                 energy_tolerance=None, **kwargs):
+                 thermostat='langevin', rng=None, seed=None, buffer=None,
+                 trajectory=None, logfile=None, loginterval=1,
+                 position_quantum=None, momentum_quantum=None,
+                 force_purity='auto', force_noise=None,
+                 energy_check=ENERGY_CHECK_INTERVAL, energy_tolerance=None,
+                 **kwargs):
         name = type(self).__name__
+        checked_thermostat(thermostat, 'langevin', name)
         given = {**kwargs, **{arg: value for arg, value in (
             ('tchain', tchain), ('pchain', pchain), ('tloop', tloop),
             ('ploop', ploop)) if value is not None}}
-        for arg, advice in _ASE_ONLY.items():
-            if arg in given:
-                raise TypeError(
-                    f'{name} takes no {arg} (an argument of ASE\'s '
-                    f'{self._ase_counterpart}): {advice}.')
-        timestep = check_timestep(timestep)
-        temperature_K = checked_positive(temperature_K, 'temperature_K',
-                                         'K')
-        pressure_au = _checked_pressure(pressure_au)
-        tdamp = checked_positive(tdamp, 'tdamp', 'ASE time units, e.g. '
-                                 '100 * ase.units.fs')
-        pdamp = checked_positive(pdamp, 'pdamp', 'ASE time units, e.g. '
-                                 '1000 * ase.units.fs')
-        friction = checked_friction(1.0 / tdamp, timestep)
-        energy_check, energy_tolerance = check_energy_watch(
-            energy_check, energy_tolerance)
+        self._refuse_ase_only(given, ASE_ONLY)
+        timestep, settings, energy_check, energy_tolerance = \
+            checked_settings(timestep, temperature_K, pressure_au, tdamp,
+                              pdamp, energy_check, energy_tolerance)
+        friction = checked_friction(1.0 / settings[2], timestep)
         seed = seed_from(seed, rng, name)
-        _refuse_cell(atoms, name)
-        self._refuse_shape(atoms)
-        _refuse_constraints(atoms, name)
-        system, record = self._hamiltonian(
-            atoms, largest_kick(SCHEME, composition_for(2, None), timestep,
-                                KICK),
-            position_quantum, momentum_quantum, force_purity, force_noise,
-            system_class=self._system_class)
-        _refuse_stressless(atoms, name)
-        kT = units.kB * temperature_K
-        spread = math.sqrt(self._system_class.barostat_mass(
-            len(atoms), kT, pdamp) * kT)
-        quanta = {LAMBDA: LAMBDA_QUANTUM,
-                  P_LAMBDA: p_lambda_quantum(
-                      atoms, system.purity, spread,
-                      largest_kick(SCHEME, composition_for(2, None),
-                                   timestep, VIRIAL))}
-        cell0, counts, section = self._barostat_start(system, record,
-                                                      quanta)
-        system.set_barostat(cell0, counts, quanta, temperature_K,
-                            pressure_au, tdamp, pdamp)
-        if section is not None:
-            section = self._resume_scaled(system, section)
-        if _starts_at_rest(system, section):
-            system.hold_zero_momentum()
+        system, record, section = self._barostat_system(
+            atoms, SCHEME, timestep, settings, (
+                position_quantum, momentum_quantum, force_purity,
+                force_noise))
         if section is None and record is not None:
             record = None  # a new run: time from 0
         self._friction = friction
@@ -284,13 +248,68 @@ class ReversibleIsotropicNPT(BufferedDynamics):
 
     # -- construction -------------------------------------------------------
 
+    def _refuse_ase_only(self, given, advice):
+        """Refuse the arguments of ASE's chain integrators in ``given`` (by
+        name) that ``advice`` (by name) says what to do instead of."""
+        for arg, why in advice.items():
+            if arg in given:
+                raise TypeError(
+                    f'{type(self).__name__} takes no {arg} (an argument of '
+                    f'ASE\'s {self._ase_counterpart}): {why}.')
+
+    def _barostat_system(self, atoms, scheme, timestep, settings, grid):
+        """``(system, record, section)``: the atoms checked, the system of
+        ``scheme`` with the barostat set (``settings``: temperature,
+        pressure, tdamp, pdamp; ``grid``: the quanta and purity as the
+        user passed them), resumed from the record's ``'npt'`` section if
+        it fits (``section`` then is it, else None).  The total momentum
+        is held at zero if the run starts (or started) at rest."""
+        name = type(self).__name__
+        temperature_K, pressure_au, tdamp, pdamp = settings
+        _refuse_cell(atoms, name)
+        self._refuse_shape(atoms)
+        _refuse_constraints(atoms, name)
+        system, record = self._hamiltonian(
+            atoms, largest_kick(scheme, composition_for(2, None), timestep,
+                                KICK),
+            *grid, system_class=self._system_class)
+        _refuse_stressless(atoms, name)
+        kT = units.kB * temperature_K
+        spread = math.sqrt(self._system_class.barostat_mass(
+            len(atoms), kT, pdamp) * kT)
+        quanta = {LAMBDA: LAMBDA_QUANTUM,
+                  P_LAMBDA: p_lambda_quantum(
+                      atoms, system.purity, spread,
+                      largest_kick(scheme, composition_for(2, None),
+                                   timestep, VIRIAL))}
+        cell0, counts, section = self._barostat_start(system, record,
+                                                      quanta)
+        system.set_barostat(cell0, counts, quanta, temperature_K,
+                            pressure_au, tdamp, pdamp)
+        self._before_resume(system, record, _starts_at_rest(system, section))
+        if section is not None:
+            section = self._resume_scaled(system, section)
+        if _starts_at_rest(system, section):
+            system.hold_zero_momentum()
+        return system, record, section
+
+    def _before_resume(self, system, record, at_rest):
+        """What a thermostat with variables of its own sets before the
+        atoms' scaled momenta are taken from a frame (none here)."""
+
+    # -- construction -------------------------------------------------------
+
     def _resumable_record(self, atoms):
         # A frame of this class shows positions and momenta off the grid
         # (lambda rho, pi / lambda): its record is checked when rho and pi
         # are recovered (_resume_scaled).
-        record = read_record(atoms.info,
-                             sections=(*self.record_sections, 'machine'))
-        if record is not None and record.get('npt') is not None:
+        # A record with a 'nose' section holds virtual momenta: only the
+        # Nosé thermostat's class resumes its 'npt' section.
+        record = read_record(atoms.info, sections=(
+            *self.record_sections, 'nose', 'machine'))
+        if record is not None and record.get('npt') is not None and (
+                record.get('nose') is None
+                or 'nose' in self.record_sections):
             self._resumed_machine = record.get('machine')
             return record
         return super()._resumable_record(atoms)
@@ -583,6 +602,12 @@ class ReversibleIsotropicNPT(BufferedDynamics):
         'The thermostat\'s time, ASE time units (friction ``1 / tdamp``).')
     pdamp = _fixed_setting('pdamp', 'pdamp',
                            'The barostat\'s time, ASE time units.')
+
+    @property
+    def thermostat(self) -> str:
+        """``'langevin'`` (``'nose'`` for the class ``thermostat='nose'``
+        constructs)."""
+        return 'langevin'
 
     @property
     def barostat_position(self) -> float:
