@@ -8,10 +8,13 @@ ASE's test modules are imported, it replaces ``VelocityVerlet``,
 ``ReversibleVerlet``, ``ReversibleLangevin``, ``ReversibleBussi``,
 ``ReversibleNose``, ``ReversibleIsotropicNPT`` and ``ReversibleNPT``.
 The only translation is the one docs/ase-dynamics.md gives a porting
-user of ASE's MTK barostats: their chain arguments (``tchain``,
-``pchain``, ``tloop``, ``ploop``), which the exact barostats (a Langevin
-thermostat, one piston) have no use for, are dropped.  Everything else
-reaches the exact class as ASE's test wrote it.
+user of ASE's MTK barostats, chosen by ``ASE_SUBSTITUTION_THERMOSTAT``:
+``nose`` (the default; ASE's MTK classes are deterministic) passes
+``thermostat='nose'`` and keeps the thermostat's chain (``tchain``,
+``tloop``); ``langevin`` drops those too.  The barostat's chain
+(``pchain``, ``ploop``), which the exact barostats (one piston) have no
+use for, is dropped either way.  Everything else reaches the exact class
+as ASE's test wrote it.
 
 Each test's outcome, and which exact classes it constructed, are written
 as JSON to the file named by ``ASE_SUBSTITUTION_REPORT``:
@@ -35,26 +38,38 @@ SUBSTITUTES = {
     'MTKNPT': (('ase.md', 'ase.md.nose_hoover_chain'), 'ReversibleNPT'),
 }
 
-#: Arguments a porting user drops, by exact class: the barostats' chains.
-DROPPED = {'ReversibleIsotropicNPT': ('tchain', 'pchain', 'tloop', 'ploop'),
-           'ReversibleNPT': ('tchain', 'pchain', 'tloop', 'ploop')}
+#: The exact barostats, which take ASE's MTK calls translated.
+BAROSTATS = ('ReversibleIsotropicNPT', 'ReversibleNPT')
 
 _constructed = []
 _report = {}
 
 
+def _translated(name, kwargs):
+    """ASE's keyword arguments ``kwargs`` for the exact class ``name``."""
+    if name not in BAROSTATS:
+        return kwargs
+    thermostat = os.environ.get('ASE_SUBSTITUTION_THERMOSTAT', 'nose')
+    dropped = ('pchain', 'ploop') if thermostat == 'nose' else (
+        'tchain', 'tloop', 'pchain', 'ploop')
+    kwargs = {key: value for key, value in kwargs.items()
+              if key not in dropped}
+    if thermostat == 'nose':
+        kwargs['thermostat'] = 'nose'
+    return kwargs
+
+
 def _substitute(exact):
-    dropped = DROPPED.get(exact.__name__, ())
+    """What stands in ASE's modules for the class ``exact``: a callable
+    that notes the construction and constructs ``exact``."""
+    name = exact.__name__
 
-    class Substitute(exact):
-        def __init__(self, *args, **kwargs):
-            for name in dropped:
-                kwargs.pop(name, None)
-            _constructed.append(exact.__name__)
-            super().__init__(*args, **kwargs)
+    def construct(*args, **kwargs):
+        _constructed.append(name)
+        return exact(*args, **_translated(name, kwargs))
 
-    Substitute.__name__ = Substitute.__qualname__ = exact.__name__
-    return Substitute
+    construct.__name__ = construct.__qualname__ = name
+    return construct
 
 
 def pytest_configure(config):
@@ -68,6 +83,20 @@ def pytest_configure(config):
     # not substituted by a porting user: they keep ASE's bases.
     for module in pkgutil.iter_modules(ase.md.__path__, 'ase.md.'):
         importlib.import_module(module.name)
+    # So do asap3's (its Langevin is built on ASE's).
+    try:
+        import asap3
+    except ImportError:
+        pass
+    else:
+        for package in (asap3, getattr(asap3, 'md', None)):
+            for module in pkgutil.iter_modules(
+                    getattr(package, '__path__', []),
+                    f'{package.__name__}.' if package else ''):
+                try:
+                    importlib.import_module(module.name)
+                except ImportError:  # parts that need what is not here
+                    pass
     for ase_name, (modules, exact_name) in SUBSTITUTES.items():
         substitute = _substitute(getattr(ase_reversible, exact_name))
         for module in modules:

@@ -215,6 +215,11 @@ class BufferedDynamics(ReversibleDynamics):
     #: The sub-step whose buffers and heat the run keeps.
     buffered_step = None
 
+    #: Whether the run keeps information buffers, which a frame past its
+    #: anchor needs (from ``write_buffer``) to go on exactly; a
+    #: deterministic dynamics built on this class keeps none.
+    keeps_buffers = True
+
     #: The array of :data:`BUFFER_MARKS` this dynamics' buffer files hold
     #: (None: none of them).
     buffer_mark = None

@@ -30,13 +30,16 @@ from .bussi import ReversibleBussi
 from .langevin import ReversibleLangevin
 from .nose import ReversibleNose
 from .npt import ReversibleIsotropicNPT, ReversibleNPT
+from .npt.cell_nose import ReversibleNoseNPT
+from .npt.nose import ReversibleIsotropicNoseNPT
 from .restart import written_by
 from .verlet import ReversibleVerlet
 
 #: The dynamics a header's ``'md-type'`` may name, by class name.
 REPLAYABLE = {cls.__name__: cls for cls in (
     ReversibleVerlet, ReversibleLangevin, ReversibleBussi, ReversibleNose,
-    ReversibleIsotropicNPT, ReversibleNPT)}
+    ReversibleIsotropicNPT, ReversibleNPT, ReversibleIsotropicNoseNPT,
+    ReversibleNoseNPT)}
 
 #: Header entries that are not constructor settings: ASE's kind and class
 #: of dynamics, the signed time step (its sign is the direction the run
@@ -77,7 +80,7 @@ class Replay(NamedTuple):
     def buffered(self) -> bool:
         """Whether the dynamics keeps information buffers, which a frame
         resumed past its anchor needs from the run's buffer file."""
-        return issubclass(self.dynamics, BufferedDynamics)
+        return keeps_buffers(self.dynamics)
 
     def needs_buffer(self, info) -> bool:
         """Whether the frame whose ``atoms.info`` is ``info`` continues the
@@ -150,7 +153,10 @@ def replay_from_header(header):
             f'written by {describe(header)}, which is not one of the '
             f'reversible dynamics ({", ".join(REPLAYABLE)}): only these '
             'retrace their frames exactly')
-    parameters = inspect.signature(dynamics).parameters
+    # The constructor's own: a class with a __new__ that dispatches
+    # (thermostat='nose') would show that one's (*args, **kwargs).
+    parameters = dict(inspect.signature(dynamics.__init__).parameters)
+    parameters.pop('self', None)
     settings = {key: value for key, value in header.items()
                 if key not in DESCRIPTION}
     unknown = [key for key in settings if key not in parameters
@@ -207,6 +213,12 @@ def first_difference(dyn, frame, steps):
         run(-steps)
 
 
+def keeps_buffers(dynamics):
+    """Whether the dynamics class ``dynamics`` keeps information buffers
+    (:attr:`~.buffered.BufferedDynamics.keeps_buffers`)."""
+    return issubclass(dynamics, BufferedDynamics) and dynamics.keeps_buffers
+
+
 def steps_behind(info):
     """Steps the frame whose ``atoms.info`` is ``info`` stands past its
     run's anchor of reversal, by its restart record: 0 at the anchor;
@@ -223,7 +235,7 @@ def steps_back(dyn):
     """Steps ``dyn`` can run back from where it stands: to its anchor for
     a dynamics with information buffers (past it there is nothing to
     undo); None for the others, which retrace any number of steps."""
-    if not isinstance(dyn, BufferedDynamics):
+    if not keeps_buffers(type(dyn)):
         return None
     return abs(dyn.engine.step_index - dyn.engine.anchor_index)
 

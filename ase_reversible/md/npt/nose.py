@@ -382,6 +382,7 @@ class NoseBarostat(NoseChainViews):
 
     #: The run holds no buffer: nothing to write, no heat.
     buffer_mark = None
+    keeps_buffers = False
 
     def _open_nose(self, system):
         self.buffered_step = BufferedStep()
