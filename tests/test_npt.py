@@ -218,6 +218,27 @@ def test_a_frame_alone_resumes_the_exact_state(tmp_path):
     assert again.get_time() == dyn.get_time()
 
 
+def test_a_frame_equilibrated_since_is_a_quiet_new_start(tmp_path):
+    # ASE's Langevin moved the frame's atoms: a new run, reference cell
+    # the frame's, clock at 0, nothing said (as for every dynamics).
+    from ase.md.langevin import Langevin
+    atoms = copper()
+    npt(atoms).run(6)
+    path = tmp_path / 'frame.traj'
+    with Trajectory(path, 'w') as traj:
+        traj.write(atoms)
+    frame = read(path)
+    frame.calc = EMT()
+    Langevin(frame, 2 * units.fs, temperature_K=300, friction=0.01,
+             fixcm=False, rng=np.random.default_rng(0)).run(3)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', AnchorMovedWarning)
+        again = npt(frame, seed=None)
+    assert again.get_time() == 0.0
+    assert np.array_equal(again.reference_cell, frame.cell[:])
+    out_and_back(again, 10)
+
+
 @pytest.mark.parametrize('name', ['tchain', 'pchain', 'tloop', 'ploop'])
 def test_arguments_of_ase_chains_are_refused_with_the_translation(name):
     atoms = copper()

@@ -371,8 +371,9 @@ class ReversibleIsotropicNPT(BufferedDynamics):
             if np.array_equal(system.shown_positions(), atoms.positions) \
                     and np.array_equal(system.shown_momenta(), momenta):
                 return section
-        _warn_new_run('the positions or momenta were changed since the '
-                      'frame was written')
+        # Atoms changed since their frame was written (an equilibration,
+        # an edit) are a new start the user made: nothing to say, as for
+        # every dynamics (core.record.EDITED).
         quanta = {LAMBDA: system.lam.quantum, P_LAMBDA: system.p_lam.quantum}
         system.set_barostat(
             atoms.cell.array.copy(), type(system).start_counts(
