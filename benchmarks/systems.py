@@ -218,6 +218,10 @@ def tdamp(system):
 
 
 def reversible_nose(atoms, system, tchain=1):
+    # The recipe for canonical frames: the centre held at rest by FixCom,
+    # so N_f = 3N - 3 and the internal motion is at the target (without
+    # it ReversibleNose, as ASE's class, thermostats 3N).
+    atoms.set_constraint(FixCom())
     return ReversibleNose(atoms, system.timestep_fs * units.fs,
                           system.temperature_K, tdamp(system), tchain=tchain)
 

@@ -13,6 +13,7 @@ from dataclasses import asdict, replace
 
 import numpy as np
 from ase import units
+from ase.constraints import FixCom
 from ase.build import bulk
 from ase.md.langevin import Langevin
 from harness import (NoseSampler, StudyLengths, canonical_statistics,
@@ -84,6 +85,7 @@ def chain_case(system, tchain, scheme, lengths):
     dof = 3 * n_atoms - 3
     kT = units.kB * system.temperature_K
     h = system.timestep_fs * units.fs
+    atoms.set_constraint(FixCom())  # N_f = 3N - 3: canonical at the target
     dyn = ReversibleNose(atoms, h, system.temperature_K, tdamp(system),
                          tchain=tchain, scheme=scheme)
     steps = lengths.equilibration + lengths.sampled

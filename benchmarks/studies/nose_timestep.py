@@ -13,6 +13,7 @@ from dataclasses import asdict
 
 import numpy as np
 from ase import units
+from ase.constraints import FixCom
 from ase.build import bulk
 from ase.md.nose_hoover_chain import NoseHooverChainNVT
 from ase.md.velocitydistribution import (MaxwellBoltzmannDistribution,
@@ -77,6 +78,7 @@ def timestep_case(kind, dt_fs, lengths):
                                  tdamp=TDAMP_STEPS * dt)
     else:
         scheme, _, chain = kind.partition('-tchain')
+        atoms.set_constraint(FixCom())  # N_f = 3N - 3, as dof above
         dyn = ReversibleNose(atoms, dt, temperature_K=300,
                              tdamp=TDAMP_STEPS * dt, scheme=scheme,
                              tchain=int(chain or 1))
