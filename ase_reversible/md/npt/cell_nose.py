@@ -1,5 +1,5 @@
 """The whole cell's barostat with Nosé's thermostat: ``ReversibleNPT(...,
-thermostat='nose')``, as :mod:`.nose` is for the isotropic one (the
+thermostat='nose')``, as :mod:`~ase_reversible.md.npt.nose` is for the isotropic one (the
 derivation is in docs/pressure.md, "Nosé's thermostat on the barostat";
 here the piston has six entries, so ``g = N_f + 7``)."""
 
@@ -148,7 +148,7 @@ class ReversibleNoseNPT(ReversibleIsotropicNoseNPT, ReversibleNPT):
     deterministic counterpart of ASE's ``MTKNPT``.  Arguments, refusals,
     restarts and views as for
     :class:`~.nose.ReversibleIsotropicNoseNPT`; the cell as for
-    :class:`~.cell.ReversibleNPT` (:attr:`barostat_momentum`: the six real
+    :class:`~.cell.ReversibleNPT` (``barostat_momentum``: the six real
     momenta ``P' / s``).  ``N_f`` as there, ``g = N_f + 7``.
     :meth:`backpropagate` is refused (its adjoints are not written);
     :meth:`write_buffer` too.

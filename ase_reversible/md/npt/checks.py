@@ -48,7 +48,7 @@ def _checked_pressure(value):
 
 
 #: The thermostats: Langevin's friction and noise (the default) or Nosé's
-#: chain (:mod:`.nose`).
+#: chain (:mod:`~ase_reversible.md.npt.nose`).
 THERMOSTATS = ('langevin', 'nose')
 
 

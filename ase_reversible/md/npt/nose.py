@@ -194,9 +194,9 @@ class NosePiston(Piston):
         cotangents[S] -= 2.0 * ch * a * self.momentum() / (s.W * s_value)
 
 
-class _ThermostatPush(SubStep):
+class ThermostatPush(SubStep):
     """``pi_1 += round_odd(c h f / q_pi)``, ``f`` computed once per value
-    of what :meth:`key` names."""
+    of what ``key()`` names."""
 
     def __init__(self, system):
         self.system = system
@@ -215,7 +215,7 @@ class _ThermostatPush(SubStep):
         self.system.pi.add_rounded(scale * self._force)
 
 
-class AtomsThermostatKick(_ThermostatPush):
+class AtomsThermostatKick(ThermostatPush):
     """``pi_1 += round_odd(c h (sum pi'**2 / (m lambda**2 s**3) - g kT /
     s) / q)``: the atoms' kinetic energy and ``g kT ln s``, both functions
     of ``pi'``, ``lambda`` and ``s``."""
@@ -250,7 +250,7 @@ class AtomsThermostatKick(_ThermostatPush):
                                    ) * (sys.p.floats / sys.m_n1)
 
 
-class PistonThermostatKick(_ThermostatPush):
+class PistonThermostatKick(ThermostatPush):
     """``pi_1 += round_odd(c h p_lambda'**2 / (W s**3) / q)``: the
     piston's kinetic energy, a function of ``p_lambda'`` and ``s``."""
 
