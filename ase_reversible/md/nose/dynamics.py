@@ -12,7 +12,8 @@ from ...core.arguments import checked_positive
 from ...core.compositions import composition_for
 from ...core.engine import Engine, InvariantCheck
 from ...core.portable import dot
-from ...core.record import read_record
+from ...core.codec import round_odd
+from ...core.record import EDITED, read_record
 from ...errors import AnchorMovedWarning
 from ..admission import projected_momenta
 from ..base import ReversibleDynamics
@@ -161,6 +162,29 @@ def _warn_if_at_rest(system):
         f'temperature_K={system.temperature_K:g}) and Stationary(atoms) '
         '(or use ReversibleLangevin, which can).',
         UserWarning, stacklevel=3)
+
+
+def _shows_its_frame(atoms, record, section):
+    """Whether the atoms' momenta are those the frame of ``record`` (its
+    ``'nose'`` section ``section``) showed, ``p' / s``: the virtual
+    momentum counts stored there, or recovered as ``round_odd(p s /
+    q_p)``, show them again bit for bit.  A record whose numbers cannot be
+    read is left to the resume, which starts afresh from it."""
+    momenta = atoms.arrays.get('momenta')
+    saved = read_record(atoms.info, names=(S,))
+    try:
+        s_value = float(int(section[S]) * saved[f'{S}_quantum'])
+        quantum = float(record['momentum_quantum'])
+        stored = section.get('virtual_momentum')
+    except (KeyError, TypeError, ValueError, OverflowError):
+        return True
+    if momenta is None or not s_value > 0.0:
+        return True
+    if stored is not None:
+        counts = np.array(stored, dtype=np.float64).reshape(momenta.shape)
+    else:
+        counts = round_odd(momenta * (s_value / quantum))
+    return np.array_equal(np.divide(counts * quantum, s_value), momenta)
 
 
 class NoseChainViews:
@@ -337,6 +361,18 @@ class ReversibleNose(NoseChainViews, ReversibleDynamics):
                    loginterval=loginterval, **kwargs)
 
     # -- construction -------------------------------------------------------
+
+    def _resumable_record(self, atoms):
+        record = super()._resumable_record(atoms)
+        section = record.get('nose') if record else None
+        if section is not None and not _shows_its_frame(atoms, record,
+                                                        section):
+            # Momenta changed since the frame was written (rescaled,
+            # re-drawn, another dynamics): a new start the user made,
+            # told by nothing, as for every dynamics (core.record.EDITED).
+            self._record_unfit = EDITED
+            return None
+        return record
 
     def _resume_virtual_momenta(self, system, section):
         """Set ``p'`` from a frame: stored in the record, or recovered from
