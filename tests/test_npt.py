@@ -233,7 +233,7 @@ def test_a_frame_equilibrated_since_is_a_quiet_new_start(tmp_path):
              fixcm=False, rng=np.random.default_rng(0)).run(3)
     with warnings.catch_warnings():
         warnings.simplefilter('error', AnchorMovedWarning)
-        again = npt(frame, seed=None)
+        again = npt(frame)
     assert again.get_time() == 0.0
     assert np.array_equal(again.reference_cell, frame.cell[:])
     out_and_back(again, 10)
