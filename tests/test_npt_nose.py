@@ -20,7 +20,7 @@ from ase_reversible.md.npt.nose import ReversibleIsotropicNoseNPT
 from ase_reversible.core.record import read_record
 from ase_reversible.md.machine import compare
 from conftest import asap3, needs_asap3
-from tiers import SLOW
+from tiers import SLOW, tiered
 
 DT = 1 * units.fs
 TDAMP, PDAMP = 100 * units.fs, 1000 * units.fs
@@ -335,7 +335,8 @@ class WholeRun:
                      + np.sum(self.b_nc * dyn.atoms.get_momenta()))
 
 
-@pytest.mark.parametrize('tchain', [1, 3])
+# The single thermostat's in the quick tier, the chain's in the long one.
+@pytest.mark.parametrize('tchain', tiered([1, 3], quick=[1]))
 def test_gradients_match_whole_run_finite_differences(tchain):
     loss = WholeRun(steps=10, tchain=tchain)
     dyn = loss.dynamics()
