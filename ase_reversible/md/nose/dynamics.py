@@ -171,18 +171,20 @@ def _shows_its_frame(atoms, record, section):
     q_p)``, show them again bit for bit.  A record whose numbers cannot be
     read is left to the resume, which starts afresh from it."""
     momenta = atoms.arrays.get('momenta')
+    if momenta is None:
+        return True
     saved = read_record(atoms.info, names=(S,))
     try:
         s_value = float(int(section[S]) * saved[f'{S}_quantum'])
         quantum = float(record['momentum_quantum'])
         stored = section.get('virtual_momentum')
+        counts = None if stored is None else np.array(
+            stored, dtype=np.float64).reshape(momenta.shape)
     except (KeyError, TypeError, ValueError, OverflowError):
         return True
-    if momenta is None or not s_value > 0.0:
+    if not s_value > 0.0:
         return True
-    if stored is not None:
-        counts = np.array(stored, dtype=np.float64).reshape(momenta.shape)
-    else:
+    if counts is None:
         counts = round_odd(momenta * (s_value / quantum))
     return np.array_equal(np.divide(counts * quantum, s_value), momenta)
 
