@@ -1,4 +1,5 @@
-"""One case of benchmarks/lammps_cost.py, on every rank of ``mpiexec``.
+"""One case of benchmarks/lammps_cost.py (or of its study lammps_scale), on
+every rank of ``mpiexec``.
 
 ``mpiexec -n R python lammps_worker.py CASE_JSON LOG_DIR``: one LAMMPS
 instance per integrator named in the case, rotating blocks of the same
@@ -157,7 +158,47 @@ class Instance:
         return 0 if self.rev is None else self.rev.clean_recomputations
 
 
+def reversal(case):
+    """``case['steps']`` steps out and back on the compiled path from the
+    default grid: the grid, the steps whose flagged kicks were recomputed
+    (and where), their wall time against the run's, and the landing."""
+    lmp = start(case)
+    rev = ReversibleLammps(lmp, path='compiled')
+    rev.mark_anchor()
+    rev.run(0)
+    times = {}
+    for leg, dt in (('out', TIMESTEP), ('back', -TIMESTEP)):
+        lmp.command(f'timestep {dt!r}')
+        before = (rev.clean_recomputations, rev.recomputed_atoms,
+                  rev.recompute_seconds)
+        rev.world.max(0.0)
+        started = time.perf_counter()
+        rev.run(case['steps'])
+        rev.world.max(0.0)
+        times[leg] = {
+            'wall_seconds': time.perf_counter() - started,
+            'recomputed_steps': rev.clean_recomputations - before[0],
+            'recomputed_atoms': rev.recomputed_atoms - before[1],
+            'recompute_seconds': rev.recompute_seconds - before[2]}
+    off, largest = rev.compare_with_anchor()
+    result = {'natoms': int(lmp.get_natoms()), 'ranks': rev.world.size,
+              'steps': case['steps'], 'legs': times,
+              'velocity_quantum': rev.velocity_quantum,
+              'velocity_bits': rev.velocity_bits,
+              'global_reason': rev.global_reason,
+              'sort_retries': rev.sort_retries,
+              'atoms_off_anchor': off, 'largest_difference': largest,
+              'max_observed_noise': rev.max_observed_noise,
+              'noise_bound_at_max': rev.noise_bound_at_max}
+    rank = rev.rank
+    lmp.close()
+    if rank == 0:
+        print(json.dumps(result), flush=True)
+
+
 def main(case, log_dir):
+    if case.get('job') == 'reversal':
+        return reversal(case)
     log_dir = Path(log_dir)
     names = list(case['integrators'])
     instances = {name: Instance(name, case) for name in names}

@@ -42,7 +42,9 @@ STUDIES = {'nose_timestep': ('nose_timestep', 'run', 'nose', 'timestep', None),
            'training_memory': ('training', 'measure_memory', 'training',
                                'memory', 'measured'),
            'device_neighbours': ('device_neighbours', 'run', 'gpu',
-                                 'neighbours', None)}
+                                 'neighbours', None),
+           'lammps_scale': ('lammps_scale', 'run', 'lammps_cost', 'scale',
+                            None)}
 
 
 def measure(name, quick, only, machine) -> dict:

@@ -78,6 +78,9 @@ def main(job, out, **options):
     files = Path(options.pop('files', '.'))
     path = options.pop('path', 'compiled')
     back_path = options.pop('back_path', path)
+    # A force fix that does nothing keeps the compiled fix's flagged kicks
+    # on the global setup (it cannot replay a fix that changes forces).
+    global_setup = bool(int(options.pop('global_setup', 0)))
     settings = {key: float(value) for key, value in options.items()}
     if job == 'paths':
         legs = [(first, 'reversal', first, PATHS[1 - PATHS.index(first)])
@@ -92,7 +95,7 @@ def main(job, out, **options):
     states, counters = {}, {}
     for prefix, leg, first, second in legs:
         leg_states, leg_counters, rank = session(
-            leg, system, steps, files, first, second, settings)
+            leg, system, steps, files, first, second, settings, global_setup)
         if prefix is None:
             states, counters = leg_states, leg_counters
         else:
@@ -106,7 +109,8 @@ def main(job, out, **options):
         np.savez(out, counters=json.dumps(counters), **arrays)
 
 
-def session(job, system, steps, files, path, back_path, settings):
+def session(job, system, steps, files, path, back_path, settings,
+            global_setup=False):
     """One job on a new LAMMPS instance: its states, counters and rank."""
     refused = None
     if job in ('restart-read', 'data-read'):
@@ -119,6 +123,8 @@ def session(job, system, steps, files, path, back_path, settings):
         lmp.command('group frozen id 1:50')
         lmp.command('velocity frozen set 0.0 0.0 0.0')
         lmp.command('fix freeze frozen setforce 0.0 0.0 0.0')
+    if global_setup:
+        lmp.command('fix keep all setforce NULL NULL NULL')
     rev = ReversibleLammps(lmp, path=path, **settings)
     rev.run(0)
     first = 'half' if job.endswith('-read') else 'start'
@@ -195,6 +201,8 @@ def session(job, system, steps, files, path, back_path, settings):
         raise SystemExit(f'unknown job {job}')
     counters = {'clean_recomputations': rev.clean_recomputations,
                 'sort_retries': rev.sort_retries,
+                'recomputed_atoms': rev.recomputed_atoms,
+                'global_reason': rev.global_reason,
                 'max_observed_noise': rev.max_observed_noise,
                 'velocity_quantum': rev.velocity_quantum,
                 'ranks': rev.world.size,

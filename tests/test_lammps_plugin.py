@@ -312,6 +312,7 @@ def test_the_installed_package_ships_the_sources_and_builds_from_them(
     assert done.returncode == 0, done.stderr[-2000:]
     (wheel,) = (tmp_path / 'wheel').glob('*.whl')
     sources = {'fix_reversible_nve.cpp', 'fix_reversible_nve.h',
+               'canonical_force.cpp', 'canonical_force.h',
                'reversible_plugin.cpp'}
     with zipfile.ZipFile(wheel) as archive:
         shipped = {name.rsplit('/', 1)[1] for name in archive.namelist()

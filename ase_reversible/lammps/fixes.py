@@ -55,8 +55,7 @@ class StepFixes:
         pending half-kick is recomputed when a run starts)."""
         n = self.name
         if self.path == StepPath.COMPILED:
-            self.lmp.command(f'fix {n}_k all property/atom d2_{n}_k 3 '
-                             'ghost no')
+            self.lmp.command(compiled_kick_fix(n))
             self.lmp.command(f'fix {n}_nve all reversible/nve '
                              + self._compiled_arguments())
             return
@@ -94,7 +93,7 @@ class StepFixes:
             scales = [0.0] * ntypes
             words = {'velocity_quantum': 1.0, 'force_noise': 0.0,
                      'extent_factor': 1.0, 'sort_bin': self.sort_bin}
-        return ' '.join([f'kick {self.name}_k',
+        return ' '.join([compiled_kick_words(self.name),
                          *(f'{key} {float(value)!r}'
                            for key, value in words.items()),
                          f'mode {self._mode}', 'scale',
@@ -152,6 +151,20 @@ class StepFixes:
         # sort at the fine bins, at up to 4% of fix nve's time per step.
         if self.path == StepPath.PYTHON:
             self.lmp.command(f'atom_modify sort 1000 {self.sort_bin!r}')
+
+
+def compiled_kick_fix(name):
+    """The ``fix property/atom`` of the compiled fixes' kicks: two arrays,
+    since a step writes its kicks beside the pending ones (which a step
+    that fails leaves as they were) and the fix leaves the pending kick in
+    ``d2_{name}_k`` between runs."""
+    return (f'fix {name}_k all property/atom d2_{name}_k 3 '
+            f'd2_{name}_knext 3 ghost no')
+
+
+def compiled_kick_words(name):
+    """The compiled fixes' arguments naming those arrays."""
+    return f'kick {name}_k next {name}_knext'
 
 
 def _quoted(reason):

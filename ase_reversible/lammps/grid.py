@@ -28,6 +28,14 @@ CLEAN_RATE = 0.0025
 #: (in.rhodo without SHAKE).
 FORCE_SCALE = {'lj': 256.0, 'metal': 4.0, 'real': 256.0}
 
+#: The atom count whose default velocity grid every larger system keeps:
+#: a larger system at the same density gets the same grid, and more of its
+#: steps have a flagged kick.  The compiled fix recomputes those on the
+#: rank that holds the atom (a few terms, not a setup), so the rate may
+#: grow with the atom count; a grid that held the rate instead would drop
+#: below 12 bits of the rms velocity near 3 x 10^5 atoms.
+GRID_ATOMS = 100_000
+
 
 class ExactGrid:
     """The grid of :class:`~.integrator.ReversibleLammps` (a part of it)."""
@@ -176,11 +184,14 @@ class ExactGrid:
 
     def _default_velocity_quantum(self, natoms, dt, m_min):
         # The ASE integrators' rule at the force scale, for a kick of dt/2,
-        # from LAMMPS's force x time to the lightest atom's velocity.
+        # from LAMMPS's force x time to the lightest atom's velocity, for
+        # at most GRID_ATOMS atoms in a box of this density.
         ftm2v = self.lmp.extract_global('ftm2v')
+        counted = min(natoms, GRID_ATOMS)
+        extent = self.extent * (counted / natoms) ** (1 / self.dimension)
         wanted = (guarded_momentum_quantum(
-            natoms, self.force_noise * self.force_scale, 0.5 * dt,
-            self.extent, CLEAN_RATE) * ftm2v / m_min)
+            counted, self.force_noise * self.force_scale, 0.5 * dt,
+            extent, CLEAN_RATE) * ftm2v / m_min)
         # No finer than the drift allows: dt q_v a multiple of q_x.
         wanted = max(wanted, self.position_quantum / dt)
         return power_above(wanted)

@@ -24,13 +24,19 @@ Forces are a pure function of the positions only up to history noise:
 which rank computed a pair, and the order of the neighbour lists, set the
 rounding of the sums.  Kicks are therefore *guarded* (one rule with the
 ASE integrators, :mod:`ase_reversible.purity`): an increment within the
-noise bound of a rounding boundary on any rank stops the run after that
-step, the step's kick is taken back, and the forces are recomputed by a
-LAMMPS setup, which re-sorts every rank's atoms into spatial bins holding
-one atom each (a canonical order, a function of the positions alone) and
-rebuilds every list from there.  Both branches give ``rint`` of the clean
-increment.  A setup whose bins held two atoms, where it mattered, is
-retried with bins half the size.
+noise bound of a rounding boundary is *flagged*, and its kick is taken
+from a clean force instead.  The compiled fix recomputes a flagged atom's
+force on the rank that owns it, summed from per-pair terms in the order of
+the partners' atom IDs (``canonical_force.cpp``): a function of the
+positions alone, the same on any number of ranks, so every kick is ``rint``
+of the clean increment and a run takes the same bits on any decomposition.
+Where the styles have no per-pair form (many-body pair styles, kspace,
+angles), and on the Python path, a flag stops the run after that step
+instead: the step's kick is taken back, and the forces are recomputed by
+a LAMMPS setup, which re-sorts every rank's atoms into spatial bins
+holding one atom each (a canonical order for that decomposition) and
+rebuilds every list from there.  A setup whose bins held two atoms, where
+it mattered, is retried with bins half the size.
 """
 
 from __future__ import annotations
@@ -48,7 +54,7 @@ from .anchor import Anchor
 from .fixes import StepFixes, StepPath
 from .grid import ExactGrid, power_above, snapped
 from .mpi import World
-from .python_step import AMBIGUOUS, NOT_CANONICAL, PythonStep
+from .python_step import AMBIGUOUS, IMPURE, NOT_CANONICAL, PythonStep
 from .styles import check_styles, check_units, lammps_info
 
 #: Default bound on the history noise of a force component (LAMMPS force
@@ -176,9 +182,18 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
             volume = float(np.prod(boxhi - boxlo))
             sort_bin = SORT_BIN_SPACING * (volume / self.natoms) ** (1 / 3)
         self.sort_bin = float(sort_bin)
-        #: Steps whose kicks were taken back and recomputed from clean
-        #: forces, and setups retried with finer sort bins.
+        #: Steps whose kicks were recomputed from clean forces (locally, by
+        #: the compiled fix, or by a global setup), and setups retried with
+        #: finer sort bins.
         self.clean_recomputations = 0
+        #: Atoms whose kicks the compiled fix recomputed on their own rank
+        #: (over every rank), and the wall time of those recomputations
+        #: (seconds, the slowest rank's, summed over runs).
+        self.recomputed_atoms = 0
+        self.recompute_seconds = 0.0
+        #: Why flagged kicks are recomputed by a global setup ('' where
+        #: the compiled fix recomputes them locally; None before a run).
+        self.global_reason = None
         self.sort_retries = 0
         #: The step of the latest clean recomputation (None before any).
         self.last_recomputed_step = None
@@ -230,7 +245,8 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
         started = time.perf_counter()
         first = self.step
         target = first + nsteps
-        counts = self.clean_recomputations, self.sort_retries
+        counts = (self.clean_recomputations, self.sort_retries,
+                  self.recomputed_atoms)
         self._run_force = 0.0
         self._mode = 'start'
         self._attach()
@@ -242,8 +258,12 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
         seconds = time.perf_counter() - started
         clean = self.clean_recomputations - counts[0]
         retries = self.sort_retries - counts[1]
+        atoms = self.recomputed_atoms - counts[2]
         self.largest_force = float(self.world.max(self._run_force)[0])
-        rate = f' ({100 * clean / nsteps:.2g}%)' if nsteps else ''
+        where = ('' if self.global_reason
+                 else f', {atoms} atoms on their own ranks')
+        rate = (f' ({100 * clean / nsteps:.2g}%{where})' if nsteps
+                else f' ({where[2:]})' if where else '')
         self._print(f'exact run of {nsteps} steps ({first} to {target}): '
                     f'{clean} recomputed from clean forces{rate}, '
                     f'{retries} sort retries, max|F| '
@@ -266,6 +286,13 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
             self._end_segment()
             if self._flag == 0:
                 break
+            if self._flag & IMPURE:
+                # Taken, and not beyond the bound (else _end_segment
+                # raised): a recomputed kick beyond the grid's range.
+                raise FloatingPointError(
+                    f'the clean force of a flagged atom at step {self.step} '
+                    'is not finite or too large for the velocity grid. '
+                    'Check the potential and the time step.')
             # A setup that stopped a run of 0 steps took no step to undo.
             stepped = self.step > before
             if self._flag & AMBIGUOUS:
@@ -323,13 +350,30 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
             self._flag = int(vector[0])
             self._run_force = max(self._run_force, vector[1])
             observed = (vector[3], vector[4]) if vector[2] else None
+            self.clean_recomputations += int(self._fix_vector(12))
+            self.recomputed_atoms += int(self._fix_vector(13))
+            self.recompute_seconds += self._fix_vector(15)
+            self._tell_reason(GLOBAL_REASONS.get(int(self._fix_vector(14)),
+                                                 'the styles of this run'))
         else:
+            self._tell_reason('the Python path')
             observed = None
             if self._observed is not None:  # every rank had the setup
                 noise, bound = self._observed
                 noise, inv_bound = self.world.max(noise, -bound)
                 observed = (float(noise), float(-inv_bound))
         self._check_observed_noise(observed)
+
+    def _tell_reason(self, reason):
+        """Say once, when kicks are not recomputed locally, what then
+        holds across rank counts."""
+        reason = reason or ''
+        if reason and reason != self.global_reason:
+            self._print(
+                f'flagged kicks are recomputed by a global setup ({reason}): '
+                'a run is the same bit for bit on any number of ranks only '
+                'where no force component is flagged')
+        self.global_reason = reason
 
     def _fix_vector(self, index):
         return fix_vector(self.lmp, self._fix_id(), index)
@@ -451,6 +495,21 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
         return {'position_quantum': self.position_quantum,
                 'velocity_quantum': self.velocity_quantum,
                 'force_noise': self.force_noise, 'sort_bin': self.sort_bin}
+
+
+#: Why the compiled fix cannot recompute flagged kicks on their own ranks,
+#: by the code it reports (``CanonicalForce::Reason`` in
+#: ``canonical_force.h``, which decides).
+GLOBAL_REASONS = {
+    0: '',
+    1: 'no pair style',
+    2: 'a kspace solver',
+    3: 'a many-body pair style',
+    4: 'a pair style without a per-pair function',
+    5: 'angles, dihedrals or impropers',
+    6: 'molecule templates',
+    7: 'a fix that changes forces',
+}
 
 
 def fix_vector(lmp, fix_id, index):

@@ -35,7 +35,7 @@ from ..md.nose.thermostat import (CENTRE_OF_MASS_TOLERANCE, RECOVERABLE,
                                   S_QUANTUM, clock_quantum,
                                   free_degrees_of_freedom, pi_quantum,
                                   thermostat_mass)
-from .fixes import StepPath
+from .fixes import StepPath, compiled_kick_fix, compiled_kick_words
 from .integrator import FORCE_NOISE, ReversibleLammps, fix_vector
 
 _S_NOT_POSITIVE = 8  # the fix's verdict: s would have reached zero
@@ -148,13 +148,14 @@ class ReversibleLammpsNose(ReversibleLammps):
         n = self.name
         if self._fix_defined:
             self.lmp.command(f'unfix {n}_nvt')
-        self.lmp.command(f'fix {n}_k all property/atom d2_{n}_k 3 ghost no')
+        self.lmp.command(compiled_kick_fix(n))
         self.lmp.command(f'fix {n}_vv all property/atom d2_{n}_vv 3 '
                          'ghost no')
         quanta = self._quanta if self._quanta[2] is not None else [
             0.0, 0.0, 0.0]
         words = self._compiled_arguments() if not placeholder else ' '.join(
-            [f'kick {n}_k velocity_quantum 1.0 force_noise 0.0 mode halted '
+            [f'{compiled_kick_words(n)} velocity_quantum 1.0 force_noise 0.0 '
+             'mode halted '
              'scale', *['0.0'] * self.lmp.extract_global('ntypes')])
         pq = 1.0 if placeholder else self.position_quantum
         thermostat = ' '.join([
@@ -351,11 +352,12 @@ def _define_placeholder(lmp, name):
     """``fix {name}_nvt``, halted, with the quanta zero: nonzero after
     the definition only if a restart file's state was taken."""
     n = name
-    lmp.command(f'fix {n}_k all property/atom d2_{n}_k 3 ghost no')
+    lmp.command(compiled_kick_fix(n))
     lmp.command(f'fix {n}_vv all property/atom d2_{n}_vv 3 ghost no')
     ntypes = lmp.extract_global('ntypes')
     lmp.command(' '.join([
-        f'fix {n}_nvt all reversible/nvt kick {n}_k velocity_quantum 1.0 '
+        f'fix {n}_nvt all reversible/nvt {compiled_kick_words(n)} '
+        'velocity_quantum 1.0 '
         'force_noise 0.0 mode halted scale', *['0.0'] * ntypes,
         f'virtual {n}_vv position_quantum 1.0 thermostat 1.0 0.0 0.0 quanta '
         '0.0 0.0 0.0 kT 0.0 dof 1.0 mass 1.0']))

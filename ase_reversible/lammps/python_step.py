@@ -13,6 +13,9 @@ from ..purity.settings import guard_bound
 AMBIGUOUS = 1     # an increment lay within the guard: take the step back
 NOT_CANONICAL = 2  # a setup's sort bins held two atoms where it mattered
 OUT_OF_RANGE = 4  # forces not finite, or kicks beyond the grid's range
+# (8 is reversible/nvt's: s would not stay positive.)
+IMPURE = 16       # the compiled fix's own recomputation of a flagged kick
+                  # found the run's force beyond the guard's bound
 
 
 class PythonStep:

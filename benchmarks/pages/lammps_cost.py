@@ -150,6 +150,60 @@ def cost_table(results):
     return markdown_table(header + ['block spread'], rows)
 
 
+def scale_table(results):
+    """The study lammps_scale: per size and rank count, fix nve's and the
+    compiled fix's CPU time per step of a long run and their ratio."""
+    scale = results.get('scale')
+    if not scale:
+        return 'Not measured: `python benchmarks/run_all.py --only lammps_scale`.'
+    rows = []
+    for c in scale['costs']:
+        long = c['long_run']
+        before, after = c['load_average']
+        rows.append([
+            f"{c['natoms']:,}", c['ranks'], c['steps'],
+            f'{before[0]:.1f}-{after[0]:.1f}',
+            _ms(long['nve']['cpu_ms_per_step']),
+            _ms(long['compiled']['cpu_ms_per_step']),
+            f"**{long_ratio(c, 'compiled'):.3f}**",
+            f"{long_ratio(c, 'compiled', 'wall'):.3f}",
+            f"{ratio(c, 'compiled', 'cpu_ms_per_step'):.3f}",
+            c['median']['compiled']['clean_recomputations']])
+    return markdown_table(
+        ['argon atoms', 'ranks', 'M (steps per block)', 'load average',
+         'fix nve: CPU, long run (ms/step)',
+         'compiled: CPU, long run (ms/step)', 'compiled / fix nve: CPU, '
+         'long run (×)', 'wall, long run (×)', 'CPU, blocks of M (×)',
+         'steps recomputed (in the blocks)'], rows)
+
+
+def scale_values(results):
+    """The prose's numbers of the study lammps_scale's run out and back."""
+    scale = results.get('scale')
+    if not scale:
+        return {}
+    r = scale['reversal']
+    legs = r['legs'].values()
+    recomputed = sum(leg['recomputed_steps'] for leg in legs)
+    seconds = sum(leg['recompute_seconds'] for leg in legs)
+    wall = sum(leg['wall_seconds'] for leg in legs)
+    return {'scale_natoms': f"{r['natoms']:,}", 'scale_ranks': r['ranks'],
+            'scale_steps': r['steps'],
+            'scale_recomputed': recomputed,
+            'scale_atoms': sum(leg['recomputed_atoms'] for leg in legs),
+            'scale_share': f'{100 * seconds / wall:.2g}%',
+            'scale_recompute_ms': f'{1e3 * seconds / max(recomputed, 1):.2g}',
+            'scale_wall': f'{wall:.0f}',
+            'scale_bits': f"{r['velocity_bits']:.1f}",
+            'scale_quantum': repr(r['velocity_quantum']),
+            'scale_landed': ('every atom on its start, bit for bit'
+                             if r['atoms_off_anchor'] == 0 else
+                             f"{r['atoms_off_anchor']} atoms OFF their start"),
+            'scale_ratios': _range([long_ratio(c, 'compiled')
+                                    for c in scale['costs']],
+                                   lambda v: f'{v:.3f}')}
+
+
 def model_numbers(case, name):
     """The exact path ``name``'s costs in ``case``, for the scaling model."""
     reference = case['integrators'][name]['reference']
@@ -213,11 +267,13 @@ def values(results):
         out[f'clean_{n}'] = sum(c['median'][n]['clean_recomputations']
                                 for c in cases)
         out[f'steps_{n}'] = sum(c['median'][n]['steps'] for c in cases)
+    out.update(scale_values(results))
     return out
 
 
 SPEC = Spec(
     'Exact runs inside LAMMPS',
     blocks={'costs-goal': block(goal_table),
-            'costs': block(cost_table)},
+            'costs': block(cost_table),
+            'scale': block(scale_table)},
     plots=(plot,), values=values)

@@ -42,9 +42,10 @@ from datetime import date
 from importlib import metadata
 from pathlib import Path
 
-SOURCES = ('fix_reversible_nve.cpp', 'fix_reversible_nvt.cpp',
-           'reversible_plugin.cpp')
-HEADERS = ('fix_reversible_nve.h', 'fix_reversible_nvt.h')
+SOURCES = ('canonical_force.cpp', 'fix_reversible_nve.cpp',
+           'fix_reversible_nvt.cpp', 'reversible_plugin.cpp')
+HEADERS = ('canonical_force.h', 'fix_reversible_nve.h',
+           'fix_reversible_nvt.h')
 STYLES = ('reversible/nve', 'reversible/nvt')
 
 #: Flags of every build.  -O2 without -march: the plugin may be shared by

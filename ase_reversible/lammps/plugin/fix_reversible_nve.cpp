@@ -43,21 +43,22 @@ inline double round_odd(double y)
 FixReversibleNVE::FixReversibleNVE(LAMMPS *lmp, int narg, char **arg) :
     Fix(lmp, narg, arg), mode(START), flag(0), forced_timeout(0), qv(0.0),
     force_noise(0.0), extent_factor(1.0), sort_bin(0.0), canonical(false), scale_min(0.0),
-    scale_max(0.0), uniform(true), kick_index(-1), run_force(0.0),
-    run_force_all(0.0), observed(0), observed_noise(0.0),
-    observed_bound(0.0), noisy_bound(0.0)
+    scale_max(0.0), uniform(true), kick_index(-1), next_index(-1), parity(0),
+    canonical_force(nullptr), local_reason(CanonicalForce::NO_PAIR), last_force(0.0),
+    local_steps(0), local_atoms(0.0), local_atoms_all(0.0), local_seconds(0.0), local_seconds_all(0.0), local_noise(0.0), local_bound(INFINITY), run_force(0.0),
+    run_force_all(0.0), observed(0), observed_noise(0.0), observed_bound(0.0), noisy_bound(0.0)
 {
   if (igroup != 0)
     error->all(FLERR, "fix {} acts on group all: exact runs move every atom", style);
   time_integrate = 1;
   vector_flag = 1;
-  size_vector = 6;
+  size_vector = 16;
   global_freq = 1;
   extvector = 0;
 
   const int ntypes = atom->ntypes;
   type_scale.assign(ntypes + 1, 0.0);
-  std::string kick;
+  std::string kick, next;
   int iarg = 3;
   while (iarg < narg) {
     const std::string key = arg[iarg];
@@ -72,6 +73,7 @@ FixReversibleNVE::FixReversibleNVE(LAMMPS *lmp, int narg, char **arg) :
     if (iarg + 1 >= narg) error->all(FLERR, "fix {} keyword {} needs a value", style, key);
     const char *value = arg[iarg + 1];
     if (key == "kick") kick = value;
+    else if (key == "next") next = value;
     else if (key == "velocity_quantum") qv = utils::numeric(FLERR, value, false, lmp);
     else if (key == "force_noise") force_noise = utils::numeric(FLERR, value, false, lmp);
     else if (key == "extent_factor") extent_factor = utils::numeric(FLERR, value, false, lmp);
@@ -85,12 +87,22 @@ FixReversibleNVE::FixReversibleNVE(LAMMPS *lmp, int narg, char **arg) :
   kick_index = atom->find_custom(kick.c_str(), is_double, cols);
   if (kick_index < 0 || is_double != 1 || cols != 3)
     error->all(FLERR, "fix {}: no per-atom array d2_{} of 3 columns (fix property/atom)", style, kick);
+  if (next.empty()) error->all(FLERR, "fix {} needs next NAME (a d2_ property/atom of 3 columns)", style);
+  next_index = atom->find_custom(next.c_str(), is_double, cols);
+  if (next_index < 0 || is_double != 1 || cols != 3 || next_index == kick_index)
+    error->all(FLERR, "fix {}: no per-atom array d2_{} of 3 columns (fix property/atom)", style, next);
+  canonical_force = new CanonicalForce(lmp);
   scale_min = scale_max = std::fabs(type_scale[1]);
   for (int t = 1; t <= ntypes; t++) {
     scale_min = std::min(scale_min, std::fabs(type_scale[t]));
     scale_max = std::max(scale_max, std::fabs(type_scale[t]));
     if (type_scale[t] != type_scale[1]) uniform = false;
   }
+}
+
+FixReversibleNVE::~FixReversibleNVE()
+{
+  delete canonical_force;
 }
 
 int FixReversibleNVE::setmask()
@@ -103,6 +115,7 @@ void FixReversibleNVE::init()
 {
   if (atom->rmass_flag)
     error->all(FLERR, "fix {} needs per-type masses, not per-atom ones", style);
+  local_reason = canonical_force->reason(this);
 }
 
 void FixReversibleNVE::set_mode(const char *value)
@@ -128,10 +141,25 @@ int FixReversibleNVE::modify_param(int narg, char **arg)
   return 0;
 }
 
+/* The kicks alternate between two per-atom arrays: a step writes its
+   kicks beside the pending ones, which a step that fails must leave as
+   they were (the driver undoes its drift with them), and the two swap
+   once it is taken.  Each is fetched at each use: the arrays move when
+   atoms are added to them. */
+
 double **FixReversibleNVE::pending()
 {
-  // Fetched at each use: the array moves when atoms are added to it.
-  return atom->darray[kick_index];
+  return atom->darray[parity ? next_index : kick_index];
+}
+
+double **FixReversibleNVE::next_kicks()
+{
+  return atom->darray[parity ? kick_index : next_index];
+}
+
+void FixReversibleNVE::flip()
+{
+  parity = 1 - parity;
 }
 
 double **FixReversibleNVE::exact_velocity()
@@ -150,6 +178,12 @@ double **FixReversibleNVE::exact_velocity()
 
 void FixReversibleNVE::setup_pre_neighbor()
 {
+  // Recomputed locally, kicks need no canonical order: LAMMPS's own sort
+  // stands, as under fix nve.
+  if (local_reason == CanonicalForce::LOCAL) {
+    canonical = true;
+    return;
+  }
   if (mode != START && mode != REDO) return;
   const int user_freq = atom->sortfreq;
   const double user_bin = atom->userbinsize;
@@ -178,6 +212,13 @@ void FixReversibleNVE::setup(int vflag)
   flag = 0;
   observed = 0;
   run_force = 0.0;
+  last_force = 0.0;
+  local_steps = 0;
+  local_atoms = 0.0;
+  local_seconds = 0.0;
+  // A rank without flagged atoms has no bound to give the least of.
+  local_noise = 0.0;
+  local_bound = INFINITY;
   post_force(vflag);
 }
 
@@ -201,10 +242,14 @@ void FixReversibleNVE::initial_integrate(int /*vflag*/)
 }
 
 /* The kick from this step's forces, rounded odd to the velocity grid and
-   guarded: the verdicts and what is applied on each are the Python
-   path's (ReversibleLammps._callback).  The kicks are computed twice, to
-   judge them and then to apply them once judged on every rank:
-   recomputing costs less than storing and reading them back. */
+   guarded: the verdicts, and the kicks where none is flagged, are the
+   Python path's (ReversibleLammps._callback).  One pass computes, judges,
+   stores and applies them; a step that fails is taken back from the
+   stored kicks.  An atom is flagged where a component lies within the
+   guard's bound of a rounding boundary; the bound scales with this step's
+   largest force, known at the end of the pass, so the pass keeps the
+   atoms within a bound from the previous step's (doubled), and rescans
+   in the rare step whose forces more than doubled. */
 
 void FixReversibleNVE::post_force(int /*vflag*/)
 {
@@ -212,72 +257,90 @@ void FixReversibleNVE::post_force(int /*vflag*/)
   const int nlocal = atom->nlocal;
   double **f = atom->f;
   const int *type = atom->type;
+  double **k = next_kicks();
+  double **v = exact_velocity();
+  const bool setup = (mode == START || mode == REDO);
+  const bool applied = (mode != START);    // a start's kick is the next step's first
+  const bool local = (local_reason == CanonicalForce::LOCAL);
+  const double per_force = force_noise * extent_factor * scale_max;
+  const double guess = per_force * std::max(1.0, 2.0 * last_force);
+  const double candidate = 0.5 - guess;
+  candidates.clear();
   double r_max = 0.0, deviation = 0.0, f_abs = 0.0;
   bool out_of_range = false;
   for (int i = 0; i < nlocal; i++) {
     const double s = type_scale[type[i]];
+    double atom_deviation = 0.0;
     for (int d = 0; d < 3; d++) {
       const double y = f[i][d] * s;
-      const double k = round_odd(y);
-      const double a = std::fabs(k);
-      if (!(a < KICK_LIMIT)) out_of_range = true;    // also NaN
+      const double kq = round_odd(y);
+      const double a = std::fabs(kq);
+      if (!(a < KICK_LIMIT)) {    // also NaN: nothing of it is applied
+        out_of_range = true;
+        k[i][d] = 0.0;
+        continue;
+      }
       if (a > r_max) r_max = a;
-      const double e = std::fabs(y - k);
-      if (e > deviation) deviation = e;
+      const double e = std::fabs(y - kq);
+      if (e > atom_deviation) atom_deviation = e;
       if (!uniform) {
         const double fa = std::fabs(f[i][d]);
         if (fa > f_abs) f_abs = fa;
       }
+      const double kv = kq * qv;
+      k[i][d] = kv;
+      if (applied) v[i][d] += kv;
     }
+    if (atom_deviation > deviation) deviation = atom_deviation;
+    if (atom_deviation > candidate) candidates.push_back(i);
   }
   // With one mass the largest kick bounds the largest force; with several
   // it would overstate it by the mass ratio.
   const double f_max = uniform ? (r_max + 0.5) / scale_min : f_abs;
   if (f_max > run_force) run_force = f_max;
-  const double bound = force_noise * extent_factor * std::max(1.0, f_max) * scale_max;
-  int local = 0;
-  if (out_of_range) local |= OUT_OF_RANGE;
-  else if (deviation > 0.5 - bound) local |= AMBIGUOUS;
-  const bool setup = (mode == START || mode == REDO);
-  if (setup && !canonical) local |= NOT_CANONICAL;
-  const int verdict = reduce_verdict(local);
+  last_force = f_max;
+  const double bound = per_force * std::max(1.0, f_max);
+  int mine = 0;
+  if (out_of_range) mine |= OUT_OF_RANGE;
+  else if (deviation > 0.5 - bound) mine |= AMBIGUOUS;
+  if (setup && !canonical) mine |= NOT_CANONICAL;
+  const int verdict = reduce_verdict(mine);
 
   if (verdict & OUT_OF_RANGE) {
+    // The pending kicks stay: the driver takes the drift back with them.
+    if (applied)
+      for (int i = 0; i < nlocal; i++)
+        for (int d = 0; d < 3; d++) v[i][d] -= k[i][d];
     halt(OUT_OF_RANGE);
     return;
   }
-  double **k = pending();
-  double **v = exact_velocity();
+  if (local) {
+    if (verdict & AMBIGUOUS) recompute_flagged(bound, guess, applied);
+    flip();
+    if (setup) mode = STEP;
+    after_kick();
+    if (flag == IMPURE) halt(IMPURE);
+    return;
+  }
   if (setup) {
     if ((verdict & AMBIGUOUS) && (verdict & NOT_CANONICAL)) {
       // The clean forces may depend on history after all: take nothing,
-      // and let the driver undo the drift and retry with finer bins.
-      for (int i = 0; i < nlocal; i++) k[i][0] = k[i][1] = k[i][2] = 0.0;
+      // and let the driver retry with finer bins.
+      if (applied)
+        for (int i = 0; i < nlocal; i++)
+          for (int d = 0; d < 3; d++) v[i][d] -= k[i][d];
+      double **p = pending();
+      for (int i = 0; i < nlocal; i++) p[i][0] = p[i][1] = p[i][2] = 0.0;
       halt(NOT_CANONICAL);
       return;
     }
-    const bool redo = (mode == REDO);
-    if (redo) compare_with_noisy();
-    for (int i = 0; i < nlocal; i++) {
-      const double s = type_scale[type[i]];
-      for (int d = 0; d < 3; d++) {
-        const double kv = round_odd(f[i][d] * s) * qv;
-        if (redo) v[i][d] += kv;
-        k[i][d] = kv;
-      }
-    }
+    if (mode == REDO) compare_with_noisy();
+    flip();
     mode = STEP;
     after_kick();
     return;
   }
-  for (int i = 0; i < nlocal; i++) {
-    const double s = type_scale[type[i]];
-    for (int d = 0; d < 3; d++) {
-      const double kv = round_odd(f[i][d] * s) * qv;
-      v[i][d] += kv;
-      k[i][d] = kv;
-    }
-  }
+  flip();
   after_kick();
   if (verdict & AMBIGUOUS) {
     // Keep the run's forces, by atom ID, for the clean recomputation to
@@ -295,6 +358,97 @@ void FixReversibleNVE::post_force(int /*vflag*/)
     noisy_bound = bound;
     halt(AMBIGUOUS);
   }
+}
+
+/* The flagged atoms' kicks from their canonical forces, on the ranks
+   that own them.  Every rank takes part (the ghosts' bonds may have to be
+   sent, and the step ends with a collective), flagged atoms or not.  A
+   recomputed force further from the run's than the guard's bound means
+   the unflagged kicks may not be the canonical ones: the run halts and
+   the driver raises. */
+
+void FixReversibleNVE::recompute_flagged(double bound, double guess, bool applied)
+{
+  const double started = MPI_Wtime();
+  const int nlocal = atom->nlocal;
+  double **f = atom->f;
+  const int *type = atom->type;
+  double **k = next_kicks();
+  double **v = exact_velocity();
+  if (bound > guess) {
+    candidates.clear();
+    for (int i = 0; i < nlocal; i++) candidates.push_back(i);
+  }
+  std::vector<int> flagged;
+  for (int i : candidates) {
+    const double s = type_scale[type[i]];
+    double e = 0.0;
+    for (int d = 0; d < 3; d++) {
+      const double y = f[i][d] * s;
+      e = std::max(e, std::fabs(y - round_odd(y)));
+    }
+    if (e > 0.5 - bound) flagged.push_back(i);
+  }
+  if (canonical_force->needs_topology()) {
+    canonical_force->fill_owned_topology();
+    comm_forward = canonical_force->topology_size();
+    comm->forward_comm(this);
+  }
+  if (!flagged.empty()) canonical_force->bin();
+  const double force_bound = bound / scale_max;
+  double noise = 0.0;
+  bool range = true;
+  changes.clear();
+  for (int i : flagged) {
+    double clean[3];
+    canonical_force->compute(i, clean);
+    const double s = type_scale[type[i]];
+    for (int d = 0; d < 3; d++) {
+      const double difference = std::fabs(clean[d] - f[i][d]);
+      if (!(difference <= noise)) noise = difference;    // NaN stays
+      const double kq = round_odd(clean[d] * s);
+      if (!(std::fabs(kq) < KICK_LIMIT)) {
+        range = false;
+        continue;
+      }
+      const double kv = kq * qv;
+      if (kv == k[i][d] && std::signbit(kv) == std::signbit(k[i][d])) continue;
+      changes.push_back({i, d, k[i][d], kv});
+      if (applied) {
+        v[i][d] -= k[i][d];
+        v[i][d] += kv;
+      }
+      k[i][d] = kv;
+    }
+  }
+  const bool impure = !range || !(noise <= force_bound);
+  if (!flagged.empty()) {
+    if (!(noise <= local_noise)) local_noise = noise;
+    local_bound = std::min(local_bound, force_bound);
+  }
+  local_atoms += static_cast<double>(flagged.size());
+  local_steps++;
+  const int verdict = reduce_recomputed(impure ? IMPURE : 0, changes, applied);
+  if (verdict & IMPURE) flag = IMPURE;
+  local_seconds += MPI_Wtime() - started;
+}
+
+int FixReversibleNVE::reduce_recomputed(int mine, const std::vector<Change> &, bool)
+{
+  int verdict = mine;
+  if (comm->nprocs > 1) MPI_Allreduce(&mine, &verdict, 1, MPI_INT, MPI_MAX, world);
+  return verdict;
+}
+
+int FixReversibleNVE::pack_forward_comm(int n, int *list, double *buf, int /*pbc_flag*/,
+                                        int * /*pbc*/)
+{
+  return canonical_force->pack_topology(n, list, buf);
+}
+
+void FixReversibleNVE::unpack_forward_comm(int n, int first, double *buf)
+{
+  canonical_force->unpack_topology(n, first, buf);
 }
 
 /* The step's one collective: the verdict's maximum over the ranks. */
@@ -371,14 +525,42 @@ void FixReversibleNVE::post_run()
   // A halt that ended this run must not end the next one before it starts.
   if (forced_timeout) timer->reset_timeout();
   forced_timeout = 0;
-  run_force_all = run_force;
-  if (comm->nprocs > 1) MPI_Allreduce(&run_force, &run_force_all, 1, MPI_DOUBLE, MPI_MAX, world);
+  // Between runs the pending kick is in the array the driver knows.
+  if (parity) {
+    double **from = atom->darray[next_index];
+    double **to = atom->darray[kick_index];
+    for (int i = 0; i < atom->nlocal; i++)
+      for (int d = 0; d < 3; d++) to[i][d] = from[i][d];
+    parity = 0;
+  }
+  // Maxima over the ranks (a bound as its negative, for the least), then
+  // the recomputed atoms' sum.
+  double mine[4] = {run_force, local_noise, -local_bound, local_seconds};
+  double all[4] = {mine[0], mine[1], mine[2], mine[3]};
+  double atoms = local_atoms;
+  if (comm->nprocs > 1) {
+    MPI_Allreduce(mine, all, 4, MPI_DOUBLE, MPI_MAX, world);
+    MPI_Allreduce(&local_atoms, &atoms, 1, MPI_DOUBLE, MPI_SUM, world);
+  }
+  run_force_all = all[0];
+  local_atoms_all = atoms;
+  local_seconds_all = all[3];
+  if (local_steps > 0) {
+    observed = 1;
+    observed_noise = all[1];
+    observed_bound = -all[2];
+  }
 }
 
 /* 0: the verdict that halted the latest run (0 if none); 1: the largest
    force component of that run; 2: 1 if a clean recomputation was compared
    with the run's forces, then 3: the largest difference and 4: the
-   guard's bound for it (both over every rank); 5: the mode. */
+   guard's bound for it (both over every rank); 5: the mode.  6 to 11 are
+   the thermostat's (fix reversible/nvt); 12: the steps of the latest run
+   whose flagged kicks were recomputed locally, 13: their atoms (over every
+   rank), 14: why kicks are not recomputed locally (0: they are;
+   CanonicalForce::Reason), 15: the wall time of those recomputations,
+   seconds (the largest over the ranks). */
 
 double FixReversibleNVE::compute_vector(int n)
 {
@@ -389,6 +571,10 @@ double FixReversibleNVE::compute_vector(int n)
     case 3: return observed_noise;
     case 4: return observed_bound;
     case 5: return mode;
+    case 12: return local_steps;
+    case 13: return local_atoms_all;
+    case 14: return local_reason;
+    case 15: return local_seconds_all;
     default: return 0.0;
   }
 }

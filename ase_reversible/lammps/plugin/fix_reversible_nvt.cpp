@@ -72,7 +72,7 @@ FixReversibleNVT::FixReversibleNVT(LAMMPS *lmp, int narg, char **arg) :
     clock_before(0.0), k2_before(0.0), drift_factor(0.0), drift_range(0)
 {
   restart_global = 1;
-  size_vector = 12;
+  size_vector = 16;
   for (int i = 3; i < narg; i++) {
     const int n = own_values(arg[i]);
     if (n < 0) continue;
@@ -215,10 +215,11 @@ int FixReversibleNVT::modify_param(int narg, char **arg)
 
 /* The step's one collective, with MPI_SUM over 64-bit integers: the
    verdict bits as counts of ranks, then, per atom type, the sum of the
-   squared counts of v' after the next step's B/2 (v' + k, or v' + 2k where
-   this kick is also added now), in 32-bit limbs.  Integer sums do not
-   depend on which rank holds which atom or in what order, so every rank
-   gets the same bits of sum m v'^2 on any decomposition. */
+   squared counts of v' after the next step's B/2 (v' + k with this step's
+   kick k, which a step, unlike a start, has also added to v' already), in
+   32-bit limbs.  Integer sums do not depend on which rank holds which
+   atom or in what order, so every rank gets the same bits of sum m v'^2
+   on any decomposition. */
 
 int FixReversibleNVT::reduce_verdict(int local)
 {
@@ -226,18 +227,15 @@ int FixReversibleNVT::reduce_verdict(int local)
   const int nlocal = atom->nlocal;
   const int *type = atom->type;
   double **w = exact_velocity();
-  double **f = atom->f;
+  double **k = next_kicks();
   const double inv_qv = 1.0 / qv;
-  const double times = (mode == START) ? 1.0 : 2.0;
   std::vector<unsigned __int128> squares(ntypes + 1, 0);
   if (drift_range) local |= OUT_OF_RANGE;
   drift_range = 0;
   if (!(local & OUT_OF_RANGE)) {
     for (int i = 0; i < nlocal && !(local & OUT_OF_RANGE); i++) {
       for (int d = 0; d < 3; d++) {
-        // This step's kick in quanta, as the base class computes it.
-        const double kick = round_odd(f[i][d] * type_scale[type[i]]);
-        const double c = w[i][d] * inv_qv + times * kick;
+        const double c = (w[i][d] + k[i][d]) * inv_qv;
         if (!(std::fabs(c) < COUNT_LIMIT)) {
           local |= OUT_OF_RANGE;
           break;
@@ -247,13 +245,59 @@ int FixReversibleNVT::reduce_verdict(int local)
       }
     }
   }
-  const int nbits = 3, nlimbs = 4;
-  std::vector<long long> mine(nbits + nlimbs * ntypes, 0), all(mine.size(), 0);
+  std::vector<unsigned __int128> none;
+  return reduce_squares(local, squares, none);
+}
+
+/* The sums again where flagged kicks were recomputed: each changed
+   component's square before (as reduce_verdict counted it) taken off and
+   its square after added, per type, summed over the ranks in the same
+   integer arithmetic (modulo 2^128: the totals are never negative). */
+
+int FixReversibleNVT::reduce_recomputed(int local, const std::vector<Change> &changes,
+                                        bool applied)
+{
+  const int ntypes = atom->ntypes;
+  const int *type = atom->type;
+  double **w = exact_velocity();
+  const double inv_qv = 1.0 / qv;
+  std::vector<unsigned __int128> added(ntypes + 1, 0), removed(ntypes + 1, 0);
+  for (const Change &c : changes) {
+    const double now = w[c.i][c.d];
+    const double before = applied ? (now - c.after) + c.before : now;
+    const double count_after = (now + c.after) * inv_qv;
+    const double count_before = (before + c.before) * inv_qv;
+    if (!(std::fabs(count_after) < COUNT_LIMIT)) {
+      local |= IMPURE;    // the step is taken: it cannot halt as unstepped
+      continue;
+    }
+    const long long a = static_cast<long long>(count_after);
+    const long long b = static_cast<long long>(count_before);
+    added[type[c.i]] += static_cast<unsigned __int128>(static_cast<__int128>(a) * a);
+    removed[type[c.i]] += static_cast<unsigned __int128>(static_cast<__int128>(b) * b);
+  }
+  return reduce_squares(local, added, removed);
+}
+
+/* Sum the verdict bits and, per type, added - removed squares into the
+   totals (reset first where nothing is removed: a step's own sums), then
+   k2 from the totals: one rounding per type, the types in a fixed order. */
+
+int FixReversibleNVT::reduce_squares(int local, const std::vector<unsigned __int128> &added,
+                                     const std::vector<unsigned __int128> &removed)
+{
+  const int ntypes = atom->ntypes;
+  const bool fresh = removed.empty();
+  const int nbits = 5, nlimbs = 4, ngroups = fresh ? 1 : 2;
+  std::vector<long long> mine(nbits + ngroups * nlimbs * ntypes, 0), all(mine.size(), 0);
   for (int b = 0; b < nbits; b++) mine[b] = (local >> b) & 1;
-  for (int t = 1; t <= ntypes; t++)
-    for (int j = 0; j < nlimbs; j++)
-      mine[nbits + nlimbs * (t - 1) + j] =
-          static_cast<long long>((squares[t] >> (32 * j)) & 0xffffffffu);
+  for (int g = 0; g < ngroups; g++) {
+    const std::vector<unsigned __int128> &sums = g ? removed : added;
+    for (int t = 1; t <= ntypes; t++)
+      for (int j = 0; j < nlimbs; j++)
+        mine[nbits + nlimbs * (g * ntypes + t - 1) + j] =
+            static_cast<long long>((sums[t] >> (32 * j)) & 0xffffffffu);
+  }
   if (comm->nprocs > 1)
     MPI_Allreduce(mine.data(), all.data(), static_cast<int>(mine.size()), MPI_LONG_LONG, MPI_SUM,
                   world);
@@ -263,15 +307,21 @@ int FixReversibleNVT::reduce_verdict(int local)
   for (int b = 0; b < nbits; b++)
     if (all[b] > 0) verdict |= 1 << b;
   if (verdict & OUT_OF_RANGE) return verdict;
-  // One rounding per type to double, then the types in a fixed order.
+  if (fresh) totals.assign(ntypes + 1, 0);
+  for (int g = 0; g < ngroups; g++) {
+    for (int t = 1; t <= ntypes; t++) {
+      unsigned __int128 sum = 0;
+      for (int j = 0; j < nlimbs; j++)
+        sum += static_cast<unsigned __int128>(all[nbits + nlimbs * (g * ntypes + t - 1) + j])
+            << (32 * j);
+      if (g == 0) totals[t] += sum;
+      else totals[t] -= sum;
+    }
+  }
   double sum = 0.0;
   const double *mass = atom->mass;
-  for (int t = 1; t <= ntypes; t++) {
-    unsigned __int128 total = 0;
-    for (int j = 0; j < nlimbs; j++)
-      total += static_cast<unsigned __int128>(all[nbits + nlimbs * (t - 1) + j]) << (32 * j);
-    sum += (mass[t] * (qv * qv)) * static_cast<double>(total);
-  }
+  for (int t = 1; t <= ntypes; t++)
+    sum += (mass[t] * (qv * qv)) * static_cast<double>(totals[t]);
   k2 = sum;
   return verdict;
 }

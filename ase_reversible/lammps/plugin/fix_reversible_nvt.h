@@ -20,6 +20,7 @@
 #include "fix_reversible_nve.h"
 
 #include <string>
+#include <vector>
 
 namespace LAMMPS_NS {
 
@@ -39,6 +40,9 @@ class FixReversibleNVT : public FixReversibleNVE {
   double **exact_velocity() override;
   void after_kick() override;
   int reduce_verdict(int) override;
+  int reduce_recomputed(int, const std::vector<Change> &, bool) override;
+  int reduce_squares(int, const std::vector<unsigned __int128> &,
+                     const std::vector<unsigned __int128> &);
 
   std::string virtual_name;
   int virtual_index;
@@ -47,6 +51,7 @@ class FixReversibleNVT : public FixReversibleNVE {
   double qs, qpi, qclock;          // and its quanta
   double kT, dof, mass_q;
   double k2;                       // sum m v'^2 after the next B/2, exact
+  std::vector<unsigned __int128> totals;    // its integer sums, per type
   // What initial_integrate changed, for fix_modify ID undo.
   int half_done;
   double s_before, pi_before, clock_before, k2_before, drift_factor;
