@@ -202,10 +202,46 @@ def counts(output):
     return [(int(a), int(b)) for a, b in runs]
 
 
+def compare_nve(name, directory, steps, box):
+    """The case under LAMMPS's ``fix nve`` on every layout: how many atoms
+    differ from the one-rank run, and by how much at most."""
+    source = bench_dir() / CASES[name][0]
+    dt = CASES[name][1]
+    reference = None
+    for layout in LAYOUTS:
+        text = script(name, source, steps, box, layout[1])
+        text = re.sub(r'reversible\s+(nve|nvt)\b.*', 'fix ref all nve', text)
+        text = re.sub(r'reversible\s+anchor\n', '', text)
+        text = text.split(f'timestep {-dt!r}')[0]
+        if box is not None and box != 1:
+            text = text.replace('variable        x index 1',
+                                f'variable        x index {box}')
+            text = re.sub(r'variable\s+([yz]) index 1',
+                          rf'variable        \1 index {box}', text)
+        file = directory / 'in.nve'
+        file.write_text(text)
+        done = launch(layout[0], file, directory)
+        if done.returncode:
+            print(f'{name:8s} fix nve {layout}: FAILED')
+            continue
+        start, out = by_position(*states(directory))
+        if reference is None:
+            reference = out
+            continue
+        off = np.any(out != reference, axis=1)
+        print(f'{name:8s} fix nve, {layout[0]} rank(s) '
+              f'{layout[1] or "default":18s}: {int(off.sum())} of {len(off)} '
+              f'atoms differ from 1 rank after {steps} steps, by up to '
+              f'{float(np.abs(out - reference)[:, 1:].max()):.2g}', flush=True)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--full', action='store_true')
     parser.add_argument('--only', nargs='+', default=list(CASES))
+    parser.add_argument('--nve', action='store_true',
+                        help="LAMMPS's own fix nve instead: how far its "
+                        'states on each layout are from one rank\'s')
     args = parser.parse_args(argv)
     bench = bench_dir()
     with tempfile.TemporaryDirectory() as tmp:
@@ -215,6 +251,9 @@ def main(argv=None):
         shutil.copy(bench / 'Cu_u3.eam', tmp)
         for name in args.only:
             steps, box = CASES[name][5 if args.full else 4]
+            if args.nve:
+                compare_nve(name, tmp, steps, box)
+                continue
             reference = None
             for layout in LAYOUTS:
                 done = run_case(name, layout, tmp, steps, box)

@@ -94,10 +94,11 @@ class ReversibleLammps(StepFixes, PythonStep, ExactGrid, Anchor):
     velocity_quantum : float, optional
         Velocity grid, LAMMPS velocity units; a power of two.  Default,
         chosen when the first run starts: the finest for which about
-        ``CLEAN_RATE`` of steps need a clean recomputation, from the atom
-        count, the lightest mass, the time step, ``force_noise`` and a
-        force scale (``FORCE_SCALE`` of the unit style, or the largest
-        force then if larger).  A restart from a LAMMPS restart or data
+        ``CLEAN_RATE`` of the steps of ``min(N, GRID_ATOMS)`` atoms at
+        this density have a flagged kick, from the atom count, the
+        lightest mass, the time step, ``force_noise`` and a force scale
+        (``FORCE_SCALE`` of the unit style, or the largest force then if
+        larger).  A restart from a LAMMPS restart or data
         file chooses the same grid unless its largest force is above both.
     force_noise : float
         Bound on the history noise of a force component, LAMMPS force

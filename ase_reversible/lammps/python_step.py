@@ -9,7 +9,7 @@ import numpy as np
 from ..core.codec import LIMIT, guard_band_crossed, round_odd
 from ..purity.settings import guard_bound
 
-#: The callback's verdicts, reduced by maximum over the ranks.
+#: The callback's verdicts, each reduced by maximum over the ranks.
 AMBIGUOUS = 1     # an increment lay within the guard: take the step back
 NOT_CANONICAL = 2  # a setup's sort bins held two atoms where it mattered
 OUT_OF_RANGE = 4  # forces not finite, or kicks beyond the grid's range
@@ -52,7 +52,11 @@ class PythonStep:
         setup = self._mode in ('start', 'redo')
         if setup and not self._sorted_canonically(x[:nlocal]):
             local |= NOT_CANONICAL
-        flag = int(self.world.max(local)[0])
+        # Each flag's maximum over the ranks (one collective): the maximum
+        # of the bit masks would drop AMBIGUOUS beside another rank's
+        # NOT_CANONICAL.
+        bits = self.world.max(*((local >> b) & 1 for b in range(3)))
+        flag = sum(int(bit) << b for b, bit in enumerate(bits))
         np.multiply(k, self.velocity_quantum, out=k)
         if flag & OUT_OF_RANGE:
             self._halt(OUT_OF_RANGE)

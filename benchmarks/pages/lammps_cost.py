@@ -199,6 +199,16 @@ def scale_values(results):
             'scale_landed': ('every atom on its start, bit for bit'
                              if r['atoms_off_anchor'] == 0 else
                              f"{r['atoms_off_anchor']} atoms OFF their start"),
+            'scale_modify': '; '.join(
+                f"{_ms(c['median']['compiled']['breakdown_ms_per_step']['Modify'])}"
+                f" against {_ms(c['median']['nve']['breakdown_ms_per_step']['Modify'])}"
+                f" ms at {c['natoms']:,} atoms on {c['ranks']}"
+                for c in scale['costs']),
+            'scale_pair_share': _range(
+                [c['median']['nve']['breakdown_ms_per_step']['Pair']
+                 / c['median']['nve']['loop_ms_per_step']
+                 for c in scale['costs']],
+                lambda v: f'{100 * v:.0f}%'),
             'scale_ratios': _range([long_ratio(c, 'compiled')
                                     for c in scale['costs']],
                                    lambda v: f'{v:.3f}')}

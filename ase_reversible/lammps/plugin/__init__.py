@@ -5,7 +5,10 @@
 guard and verdicts -- in one loop with one collective per step, where the
 Python path needs ``fix move`` with per-atom variables, ``fix external``
 calling Python and ``fix halt``: no per-step variable evaluation (which
-makes LAMMPS tally energy and virial at every step) and no Python.
+makes LAMMPS tally energy and virial at every step) and no Python.  It
+recomputes a flagged kick on the rank that owns the atom, from the force
+``canonical_force.cpp`` sums in an order that does not depend on the
+decomposition, where the Python path stops the run for a global setup.
 ``fix reversible/nvt`` (``fix_reversible_nvt.cpp``), its subclass, runs
 Nosé's thermostat for :mod:`ase_reversible.lammps.nose`, which has no
 Python path.

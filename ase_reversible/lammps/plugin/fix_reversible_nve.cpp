@@ -436,7 +436,7 @@ void FixReversibleNVE::recompute_flagged(double bound, double guess, bool applie
 int FixReversibleNVE::reduce_recomputed(int mine, const std::vector<Change> &, bool)
 {
   int verdict = mine;
-  if (comm->nprocs > 1) MPI_Allreduce(&mine, &verdict, 1, MPI_INT, MPI_MAX, world);
+  if (comm->nprocs > 1) MPI_Allreduce(&mine, &verdict, 1, MPI_INT, MPI_BOR, world);
   return verdict;
 }
 
@@ -451,12 +451,14 @@ void FixReversibleNVE::unpack_forward_comm(int n, int first, double *buf)
   canonical_force->unpack_topology(n, first, buf);
 }
 
-/* The step's one collective: the verdict's maximum over the ranks. */
+/* The step's one collective: the verdict bits of every rank, or'ed (a
+   maximum of the masks would drop one rank's AMBIGUOUS beside another's
+   NOT_CANONICAL). */
 
 int FixReversibleNVE::reduce_verdict(int local)
 {
   int verdict = local;
-  if (comm->nprocs > 1) MPI_Allreduce(&local, &verdict, 1, MPI_INT, MPI_MAX, world);
+  if (comm->nprocs > 1) MPI_Allreduce(&local, &verdict, 1, MPI_INT, MPI_BOR, world);
   return verdict;
 }
 

@@ -41,8 +41,8 @@ class FixReversibleNVE : public Fix {
   int pack_forward_comm(int, int *, double *, int, int *) override;
   void unpack_forward_comm(int, int, double *) override;
 
-  // The verdicts, reduced by maximum over the ranks: the values of the
-  // Python path's flags (integrator.py), which reads either path's.
+  // The verdicts, or'ed over the ranks: the values of the Python path's
+  // flags (python_step.py), which the driver reads from either path.
   // IMPURE: a recomputed force differed from the run's by more than the
   // guard's bound.  (8 is the thermostat's.)
   enum { AMBIGUOUS = 1, NOT_CANONICAL = 2, OUT_OF_RANGE = 4, IMPURE = 16 };
