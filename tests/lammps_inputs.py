@@ -41,6 +41,16 @@ def bench_dir():
         'bench'
 
 
+def copy_bench_files(directory):
+    """The bench inputs' data files and potential, into ``directory``
+    (where the inputs run); returns the bench directory."""
+    bench = bench_dir()
+    for data in bench.glob('data.*'):
+        shutil.copy(data, directory)
+    shutil.copy(bench / 'Cu_u3.eam', directory)
+    return bench
+
+
 #: name -> (input file, power-of-two time step, steps out, edits): each
 #: edit is (pattern, replacement) on the original text; the run line is
 #: replaced by the run out and back.
@@ -165,12 +175,9 @@ def main(argv=None):
                         default=list(PATHS))
     parser.add_argument('--nve', action='store_true')
     args = parser.parse_args(argv)
-    bench = bench_dir()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        for data in bench.glob('data.*'):
-            shutil.copy(data, tmp)
-        shutil.copy(bench / 'Cu_u3.eam', tmp)
+        bench = copy_bench_files(tmp)
         for name in args.only:
             file = INPUTS[name][0]
             source = (EXAMPLES / file) if (EXAMPLES / file).exists() \

@@ -18,17 +18,13 @@ time of each run.
 """
 
 import argparse
-import os
 import re
-import shutil
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+from lammps_inputs import bench_dir, copy_bench_files, launch
 
 #: (ranks, processors command or ''): the layouts every case runs on.
 LAYOUTS = ((1, ''), (2, ''), (2, 'processors 2 1 1'), (3, ''),
@@ -36,13 +32,6 @@ LAYOUTS = ((1, ''), (2, ''), (2, 'processors 2 1 1'), (3, ''),
 
 #: Columns of a state: the dumps hold them at full precision.
 COLUMNS = 'id type x y z ix iy iz vx vy vz'
-
-
-def bench_dir():
-    sys.path.insert(0, str(ROOT))
-    from ase_reversible.lammps import import_lammps
-    return (Path(import_lammps().__file__).parent / 'share' / 'lammps'
-            / 'bench')
 
 
 #: name -> (input file, power-of-two time step, the exact command's words,
@@ -118,15 +107,6 @@ def script(name, source, steps, box, layout='', restart=None):
         lines += [dump.format(file='out.dump'), f'timestep {-dt!r}',
                   f'run {steps}', 'reversible check']
     return '\n'.join(lines) + '\n'
-
-
-def launch(ranks, script_file, cwd, timeout=3600):
-    command = [str(Path(sys.executable).parent / 'mpiexec'), '-n',
-               str(ranks), sys.executable, '-m', 'ase_reversible.lammps',
-               '-in', str(script_file), '-log', 'none']
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run(command, capture_output=True, text=True, cwd=cwd,
-                          env=env, timeout=timeout)
 
 
 def read_dump(path):
@@ -243,12 +223,9 @@ def main(argv=None):
                         help="LAMMPS's own fix nve instead: how far its "
                         'states on each layout are from one rank\'s')
     args = parser.parse_args(argv)
-    bench = bench_dir()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        for data in bench.glob('data.*'):
-            shutil.copy(data, tmp)
-        shutil.copy(bench / 'Cu_u3.eam', tmp)
+        copy_bench_files(tmp)
         for name in args.only:
             steps, box = CASES[name][5 if args.full else 4]
             if args.nve:

@@ -9,8 +9,6 @@ and every run lands back on its start.  A restart file written on 2 ranks
 and continued on 3 lands where the 2-rank run does.
 """
 
-import shutil
-
 import numpy as np
 import pytest
 
@@ -19,6 +17,7 @@ from test_lammps import mpiexec
 from tiers import SLOW
 
 import lammps_ranks
+from lammps_inputs import copy_bench_files
 from lammps_ranks import by_position, counts, restart_across, run_case, states
 
 pytestmark = SLOW
@@ -35,10 +34,7 @@ def _compiler():
 
 @pytest.fixture
 def directory(tmp_path):
-    bench = lammps_ranks.bench_dir()
-    for data in bench.glob('data.*'):
-        shutil.copy(data, tmp_path)
-    shutil.copy(bench / 'Cu_u3.eam', tmp_path)
+    copy_bench_files(tmp_path)
     return tmp_path
 
 
