@@ -116,6 +116,11 @@ void FixReversibleNVE::init()
   if (atom->rmass_flag)
     error->all(FLERR, "fix {} needs per-type masses, not per-atom ones", style);
   local_reason = canonical_force->reason(this);
+  // Before Comm::init, which sizes its buffers from every fix's
+  // comm_forward: the bonds sent to the ghosts at a step with flags.
+  comm_forward = (local_reason == CanonicalForce::LOCAL && canonical_force->needs_topology())
+      ? 1 + 2 * atom->bond_per_atom
+      : 0;
 }
 
 void FixReversibleNVE::set_mode(const char *value)
@@ -391,7 +396,6 @@ void FixReversibleNVE::recompute_flagged(double bound, double guess, bool applie
   }
   if (canonical_force->needs_topology()) {
     canonical_force->fill_owned_topology();
-    comm_forward = canonical_force->topology_size();
     comm->forward_comm(this);
   }
   if (!flagged.empty()) canonical_force->bin();
