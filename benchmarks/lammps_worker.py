@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from ase_reversible.lammps import (ReversibleLammps, ReversibleLammpsNose,
-                                   import_lammps)
+                                   finalize_mpi, import_lammps)
 
 lammps = import_lammps()
 
@@ -300,3 +300,4 @@ def main(case, log_dir):
 
 if __name__ == '__main__':
     main(json.loads(sys.argv[1]), sys.argv[2])
+    finalize_mpi()

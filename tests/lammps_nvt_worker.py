@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ase_reversible.lammps import import_lammps
+from ase_reversible.lammps import finalize_mpi, import_lammps
 from ase_reversible.lammps.nose import ReversibleLammpsNose
 from ase_reversible.lammps.nose import take_restart_state
 
@@ -193,3 +193,4 @@ def main(job, out, **options):
 if __name__ == '__main__':
     main(sys.argv[1], sys.argv[2],
          **dict(arg.split('=', 1) for arg in sys.argv[3:]))
+    finalize_mpi()

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ase_reversible.lammps import ReversibleLammps, import_lammps
+from ase_reversible.lammps import ReversibleLammps, finalize_mpi, import_lammps
 
 import lammps_systems
 from lammps_systems import fcc_box
@@ -218,3 +218,4 @@ def session(job, system, steps, files, path, back_path, settings,
 if __name__ == '__main__':
     main(sys.argv[1], sys.argv[2],
          **dict(arg.split('=', 1) for arg in sys.argv[3:]))
+    finalize_mpi()

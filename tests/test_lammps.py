@@ -186,7 +186,7 @@ def test_guarded_kicks_are_recomputed_and_stay_exact(path, global_setup,
 
 
 @pytest.mark.parametrize('ranks, path', [
-    (1, 'compiled'), (2, 'compiled'), (1, 'python'),
+    (1, 'compiled'), pytest.param(2, 'compiled', marks=SLOW), (1, 'python'),
     pytest.param(2, 'python', marks=SLOW)])
 def test_a_run_ending_on_a_recomputed_step_lands_exactly(ranks, path,
                                                          tmp_path):
@@ -260,7 +260,7 @@ def test_both_paths_take_the_same_steps_and_undo_each_other(ranks, options,
     pytest.param(1, 'compiled', dict(steps=100), id='1-compiled-then-python',
                  marks=SLOW),
     pytest.param(1, 'python', dict(GUARDED, steps=50, sort_bin=8.0),
-                 id='1-python-then-compiled-guarded'),
+                 id='1-python-then-compiled-guarded', marks=SLOW),
     pytest.param(2, 'compiled', dict(GUARDED, steps=50, sort_bin=8.0),
                  id='2-compiled-then-python-guarded', marks=SLOW),
     pytest.param(2, 'python', {}, id='2-python-then-compiled', marks=SLOW)])

