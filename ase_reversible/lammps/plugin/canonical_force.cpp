@@ -11,7 +11,6 @@
 #include "error.h"
 #include "fix.h"
 #include "force.h"
-#include "kspace.h"
 #include "modify.h"
 #include "pair.h"
 

@@ -320,11 +320,11 @@ void FixReversibleNVE::post_force(int /*vflag*/)
     return;
   }
   if (local) {
-    if (verdict & AMBIGUOUS) recompute_flagged(bound, guess, applied);
+    const bool impure = (verdict & AMBIGUOUS) && recompute_flagged(bound, guess, applied);
     flip();
     if (setup) mode = STEP;
     after_kick();
-    if (flag == IMPURE) halt(IMPURE);
+    if (impure) halt(IMPURE);
     return;
   }
   if (setup) {
@@ -369,10 +369,10 @@ void FixReversibleNVE::post_force(int /*vflag*/)
    that own them.  Every rank takes part (the ghosts' bonds may have to be
    sent, and the step ends with a collective), flagged atoms or not.  A
    recomputed force further from the run's than the guard's bound means
-   the unflagged kicks may not be the canonical ones: the run halts and
-   the driver raises. */
+   the unflagged kicks may not be the canonical ones: returns true on
+   every rank, and the run halts for the driver to raise. */
 
-void FixReversibleNVE::recompute_flagged(double bound, double guess, bool applied)
+bool FixReversibleNVE::recompute_flagged(double bound, double guess, bool applied)
 {
   const double started = MPI_Wtime();
   const int nlocal = atom->nlocal;
@@ -433,8 +433,8 @@ void FixReversibleNVE::recompute_flagged(double bound, double guess, bool applie
   local_atoms += static_cast<double>(flagged.size());
   local_steps++;
   const int verdict = reduce_recomputed(impure ? IMPURE : 0, changes, applied);
-  if (verdict & IMPURE) flag = IMPURE;
   local_seconds += MPI_Wtime() - started;
+  return verdict & IMPURE;
 }
 
 int FixReversibleNVE::reduce_recomputed(int mine, const std::vector<Change> &, bool)

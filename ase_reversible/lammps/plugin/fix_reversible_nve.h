@@ -97,7 +97,7 @@ class FixReversibleNVE : public Fix {
   double **pending();
   double **next_kicks();
   void flip();
-  void recompute_flagged(double bound, double guess, bool applied);
+  bool recompute_flagged(double bound, double guess, bool applied);
   void halt(int);
   bool sorted_canonically();
   void compare_with_noisy();
