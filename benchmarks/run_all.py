@@ -44,7 +44,9 @@ STUDIES = {'nose_timestep': ('nose_timestep', 'run', 'nose', 'timestep', None),
            'device_neighbours': ('device_neighbours', 'run', 'gpu',
                                  'neighbours', None),
            'lammps_scale': ('lammps_scale', 'run', 'lammps_cost', 'scale',
-                            None)}
+                            None),
+           'rigid_sampling': ('rigid_sampling', 'run', 'rigid', 'sampling',
+                              None)}
 
 
 def measure(name, quick, only, machine) -> dict:

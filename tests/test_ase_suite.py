@@ -33,10 +33,6 @@ MODULES = ('ase.test.md', 'ase.test.constraints.test_hookean',
            'ase.test.forcefields.test_rattle_linear',
            'ase.test.constraints.test_fix_symmetry')
 
-_RIGID = ('rigid molecules: FixBondLengths and FixLinearTriatomic hold '
-          'bond lengths by an iterative projection to a tolerance, which '
-          'no exact step can include (refused with '
-          'UnsupportedConstraintError)')
 _OUTSIDE = ('the momenta (or positions) are changed outside the dynamics '
             'during the run; the exact class takes each change with an '
             'AnchorMovedWarning (reversal then leads back to that point), '
@@ -44,9 +40,6 @@ _OUTSIDE = ('the momenta (or positions) are changed outside the dynamics '
 
 #: ASE's test (its function's name) -> why it fails with the exact classes.
 EXCEPTIONS = {
-    'test_rattle': _RIGID,
-    'test_rattle_linear': _RIGID,
-    'test_CO2linear_Au111_langevin': _RIGID,
     'test_fixrotation_asap': 'FixRotation applied by an observer at every '
                              'step: ' + _OUTSIDE,
     'test_verlet_thermostats_asap': 'thermalize_momenta in mid-run and '

@@ -130,17 +130,20 @@ BAD_CONSTRUCTIONS = [
         id='FixCom-with-FixedPlane'),
     pytest.param(with_cell_entry(np.nan), {}, ValueError,
                  'The cell has non-finite entries', id='cell-nan'),
-    pytest.param(with_constraint(lambda: FixBondLengths([[0, 1], [2, 3]])),
+    # Rigid molecules are supported (tests/test_rigid.py): a chain of
+    # bonds, which leaves an angle free, is not a rigid body.
+    pytest.param(with_constraint(lambda: FixBondLengths([[0, 1], [1, 2]])),
                  {}, UnsupportedConstraintError,
-                 '^FixBondLengths cannot be applied exactly',
-                 id='FixBondLengths'),
-    # Hookean is supported (tests/test_hookean.py): what follows it is
-    # still refused.
+                 r'^FixBondLengths joins atoms \[0, 1, 2\] by 2 bonds: not a '
+                 'rigid body', id='FixBondLengths-chain'),
+    # Hookean is supported (tests/test_hookean.py), and so are rigid
+    # molecules: not together.
     pytest.param(with_constraint(lambda: [FixAtoms([0]), FixCom(),
                                           Hookean(0, 1, k=5.0, rt=4.0),
                                           FixBondLengths([[2, 3]])]), {},
                  UnsupportedConstraintError,
-                 '^FixBondLengths cannot be applied exactly',
+                 '^FixAtoms, FixCom, Hookean together with rigid molecules '
+                 'is not supported',
                  id='FixBondLengths-after-supported'),
     pytest.param(unchanged, {'position_quantum': 3e-12}, ValueError,
                  'position_quantum must be a positive power of two',

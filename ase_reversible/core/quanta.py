@@ -118,6 +118,21 @@ def choose_momentum_quantum(masses_n, momenta_nc,
                                       temperature_floor) * room)
 
 
+def choose_angular_momentum_quantum(moments_bc, spins_bc,
+                                    room: float = MOMENTUM_ROOM,
+                                    temperature_floor: float =
+                                    MOMENTUM_TEMPERATURE_FLOOR) -> float:
+    """Quantum of rigid bodies' angular momenta (amu Å**2 / ASE time unit)
+    leaving ``room`` times their scale: the largest ``|L|`` component of
+    ``spins_bc`` ``[b, 3]``, or the thermal ``sqrt(I kB T)`` of the
+    largest principal moment in ``moments_bc`` ``[b, 3]`` (amu Å**2) at
+    ``temperature_floor`` K, whichever is larger -- the rule of
+    :func:`choose_momentum_quantum`, with moments for masses."""
+    return choose_momentum_quantum(np.asarray(moments_bc).reshape(-1),
+                                   np.asarray(spins_bc).reshape(-1, 3),
+                                   room, temperature_floor)
+
+
 def choose_grid(positions_nc, cell, pbc, masses_n, momenta_nc, *,
                 position_quantum=None, momentum_quantum=None, record=None,
                 momentum_floor=0.0):

@@ -37,12 +37,12 @@ def encoded(atoms, position_quantum, momentum_quantum, project):
             'momentum': counts}
 
 
-def admit(atoms, force_purity, force_noise):
+def admit(atoms, force_purity, force_noise, rigid=False):
     """What every reversible dynamics checks of the atoms it is
     constructed on, and chooses from them: ``(masses_n, project,
     purity)``, the masses ``[n_atoms]`` (amu), the constraint projection
-    and the force provider.  Raises as the constructors do, before
-    anything is changed; :func:`ase_reversible.check_calculator` runs it
+    and the force provider (``rigid``: rigid bodies are left to the
+    dynamics).  Raises as the constructors do, before anything is changed; :func:`ase_reversible.check_calculator` runs it
     too, so that its verdict is the integrators'."""
     if not isinstance(atoms, Atoms):
         raise TypeError(
@@ -55,7 +55,7 @@ def admit(atoms, force_purity, force_noise):
     refuse_unholdable_values(atoms)
     refuse_calculator_without_forces(atoms.calc, 'constructing the integrator')
     masses_n = checked_masses(atoms)
-    project = constraint_projection(atoms)
+    project = constraint_projection(atoms, rigid)
     purity = force_provider(atoms, force_purity, force_noise)
     return masses_n, project, purity
 

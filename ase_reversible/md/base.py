@@ -27,7 +27,12 @@ from ..core.record import RecordWriter
 from .admission import admit, checked_grid, encoded
 from .changes import ChangeContract
 from .checks import check_energy_watch, check_steps, check_timestep, fixed
+from ..core.record import read_record
+from ..errors import UnsupportedConstraintError
 from .hamiltonian import Hamiltonian
+from .rigid.layout import refuse_guarded_rigid, rigid_layout
+from .rigid.system import SECTION as RIGID, VARIABLES as RIGID_VARIABLES
+from .rigid.system import resumed_system, rigid_system
 from .machine import SECTION as MACHINE
 from .restart import RestartRecord
 from .state import FixedPointState
@@ -44,6 +49,9 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
     """
 
     engine = None
+    #: Whether the dynamics runs molecules that FixBondLengths or
+    #: FixLinearTriatomic make rigid, as rigid bodies (:mod:`.rigid`).
+    rigid_bodies = False
 
     def _open(self, system, engine, record, purity_choice, timestep,
               **ase_arguments):
@@ -75,7 +83,7 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         MolecularDynamics.__init__(self, system.atoms, timestep,
                                    **ase_arguments)
         self._watch = SystemWatch(self.atoms)
-        self.masses = self.system.m_n1
+        self.masses = self.system.atom_masses_n1
         self._show_anchor()
         self._forces_match_record = self._check_machine(
             getattr(self, '_resumed_machine', None))
@@ -402,6 +410,12 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         reversible, and the time step keeps its original sign.
         """
         steps = check_steps(steps)
+        if not self.system.adjoint:
+            raise UnsupportedConstraintError(
+                'backpropagate does not run through rigid molecules yet (the '
+                'rotation of a rigid body has no adjoint rule). Nothing was '
+                'changed. To differentiate, run the molecules flexible '
+                '(without FixBondLengths, with a small time step).')
         every, window = checked_schedule(loss, every, window)
         self._sync()
         return retrace_gradients(
@@ -466,7 +480,8 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         """Check the atoms a dynamics is constructed on, and read what it
         needs from them: ``(masses_n, project, purity, record)``, the
         record None unless a restart record fits the atoms."""
-        masses_n, project, purity = admit(atoms, force_purity, force_noise)
+        masses_n, project, purity = admit(atoms, force_purity, force_noise,
+                                          rigid=self.rigid_bodies)
         self._read_writer(atoms.info)
         record = self._resumable_record(atoms)
         # Compared with this machine's forces once the integrator stands.
@@ -486,12 +501,36 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         """
         masses_n, project, purity, record = self._admit(
             atoms, force_purity, force_noise)
+        layout = rigid_layout(atoms, masses_n) if self.rigid_bodies else None
+        if layout is not None:
+            return self._rigid_system(atoms, layout, masses_n, purity,
+                                      position_quantum, momentum_quantum)
         grid = checked_grid(atoms, masses_n, project, purity, max_kick,
                             position_quantum, momentum_quantum, record)
         counts = encoded(atoms, grid.position_quantum, grid.momentum_quantum,
                          project)
         return system_class(atoms, grid, counts, masses_n, project,
                             purity), record
+
+    def _rigid_system(self, atoms, layout, masses_n, purity,
+                      position_quantum, momentum_quantum):
+        """The atoms with the rigid bodies of ``layout`` as a
+        :class:`~.rigid.system.RigidSystem`, and the restart record it
+        resumes (or None): the record's section holds the bodies' counts,
+        which the atoms do not show, and a frame resumes where the atoms
+        are those counts' image bit for bit."""
+        refuse_guarded_rigid(purity, atoms.calc)
+        record = read_record(atoms.info, names=RIGID_VARIABLES,
+                             sections=(*self.record_sections, RIGID, MACHINE))
+        system = None if record is None else resumed_system(
+            atoms, layout, masses_n, purity, record)
+        if system is None or (position_quantum or momentum_quantum):
+            # No record, or an edited frame: a new start, as elsewhere.
+            self._resumed_machine = None
+            return rigid_system(atoms, layout, masses_n, purity,
+                                position_quantum, momentum_quantum), None
+        self._resumed_machine = record.get(MACHINE)
+        return system, record
 
     def _install(self, counts):
         """Make ``counts`` the anchor of reversal and show it on the atoms."""

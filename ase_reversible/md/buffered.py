@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 
 import numpy as np
 from ase import units
@@ -133,6 +134,11 @@ class BufferedMomentumStep(BufferedStep, SubStep):
     3]``) through buffers: :class:`BufferedStep`'s rollback comes before
     :class:`~ase_reversible.core.plans.SubStep`'s.
 
+    The step sees one flat vector of ``size`` coordinates (index ``k``):
+    the momenta, then the system's further momentum-like variables
+    (``system.thermal_parts()``: rigid bodies' angular momenta), each
+    coordinate with its mass and quantum.
+
     Parameters
     ----------
     system : Hamiltonian
@@ -153,6 +159,48 @@ class BufferedMomentumStep(BufferedStep, SubStep):
         self.step_of = step_of
         self.shape = system.p.ints.shape
         self._ones_n = np.ones(self.shape[0], dtype=np.int64)
+        self.parts = system.thermal_parts()
+        self.size = math.prod(self.shape) + sum(
+            v.ints.size for v, _ in self.parts)
+
+    def counts_k(self):
+        """int64 ``[size]``: the counts the step acts on."""
+        x_k = self.system.p.ints.reshape(-1)
+        if not self.parts:
+            return x_k
+        return np.concatenate([x_k] + [v.ints.reshape(-1)
+                                       for v, _ in self.parts])
+
+    def mass_k(self):
+        """``[size]``: each coordinate's mass (amu; amu Å**2 for an
+        angular momentum; 0 for one with no motion)."""
+        mass_k = np.repeat(self.system.m_n1[:, 0], 3)
+        if not self.parts:
+            return mass_k
+        return np.concatenate([mass_k] + [m for _, m in self.parts])
+
+    def quantum_k(self):
+        """Each coordinate's quantum (a float where all share the
+        momentum quantum)."""
+        q = self.system.p.quantum
+        if not self.parts:
+            return q
+        return np.concatenate([np.full(math.prod(self.shape), q)] + [
+            np.full(v.ints.size, v.quantum) for v, _ in self.parts])
+
+    def free_k(self):
+        """bool ``[size]``: the coordinates the step moves (those the
+        constraints leave free, with a mass)."""
+        free_k = self._free().reshape(-1) != 0
+        if not self.parts:
+            return free_k
+        return np.concatenate([free_k] + [m > 0 for _, m in self.parts])
+
+    def inverse_mass_k(self):
+        """``[size]``: ``1 / mass``, 0 where the mass is 0."""
+        mass_k = self.mass_k()
+        return np.divide(1.0, mass_k, out=np.zeros_like(mass_k),
+                         where=mass_k > 0)
 
     def _free(self):
         """``[n_atoms, 3]``: nonzero where the constraints leave a momentum
@@ -193,16 +241,25 @@ class BufferedMomentumStep(BufferedStep, SubStep):
                 new_nc[i, c] -= total_c[c]
 
     def _commit(self, x_k, new_k, held, inverse_mass_k):
-        """Move the momentum counts from ``x_k`` to ``new_k`` (flat int64),
+        """Move the counts from ``x_k`` to ``new_k`` (flat int64, ``[size]``),
         the held coordinates balanced, and add the kinetic energy that
         adds, ``sum (x'**2 - x**2) q**2 / 2m``, to :attr:`heat`."""
-        p = self.system.p
         self.hold_total(new_k, held)
         r_k = (new_k - x_k).astype(np.float64)
         both_k = (new_k + x_k).astype(np.float64)
         both_k *= inverse_mass_k
-        self.heat += 0.5 * (p.quantum * p.quantum) * portable.dot(both_k, r_k)
-        p.add_integers(r_k.reshape(self.shape))
+        start = 0
+        for v, shape in self._variables():
+            end = start + math.prod(shape)
+            self.heat += 0.5 * (v.quantum * v.quantum) * portable.dot(
+                both_k[start:end], r_k[start:end])
+            v.add_integers(r_k[start:end].reshape(shape))
+            start = end
+
+    def _variables(self):
+        yield self.system.p, self.shape
+        for v, _ in self.parts:
+            yield v, v.ints.shape
 
 
 class BufferedDynamics(ReversibleDynamics):

@@ -138,7 +138,6 @@ class Rescale(BufferedMomentumStep):
 
     def __init__(self, system, settings, step_of):
         super().__init__(system, settings, step_of)
-        self.size = math.prod(self.shape)
         self._draws = None
         self.heat_before_anchor = 0.0
 
@@ -179,18 +178,16 @@ class Rescale(BufferedMomentumStep):
         dof = s.atoms.get_number_of_degrees_of_freedom()
         if self._draws is None or self._draws.dof != dof:
             self._draws = BussiDraws(dof)
-        free_k = self._free().reshape(-1) != 0
+        free_k = self.free_k()
         held = self._hold_one_per_component(free_k)
-        mass_k = np.repeat(s.m_n1[:, 0], 3)
         return RescalePlan(ch > 0, self.buffer_for(ch),
                            None if free_k.all() else free_k,
                            units.kB * temperature_K, decay(ch, taut),
-                           step_key(seed, ch), 1.0 / mass_k, held)
+                           step_key(seed, ch), self.inverse_mass_k(), held)
 
     def apply(self, prepared):
         forward, buffer, mask_k, kT, c, key, inverse_mass_k, held = prepared
-        p = self.system.p
-        x_k = p.ints.reshape(-1)
+        x_k = self.counts_k()
         if forward:
             two_k = self.system.momentum_square()
             r, s = self._draws(key, self.step_of())
@@ -336,6 +333,7 @@ class ReversibleBussi(BufferedDynamics):
     """
 
     record_sections = ('bussi',)
+    rigid_bodies = True
     buffer_mark = 'buffer_ratios'
 
     def __init__(self, atoms, timestep, temperature_K, taut, rng=None, *,

@@ -15,9 +15,8 @@ from ase import units
 
 from ..core.codec import LIMIT
 from ..errors import (AnchorMovedWarning, NonFiniteStateError,
-                      QuantumRangeError)
+                      QuantumRangeError, UnsupportedConstraintError)
 from ..purity import calculator_members, discard_results, force_provider
-from .admission import encoded
 from .checks import checked_masses, refuse_calculator_without_forces
 from .constraints import constraint_projection
 from .watch import EQUAL_CALCULATOR, check_finite_cell, non_finite, \
@@ -35,6 +34,17 @@ def forget_results(calc):
             member.reset()
         else:
             discard_results(member)
+
+
+def refuse_rigid_change(name, changes):
+    """Refuse ``changes`` (names of what changed) around a run of rigid
+    bodies: only edits of positions and momenta are taken there."""
+    raise UnsupportedConstraintError(
+        f'Changed outside {name} since the last step: {", ".join(changes)}. '
+        'A run of rigid molecules takes edits of positions and momenta '
+        'only: undo the change to go on (nothing was changed; reversal '
+        f'still leads back exactly), or construct a new {name} for the '
+        'changed system.')
 
 
 class ChangeContract:
@@ -69,7 +79,7 @@ class ChangeContract:
     def _shown_positions(self):
         """The positions the atoms show of the exact state, ``[n_atoms,
         3]`` (not to be modified)."""
-        return self.system.x.floats
+        return self.system.shown_positions()
 
     def _anchor_moved(self, kind, message, stacklevel):
         """Warn that the anchor moved (:class:`AnchorMovedWarning`); within
@@ -90,7 +100,9 @@ class ChangeContract:
         False for a calculator replaced by an equal one.
         """
         atoms = self.atoms
-        if len(atoms) != len(self.system.x.ints):
+        if self.system.layout is not None and changes != [EQUAL_CALCULATOR]:
+            refuse_rigid_change(type(self).__name__, changes)
+        if len(atoms) != len(self.system.atom_masses_n1):
             raise ValueError('The number of atoms changed; construct a new '
                              f'{type(self).__name__} for the new system (or '
                              'put the atoms back to continue this run).')
@@ -100,7 +112,10 @@ class ChangeContract:
         refuse_calculator_without_forces(atoms.calc, 'running')
         check_finite_cell(atoms, 'Set it back (atoms.set_cell) to go on: '
                           'nothing was changed.')
-        project = constraint_projection(atoms)
+        # A system without rigid bodies refuses a rigid constraint added
+        # in mid-run (it would need other variables), never ignores it.
+        project = constraint_projection(atoms,
+                                        rigid=self.system.layout is not None)
         masses_n = checked_masses(atoms)
         # Before the force provider is chosen: a probe would call the
         # calculator at these positions.
@@ -115,7 +130,7 @@ class ChangeContract:
             return False
         forget_results(atoms.calc)
         self.system.set_dynamics(masses_n, project, purity)
-        self.masses = self.system.m_n1
+        self.masses = self.system.atom_masses_n1
         self._watch.take(atoms)
         self.engine.set_dt(self.engine.dt)  # coefficients use the masses
         self._install(counts)
@@ -191,5 +206,4 @@ class ChangeContract:
     def _encode(self, atoms, project):
         """The counts of every exact variable the atoms show, by name,
         on this dynamics' grid (``project``: the constraint projection)."""
-        return encoded(atoms, self.system.x.quantum, self.system.p.quantum,
-                       project)
+        return self.system.encode(atoms, project)

@@ -28,7 +28,9 @@ adds :func:`added_force_product`.
 
 Constraints that move atoms by a float correction (FixBondLengths,
 FixInternals, ...) would add an increment that is not a function of the
-other variable, so they are refused.
+other variable, so they are refused; FixBondLengths and FixLinearTriatomic
+are read as rigid bodies instead by the dynamics that runs them
+(:mod:`.rigid`).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from ase.constraints import (FixAtoms, FixCartesian, FixCom, FixedLine,
 from ase.geometry import find_mic
 
 from ..errors import UnsupportedConstraintError
+from .rigid.layout import RIGID_CONSTRAINTS
 
 #: Constraints that add a force of the positions (and its energy) through
 #: ``atoms.get_forces(md=True)`` and ``get_potential_energy``: no projection.
@@ -171,9 +174,11 @@ def _refuse(constraint, why):
         'VelocityVerlet (not reversible) for this system.')
 
 
-def constraint_projection(atoms):
+def constraint_projection(atoms, rigid=False):
     """In-place projection ``project(y_nc)`` for the atoms' constraints.
 
+    ``rigid``: the dynamics runs rigid bodies, so FixBondLengths and
+    FixLinearTriatomic are left to :func:`.rigid.layout.rigid_layout`.
     Returns a callable that projects an increment ``y_nc`` ``[n_atoms, 3]``
     (any unit) in place and returns None; its attribute ``centre`` is the
     :class:`FixedCentre` of a FixCom, or None.  Raises
@@ -181,7 +186,15 @@ def constraint_projection(atoms):
     projections.
     """
     constraints = list(atoms.constraints)
+    if rigid:
+        constraints = [c for c in constraints
+                       if not isinstance(c, RIGID_CONSTRAINTS)]
     for c in constraints:
+        if isinstance(c, RIGID_CONSTRAINTS):
+            _refuse(c, 'makes molecules rigid: ReversibleVerlet runs them '
+                    'exactly when the constraint is set before it is '
+                    'constructed; other dynamics, and a constraint added in '
+                    'mid-run, do not yet')
         if not isinstance(c, SUPPORTED):
             _refuse(c, 'cannot be applied exactly in fixed point and would '
                     'break exact reversal')

@@ -21,6 +21,7 @@ from ase import units
 from ..core.codec import round_odd
 from ..core.plans import SubStep, compose
 from ..core.variables import ExactVariable
+from .admission import encoded
 from .constraints import added_force_product, no_projection
 from ..errors import NonFiniteForcesError, QuantumRangeError
 
@@ -31,6 +32,10 @@ ENERGY_TOLERANCE_TEMPERATURE = 100.0
 
 class Hamiltonian:
     """The atoms' positions and momenta as exact variables, and their forces.
+
+    Attributes ``layout`` (the rigid bodies, None here: see
+    :class:`~.rigid.system.RigidSystem`) and ``adjoint`` (whether
+    backpropagate can retrace it) tell the dynamics what it holds.
 
     Parameters
     ----------
@@ -49,6 +54,9 @@ class Hamiltonian:
     purity : force provider
         From :func:`ase_reversible.purity.force_provider`.
     """
+
+    layout = None
+    adjoint = True
 
     def __init__(self, atoms, grid, counts, masses_n, project, purity):
         self.atoms = atoms
@@ -75,6 +83,28 @@ class Hamiltonian:
         #: The FixCom balance of the rounded increments, or None.
         self.centre = getattr(project, 'centre', None)
         self.purity = purity
+
+    @property
+    def atom_masses_n1(self):
+        """``[n_atoms, 1]`` amu: the atoms' masses (ASE's ``dyn.masses``)."""
+        return self.m_n1
+
+    def shown_positions(self):
+        """The positions the atoms show of the exact state, ``[n_atoms,
+        3]`` (not to be modified)."""
+        return self.x.floats
+
+    def thermal_parts(self):
+        """What a thermostat acts on besides the momenta:
+        ``((variable, masses_k), ...)`` of further momentum-like exact
+        variables, each with its mass per coordinate (flat; 0 where the
+        coordinate has no motion): none here."""
+        return ()
+
+    def encode(self, atoms, project):
+        """The counts of the variables the atoms show, by name, on this
+        system's grid (``project``: the constraint projection)."""
+        return encoded(atoms, self.x.quantum, self.p.quantum, project)
 
     def show_positions(self):
         """Write the exact positions into the atoms' own array."""

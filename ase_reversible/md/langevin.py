@@ -27,7 +27,6 @@ within 2**-17 / h of the one asked for).
 from __future__ import annotations
 
 import functools
-import math
 import warnings
 from typing import NamedTuple
 
@@ -111,7 +110,7 @@ class Friction(BufferedMomentumStep):
 
     def __init__(self, system, settings, step_of):
         super().__init__(system, settings, step_of)
-        self.noise = StepNoise(math.prod(self.shape))
+        self.noise = StepNoise(self.size)
 
     def load(self, saved):
         """Take the buffers of a file :meth:`ReversibleLangevin.write_buffer`
@@ -130,31 +129,31 @@ class Friction(BufferedMomentumStep):
         n, ratio = exact_ratio(friction, ch)
         buffer = self.buffers.get(n)
         if buffer is None:
-            buffer = self.buffers[n] = InformationBuffer(
-                math.prod(self.shape), n)
-        free_nc = self._free()
-        free_k = free_nc.reshape(-1) != 0
-        mass_k = np.repeat(s.m_n1[:, 0], 3)
+            buffer = self.buffers[n] = InformationBuffer(self.size, n)
+        free_k = self.free_k()
+        mass_k = self.mass_k()
         sigma_k = np.sqrt((1.0 - ratio * ratio) * mass_k * units.kB
-                          * temperature_K) / s.p.quantum * free_k
-        zero_sum = _zero_sum_weights(s.m_n1, free_nc) \
+                          * temperature_K) / self.quantum_k() * free_k
+        zero_sum = _zero_sum_weights(s.m_n1, self._free()) \
             if fixcm or s.centre is not None else None
         held = self._hold_one_per_component(free_k)
         return FrictionPlan(ch > 0, buffer, None if free_k.all() else free_k,
                             sigma_k, step_key(seed, ch), zero_sum,
-                            1.0 / mass_k, held)
+                            self.inverse_mass_k(), held)
 
     def apply(self, prepared):
         if prepared is None:
             return
         forward, buffer, mask_k, sigma_k, key, zero_sum, inverse_mass_k, \
             held = prepared
-        p = self.system.p
-        x_k = p.ints.reshape(-1)
+        x_k = self.counts_k()
         noise_k = np.rint(sigma_k * self.noise.normals(key, self.step_of()))
         noise_k = noise_k.astype(np.int64)
         if zero_sum is not None:
-            noise_k = without_net_momentum(noise_k, *zero_sum)
+            # The momenta's part: the bodies' spins carry no momentum.
+            atoms_k = zero_sum[0].size
+            noise_k[:atoms_k] = without_net_momentum(noise_k[:atoms_k],
+                                                     *zero_sum)
         new_k = exact_o_step(buffer, x_k, noise_k, forward, mask_k, (
             'ReversibleLangevin can only retrace steps it has taken: this '
             'one goes back past the anchor of reversal, where friction '
@@ -318,6 +317,7 @@ class ReversibleLangevin(BufferedDynamics):
     """
 
     record_sections = ('langevin',)
+    rigid_bodies = True
 
     def __init__(self, atoms, timestep, temperature_K=None, friction=None,
                  fixcm=True, *, temperature=None, rng=None, seed=None,

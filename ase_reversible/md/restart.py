@@ -20,6 +20,7 @@ from ase import units
 from ..core.record import EDITED, INFO_KEY, read_record, record_mismatch
 from ..errors import AnchorMovedWarning, MachineChangedWarning
 from ..purity.advice import warn_at_user_line
+from .rigid.system import SECTION as RIGID
 from .machine import SECTION as MACHINE, compare, differences, explain, \
     frame_section, platform
 
@@ -92,6 +93,8 @@ class RestartRecord:
         with the digest of the forces the run holds here
         (:mod:`.machine`)."""
         sections = self._record_sections() or {}
+        if self.system.layout is not None:
+            sections[RIGID] = self.system.record_section()
         sections[WRITER] = self._writer_section()
         sections[MACHINE] = frame_section(self.system, self.atoms.calc,
                                           self.system.purity.mode)

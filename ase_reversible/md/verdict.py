@@ -14,6 +14,7 @@ from ..purity.check import probed_check, refused_check
 from .admission import admit, checked_grid, encoded
 from .hamiltonian import largest_kick
 from .restart import fitting_record, grid_values
+from .rigid.layout import refuse_guarded_rigid, rigid_layout
 from .verlet import KICK, SCHEMES
 
 
@@ -58,8 +59,13 @@ def check_calculator(atoms, timestep=None, force_noise=None):
                            '(atoms.calc = ...) to check it.')
     quanta = None
     try:
-        masses_n, project, provider = admit(atoms, 'auto', force_noise)
-        if timestep is not None:
+        masses_n, project, provider = admit(atoms, 'auto', force_noise,
+                                            rigid=True)
+        if rigid_layout(atoms, masses_n) is not None:
+            # ReversibleVerlet's rigid bodies: their quanta are chosen for
+            # the bodies, and every force provider but 'guarded' serves.
+            refuse_guarded_rigid(provider, calc)
+        elif timestep is not None:
             grid, fine = _grids(atoms, masses_n, project, provider, timestep)
             encoded(atoms, grid.position_quantum, grid.momentum_quantum,
                     project)

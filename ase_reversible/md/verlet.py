@@ -138,6 +138,8 @@ class ReversibleVerlet(ReversibleDynamics):
         A position or momentum lies outside the range of the quanta given.
     """
 
+    rigid_bodies = True
+
     def __init__(self, atoms, timestep, trajectory=None, logfile=None,
                  loginterval=1, *, scheme='velocity', order=2,
                  composition=None, position_quantum=None,

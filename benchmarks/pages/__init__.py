@@ -92,7 +92,8 @@ def figure(path, ncols=1, size=(7, 4), dpi=110):
 
 NAMES = ('step_cost', 'calculators', 'savings', 'work_precision',
          'reversal_error', 'stress', 'gradient_accuracy', 'adjoint',
-         'thermostat', 'nose', 'npt_sampling', 'npt_cost', 'lammps_cost',
+         'thermostat', 'nose', 'npt_sampling', 'npt_cost', 'rigid',
+         'lammps_cost',
          'portable', 'force_noise', 'full_precision', 'long_reversal',
          'torch_products', 'gpu', 'training')
 
