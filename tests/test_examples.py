@@ -25,7 +25,7 @@ pytestmark = pytest.mark.filterwarnings(
 
 OPTIMISATIONS = ['steer_argon', 'keyframe_chain', 'tune_nvt_radius']
 SCENES = ['ring_collapse', 'chaotic_chain']
-USER_SCRIPTS = ['argon_cluster', 'copper_surface', 'argon_nvt']
+USER_SCRIPTS = ['argon_cluster', 'copper_surface', 'argon_nvt', 'rigid_water']
 TRAINING = ['fit_rdf', 'fit_vacf']
 
 

@@ -4,6 +4,7 @@ bit for bit under ReversibleVerlet, hold their shapes, follow the
 dynamics ASE's RATTLE integrates, restart exactly from a frame, and what
 is not supported yet is refused before anything changes."""
 
+import textwrap
 import warnings
 
 import numpy as np
@@ -22,6 +23,7 @@ from ase_reversible import (ReversibleBussi, ReversibleLangevin,
                             UnstableIntegrationError,
                             UnsupportedConstraintError)
 from ase_reversible.core import rigid
+from machines import emulation_works, run_leg
 from tiers import SLOW
 
 VARIABLES = ('position', 'momentum', 'orientation', 'angular_momentum')
@@ -323,3 +325,83 @@ def test_the_thermostats_sample_rigid_water_canonically(name):
     for energies in (translational, rotational):
         assert gamma_ks_pvalue(np.concatenate(energies), 1.5, kT) > 1e-3
     assert abs(np.mean(temperatures) / 300 - 1) < 0.03
+
+
+# -- across machines ---------------------------------------------------------
+
+#: Rigid Ar3 triangles or Ar2 dumbbells under the package's portable
+#: LennardJones, out on one machine and back on another: the turns, the
+#: rotations and the torques have the same bits everywhere.
+CROSS = textwrap.dedent('''
+    import warnings
+    import numpy as np
+    from ase import Atoms, units
+    from ase.constraints import FixBondLengths
+    from ase.io import read
+    from ase_reversible import LennardJones, ReversibleLangevin, \\
+        ReversibleVerlet
+    warnings.simplefilter('ignore')
+
+    def molecules():
+        rng = np.random.default_rng(6)
+        shape = ([[0, 0, 0], [3.8, 0, 0], [1.9, 3.3, 0]] if SIZE == 3
+                 else [[0, 0, 0], [3.8, 0, 0]])
+        atoms = Atoms()
+        for index in np.ndindex(2, 2, 2):
+            m = Atoms('Ar' * SIZE, shape)
+            m.rotate(rng.uniform(0, 360), rng.normal(size=3))
+            m.translate(7.0 * np.array(index))
+            atoms += m
+        bonds = [(SIZE * i + a, SIZE * i + b) for i in range(8)
+                 for a in range(SIZE) for b in range(a + 1, SIZE)]
+        atoms.set_constraint(FixBondLengths(bonds))
+        atoms.set_momenta(rng.normal(size=(len(atoms), 3)) * 0.3)
+        return atoms
+
+    def dynamics(atoms, **kwargs):
+        atoms.calc = LennardJones(sigma=3.4, epsilon=0.0104, rc=8.5)
+        if DYNAMICS == 'langevin':
+            return ReversibleLangevin(atoms, 5 * units.fs, temperature_K=80,
+                                      friction=0.01 / units.fs, seed=2,
+                                      **kwargs)
+        return ReversibleVerlet(atoms, 5 * units.fs)
+''')
+CROSS_OUT = textwrap.dedent('''
+    atoms = molecules()
+    dyn = dynamics(atoms)
+    np.savez('start.npz', **dyn.counts)
+    dyn.run(STEPS)
+    atoms.write('run.traj')
+    if DYNAMICS == 'langevin':
+        dyn.write_buffer('buffer.npz')
+''')
+CROSS_BACK = textwrap.dedent('''
+    atoms = read('run.traj')
+    atoms.set_constraint(molecules().constraints)
+    extra = {'buffer': 'buffer.npz'} if DYNAMICS == 'langevin' else {}
+    dyn = dynamics(atoms, **extra)
+    dyn.reverse().run(STEPS)
+    np.savez('end.npz', **dyn.counts)
+''')
+
+
+@pytest.fixture(scope='module')
+def machines_differ(tmp_path_factory):
+    if not emulation_works(tmp_path_factory.mktemp('emulation')):
+        pytest.skip('the emulated machines compute the same bits here')
+
+
+@pytest.mark.parametrize('size, dynamics, steps', [
+    (3, 'verlet', 30),
+    pytest.param(2, 'verlet', 60, marks=SLOW),
+    pytest.param(3, 'langevin', 60, marks=SLOW)])
+def test_out_on_one_machine_back_on_another(tmp_path, machines_differ, size,
+                                            dynamics, steps):
+    head = f'SIZE, DYNAMICS, STEPS = {size}, {dynamics!r}, {steps}\n'
+    run_leg('native', head + CROSS + CROSS_OUT, tmp_path)
+    run_leg('sse4', head + CROSS + CROSS_BACK, tmp_path)
+    with np.load(tmp_path / 'start.npz') as start, \
+            np.load(tmp_path / 'end.npz') as end:
+        assert sorted(start.files) == sorted(VARIABLES)
+        for name in VARIABLES:
+            assert np.array_equal(start[name], end[name]), name
