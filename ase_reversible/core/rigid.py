@@ -160,7 +160,7 @@ def rotation_matrices(q):
     s = 2.0 / ((ww + xx) + (yy + zz))
     xy, xz, yz = x * y, x * z, y * z
     wx, wy, wz = w * x, w * y, w * z
-    a = np.empty((len(q), 3, 3))
+    a = np.empty((len(q), 3, 3), dtype=np.result_type(q, 1.0))
     a[:, 0, 0] = 1.0 - s * (yy + zz)
     a[:, 0, 1] = s * (xy - wz)
     a[:, 0, 2] = s * (xz + wy)
@@ -171,6 +171,41 @@ def rotation_matrices(q):
     a[:, 2, 1] = s * (yz + wx)
     a[:, 2, 2] = 1.0 - s * (xx + yy)
     return a
+
+
+def rotation_derivatives(q):
+    """``[b, 4, 3, 3]``: ``dA/dq_k`` of :func:`rotation_matrices` at
+    quaternions ``q`` ``[b, 4]``, by complex steps (exact to rounding: the
+    rotation is a rational function of ``q``).  For the adjoint."""
+    step = 1e-30
+    out = np.empty((len(q), 4, 3, 3))
+    for k in range(4):
+        shifted = q.astype(complex)
+        shifted[:, k] += 1j * step
+        out[:, k] = rotation_matrices(shifted).imag / step
+    return out
+
+
+def quaternion_product(a, b):
+    """``[b, 4]``: ``a b`` of quaternions ``(w, x, y, z)`` (any dtype)."""
+    aw, ax, ay, az = (a[:, i] for i in range(4))
+    bw, bx, by, bz = (b[:, i] for i in range(4))
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=1)
+
+
+def rotation_quaternion(phi):
+    """``[b, 4]``: the unit quaternion of the rotation vectors ``phi``
+    ``[b, 3]`` (rad; any dtype, complex for complex steps)."""
+    square = (phi * phi).sum(axis=1)
+    small = np.abs(square) < 1e-12
+    norm = np.sqrt(np.where(small, 1.0, square))
+    # sin(|phi| / 2) / |phi|, its series below 1e-6 rad.
+    sinc = np.where(small, 0.5 - square / 48.0, np.sin(0.5 * norm) / norm)
+    cos = np.where(small, 1.0 - square / 8.0, np.cos(0.5 * norm))
+    return np.concatenate([cos[:, None], sinc[:, None] * phi], axis=1)
 
 
 def apply_rotations(a_bcc, v_bxc):

@@ -18,6 +18,7 @@ retrace of ``backpropagate`` (:mod:`ase_reversible.adjoint.retrace`).
 
 from __future__ import annotations
 
+import numpy as np
 from ase import units
 from ase.md.md import MolecularDynamics
 
@@ -33,6 +34,7 @@ from .hamiltonian import Hamiltonian
 from .rigid.layout import refuse_guarded_rigid, rigid_layout
 from .rigid.system import SECTION as RIGID, VARIABLES as RIGID_VARIABLES
 from .rigid.system import resumed_system, rigid_system
+from .rigid.adjoint import shown_cotangents
 from .machine import SECTION as MACHINE
 from .restart import RestartRecord
 from .state import FixedPointState
@@ -50,8 +52,9 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
 
     engine = None
     #: Whether the dynamics runs molecules that FixBondLengths or
-    #: FixLinearTriatomic make rigid, as rigid bodies (:mod:`.rigid`).
-    rigid_bodies = False
+    #: FixLinearTriatomic make rigid, as rigid bodies (:mod:`.rigid`), and
+    #: whether backpropagate retraces them.
+    rigid_bodies = rigid_adjoint = False
 
     def _open(self, system, engine, record, purity_choice, timestep,
               **ase_arguments):
@@ -403,19 +406,23 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
             with ``.parameters`` (dict) and ``.products``.  Constraints are
             honoured: the gradients are those of the constrained run, and
             the momentum gradient is projected (momenta a constraint holds
-            are not free).
+            are not free).  With rigid molecules the gradients are on the
+            exact variables: positions and momenta of the sites (the free
+            atoms, then the bodies' centres of mass) ``[n_sites, 3]``, and
+            ``.thermostat`` holds all four variables' by name
+            (``'orientation'`` ``[n_bodies, 4]`` and ``'angular_momentum'``
+            ``[n_bodies, 3]`` too), which ``carry=`` takes on.
 
         If the retrace fails (the calculator raises, or an interrupt), the
         atoms are left at the last completed step, still exactly
         reversible, and the time step keeps its original sign.
         """
         steps = check_steps(steps)
-        if not self.system.adjoint:
+        if self.system.layout is not None and not self.rigid_adjoint:
             raise UnsupportedConstraintError(
-                'backpropagate does not run through rigid molecules yet (the '
-                'rotation of a rigid body has no adjoint rule). Nothing was '
-                'changed. To differentiate, run the molecules flexible '
-                '(without FixBondLengths, with a small time step).')
+                f'backpropagate does not run through rigid molecules under '
+                f'{type(self).__name__} yet (ReversibleVerlet and '
+                'ReversibleLangevin do). Nothing was changed.')
         every, window = checked_schedule(loss, every, window)
         self._sync()
         return retrace_gradients(
@@ -430,21 +437,36 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         """The cotangent of every exact variable, by name, for a loss
         with gradients ``ax_nc``, ``ap_nc`` on the shown positions and
         momenta, going on from ``carry`` (Gradients or None)."""
+        if self.system.layout is not None:
+            # The atoms show a function of the bodies' variables: a
+            # segment's gradients go on through them (``carry``).
+            cotangents = shown_cotangents(self.system, ax_nc, ap_nc)
+            for name, value in self._carried(carry, 'rigid bodies').items():
+                cotangents[name] += value
+            return cotangents
         return {'position': ax_nc, 'momentum': ap_nc}
 
     def _loss_cotangents(self, ax_nc, ap_nc):
         """What a loss with gradients ``ax_nc``, ``ap_nc`` (or None) on the
         shown positions and momenta of the present state adds to the
         exact variables' cotangents, by name."""
+        if self.system.layout is not None:
+            return shown_cotangents(self.system, ax_nc, ap_nc)
         added = {'position': ax_nc}
         if ap_nc is not None:
             added['momentum'] = ap_nc
         return added
 
     def _gradients_of(self, cotangents):
-        """``(dL/dx, dL/dp, thermostat)`` on the shown positions and
-        momenta (new arrays) and a thermostat's own variables (a dict),
-        from the cotangents of the exact variables."""
+        """``(dL/dx, dL/dp, own)`` on the shown positions and momenta
+        (new arrays) and a thermostat's own variables (a dict), from the
+        cotangents of the exact variables.  With rigid bodies, on the
+        sites (the free atoms, then the bodies' centres), and ``own``
+        holds every variable's (the body variables' by name)."""
+        if self.system.layout is not None:
+            self._retrace_end = self._retrace_key()
+            own = {name: np.array(value) for name, value in cotangents.items()}
+            return own['position'].copy(), own['momentum'].copy(), own
         return (cotangents['position'].copy(),
                 cotangents['momentum'].copy(), {})
 

@@ -33,9 +33,8 @@ ENERGY_TOLERANCE_TEMPERATURE = 100.0
 class Hamiltonian:
     """The atoms' positions and momenta as exact variables, and their forces.
 
-    Attributes ``layout`` (the rigid bodies, None here: see
-    :class:`~.rigid.system.RigidSystem`) and ``adjoint`` (whether
-    backpropagate can retrace it) tell the dynamics what it holds.
+    Attribute ``layout``: the rigid bodies, None here (see
+    :class:`~.rigid.system.RigidSystem`).
 
     Parameters
     ----------
@@ -56,7 +55,6 @@ class Hamiltonian:
     """
 
     layout = None
-    adjoint = True
 
     def __init__(self, atoms, grid, counts, masses_n, project, purity):
         self.atoms = atoms

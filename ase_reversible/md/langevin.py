@@ -168,6 +168,9 @@ class Friction(BufferedMomentumStep):
         cotangents.flush()
         ratio = exact_ratio(self.settings().friction, ch)[1]
         cotangents['momentum'] *= np.where(self._free() != 0, ratio, 1.0)
+        if self.parts:  # rigid bodies' spins, with a moment
+            cotangents['angular_momentum'] *= np.where(
+                self.parts[0][1].reshape(-1, 3) > 0, ratio, 1.0)
 
 
 def exact_o_step(buffer, x_k, noise_k, forward, mask_k, past_the_anchor):
@@ -317,7 +320,7 @@ class ReversibleLangevin(BufferedDynamics):
     """
 
     record_sections = ('langevin',)
-    rigid_bodies = True
+    rigid_bodies = rigid_adjoint = True
 
     def __init__(self, atoms, timestep, temperature_K=None, friction=None,
                  fixcm=True, *, temperature=None, rng=None, seed=None,

@@ -138,7 +138,7 @@ class ReversibleVerlet(ReversibleDynamics):
         A position or momentum lies outside the range of the quanta given.
     """
 
-    rigid_bodies = True
+    rigid_bodies = rigid_adjoint = True
 
     def __init__(self, atoms, timestep, trajectory=None, logfile=None,
                  loginterval=1, *, scheme='velocity', order=2,

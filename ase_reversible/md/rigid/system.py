@@ -33,6 +33,7 @@ from ...errors import (NonFiniteForcesError, QuantumRangeError,
                        UnstableIntegrationError)
 from ..constraints import no_projection
 from ..hamiltonian import Hamiltonian
+from .adjoint import drift_pullback, kick_pullback
 
 #: The restart record's section of rigid bodies: their atoms, shapes and
 #: the counts of the four variables (the atoms show none of a body's).
@@ -130,7 +131,6 @@ class RigidSystem(Hamiltonian):
         Quantum of the angular momentum, amu Å**2 / ASE time unit.
     """
 
-    adjoint = False  # not yet: the sub-steps have no adjoint rule
 
     def __init__(self, atoms, grid, counts, masses_n, layout, purity,
                  angular_quantum):
@@ -272,12 +272,15 @@ class RigidDrift(SubStep):
     def __init__(self, system):
         self.system = system
         layout = system.layout
-        self._asymmetric = np.flatnonzero(~layout.linear_b)
-        self._linear = np.flatnonzero(layout.linear_b)
-        # Radians per count of L_k, per axis of the asymmetric bodies.
-        self._turn_bc = (system.l.quantum
-                         * layout.inverse_moments_bc[self._asymmetric])
-        self._linear_moment = layout.moments_bc[self._linear, 1]
+        #: The bodies turned about their three axes, and the linear ones.
+        self.asymmetric = np.flatnonzero(~layout.linear_b)
+        self.linear = np.flatnonzero(layout.linear_b)
+        #: Radians per count of L_k and unit of c h, per axis of the
+        #: asymmetric bodies.
+        self.turn_bc = (system.l.quantum
+                        * layout.inverse_moments_bc[self.asymmetric])
+        self.split = ROTATION_SPLIT
+        self._linear_moment = layout.moments_bc[self.linear, 1]
 
     def prepare(self, ch):
         s = self.system
@@ -301,19 +304,19 @@ class RigidDrift(SubStep):
         s = self.system
         q_bk = s.q.counts.copy()
         changed = False
-        if len(self._asymmetric):
-            rows = self._asymmetric
+        if len(self.asymmetric):
+            rows = self.asymmetric
             q_ak, l_ak = q_bk[rows], s.l.counts[rows]
-            for k, fraction in ROTATION_SPLIT:
-                theta = l_ak[:, k] * self._turn_bc[:, k] * (fraction * ch)
+            for k, fraction in self.split:
+                theta = l_ak[:, k] * self.turn_bc[:, k] * (fraction * ch)
                 rigid.turn_about_axis(q_ak, l_ak, k, theta)
             q_bk[rows] = q_ak
             l_bk = s.l.counts.copy()
             l_bk[rows] = l_ak
             s.l.add_integers(l_bk - s.l.counts)
             changed = True
-        if len(self._linear):
-            rows = self._linear
+        if len(self.linear):
+            rows = self.linear
             q_lk = q_bk[rows]
             rigid.turn_linear(q_lk, s.l.counts[rows], ch,
                               self._linear_moment, s.l.quantum)
@@ -325,6 +328,9 @@ class RigidDrift(SubStep):
     def last_move(self):
         """None: a record of rigid bodies digests no drift."""
         return None
+
+    def adjoint(self, cotangents, ch):
+        drift_pullback(self.system, self, cotangents, ch)
 
     def rollback(self):
         self.system.show_positions()
@@ -389,6 +395,13 @@ class RigidKick(SubStep):
                     'reversible. Check the structure (overlapping atoms?) '
                     'and the calculator.') from None
             raise
+
+    def adjoint(self, cotangents, ch):
+        # Deferred: merged with the next kick at these positions.
+        cotangents.defer(self._pull_back, ch)
+
+    def _pull_back(self, cotangents, ch):
+        kick_pullback(self.system, cotangents, ch)
 
     def checkpoint(self):
         self._saved = self._f_cache
