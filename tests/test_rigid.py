@@ -18,7 +18,7 @@ from ase.constraints import FixAtoms, FixBondLengths, FixLinearTriatomic
 from ase.io import read
 from ase.md.verlet import VelocityVerlet
 
-from ase_reversible import (ReversibleBussi, ReversibleLangevin,
+from ase_reversible import (AnchorMovedWarning, ReversibleBussi, ReversibleLangevin,
                             ReversibleNose, ReversibleVerlet,
                             UnstableIntegrationError,
                             UnsupportedConstraintError)
@@ -182,6 +182,19 @@ def test_a_frame_restarts_exactly(tmp_path):
     assert_same_counts(resumed.counts, end)
     resumed.reverse().run(30)
     assert_same_counts(resumed.counts, start)
+
+
+def test_a_frame_without_its_constraint_warns_that_it_runs_free(tmp_path):
+    box = water_box(3)
+    path = tmp_path / 'water.traj'
+    with ReversibleVerlet(box, 1 * units.fs, trajectory=str(path)) as dyn:
+        dyn.run(2)
+    frame = read(path, index=-1)
+    del frame.constraints
+    frame.calc = TIP3P(rc=4.5)
+    with pytest.warns(AnchorMovedWarning, match='set the constraint again'):
+        dyn = ReversibleVerlet(frame, 1 * units.fs)
+    assert dyn.system.layout is None and dyn.get_time() == 0.0
 
 
 def test_an_edit_between_runs_is_taken_and_snapped():

@@ -29,7 +29,8 @@ from .admission import admit, checked_grid, encoded
 from .changes import ChangeContract
 from .checks import check_energy_watch, check_steps, check_timestep, fixed
 from ..core.record import read_record
-from ..errors import UnsupportedConstraintError
+from ..errors import AnchorMovedWarning, UnsupportedConstraintError
+from ..purity.advice import warn_at_user_line
 from .hamiltonian import Hamiltonian
 from .rigid.layout import refuse_guarded_rigid, rigid_layout
 from .rigid.system import SECTION as RIGID, VARIABLES as RIGID_VARIABLES
@@ -527,6 +528,15 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         if layout is not None:
             return self._rigid_system(atoms, layout, masses_n, purity,
                                       position_quantum, momentum_quantum)
+        rigid_record = read_record(atoms.info, names=(), sections=(RIGID,))
+        if rigid_record is not None and rigid_record[RIGID] is not None:
+            warn_at_user_line(
+                'These atoms are a frame of a run of rigid molecules (its '
+                'restart record holds their bodies), but they carry no '
+                'FixBondLengths or FixLinearTriatomic now: they run as free '
+                'atoms, a new run. To go on with the rigid run exactly, set '
+                'the constraint again before constructing (ase.io.read '
+                'restores it from a .traj frame).', AnchorMovedWarning)
         grid = checked_grid(atoms, masses_n, project, purity, max_kick,
                             position_quantum, momentum_quantum, record)
         counts = encoded(atoms, grid.position_quantum, grid.momentum_quantum,

@@ -54,7 +54,15 @@ def sampling_table(results):
              f"{c['relative_deviation']:+.2%}",
              f"{c['ks_translational']:.2g}", f"{c['ks_rotational']:.2g}"]
             for c in sampling['cases']]
-    return markdown_table(
+    trips = markdown_table(
+        ['thermostat', 'waters', 'dt (fs)', 'steps each way',
+         'back bit for bit', 'temperature at the turn (K)',
+         'wall time (s)'],
+        [[c['thermostat'], c['n_waters'], f"{c['timestep_fs']:g}",
+          f"{c['steps']:,}", 'yes' if c['exact'] else '**no**',
+          f"{c['temperature_at_turn']:.0f}", f"{c['seconds']:.0f}"]
+         for c in sampling['round_trips']])
+    return trips + '\n\n' + markdown_table(
         ['thermostat', 'waters', 'degrees of freedom', 'steps',
          'mean temperature (K)', 'from the target',
          'KS p, translational', 'KS p, rotational'], rows)
