@@ -61,6 +61,11 @@ class TestAsapEMT(TestAseEMT):
         return needs_asap3().EMT(**parameters)
 
 
+#: Steps out in LAMMPSlib's reversal checks: its crystals (108 atoms, each
+#: step twice the cluster's cost) as many as ASE's calculators' crystals.
+LAMMPSLIB_STEPS = {'cluster': 1000, 'crystal': 300}
+
+
 def lammps_lj():
     return lammpslib([f'pair_style lj/cut {AR_RC}',
                       f'pair_coeff * * {AR_EPSILON} {AR_SIGMA}'], 'Ar')
@@ -77,7 +82,7 @@ class TestLammpsLibLennardJones(OtherPeoples):
     # (lj/cut).
     systems = {'cluster': lambda: argon_cluster(3, 80),
                'crystal': lambda: _rattled(argon_bulk((3, 3, 3), 80))}
-    reversal_steps = 1000
+    reversal_steps = LAMMPSLIB_STEPS
 
     def make_calc(self, **parameters):
         return lammps_lj()
@@ -88,7 +93,7 @@ class TestLammpsLibEAM(OtherPeoples):
     # of a table.
     systems = {'cluster': lambda: copper_cluster(3, 600),
                'crystal': lambda: copper_bulk((3, 3, 3), 600)}
-    reversal_steps = 1000
+    reversal_steps = LAMMPSLIB_STEPS
 
     def make_calc(self, **parameters):
         return lammps_eam()
