@@ -353,11 +353,12 @@ def test_included_runs_are_exact_runs(path, tmp_path):
 
 
 @pytest.mark.parametrize('path', paths())
-def test_refused_timestep_loses_nothing(path, tmp_path):
+@pytest.mark.parametrize('ranks', [1, pytest.param(2, marks=SLOW)])
+def test_refused_timestep_loses_nothing(ranks, path, tmp_path):
     # A time step that is not a power of two is refused before any step;
     # the run then goes back with a valid one and lands on its start.
-    result = job(2, 'refused-timestep', tmp_path, path=path, system='argon',
-                 steps=60)
+    result = job(ranks, 'refused-timestep', tmp_path, path=path,
+                 system='argon', steps=60)
     assert 'is not a power of two' in result['counters']['refused']
     assert_same_state(result, 'back', 'start')
 
