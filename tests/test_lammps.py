@@ -144,10 +144,11 @@ def test_out_and_back_bit_for_bit(case, ranks, path, tmp_path):
 
 
 @pytest.mark.parametrize('path', paths())
-def test_force_fixes_defined_before_act_first(path, tmp_path):
+@pytest.mark.parametrize('ranks', [1, pytest.param(2, marks=SLOW)])
+def test_force_fixes_defined_before_act_first(ranks, path, tmp_path):
     # fix setforce on atoms 1 to 50 (at rest): they stay where they are,
     # the others move, and the run comes back exactly.
-    result = job(2, 'frozen', tmp_path, path=path, system='argon',
+    result = job(ranks, 'frozen', tmp_path, path=path, system='argon',
                  steps=100)
     frozen = result['start_ids'] <= 50
     assert np.array_equal(result['out_x'][frozen], result['start_x'][frozen])
