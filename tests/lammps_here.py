@@ -57,8 +57,8 @@ def captured(cwd=None):
     libc = ctypes.CDLL(None)
     here = Path.cwd()
     python = io.StringIO(), io.StringIO()
-    with tempfile.TemporaryFile('w+') as out, \
-            tempfile.TemporaryFile('w+') as err:
+    with tempfile.TemporaryFile('w+', errors='replace') as out, \
+            tempfile.TemporaryFile('w+', errors='replace') as err:
         libc.fflush(None)  # what is pending goes where it was written
         saved = os.dup(1), os.dup(2)
         os.dup2(out.fileno(), 1)
