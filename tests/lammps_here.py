@@ -7,7 +7,9 @@ the quick tier has dozens of one-rank runs.  :func:`run_here` runs what
 instance as the process would make, and returns the same exit status and
 output.  Runs on more ranks, and those that need a process of their own
 (environment variables that decide the compiled step's build: this process
-may have loaded the plugin already), are still launched.
+may have loaded the plugin already), are still launched.  This relies on
+``finalize_mpi`` (which the script runner calls) leaving MPI running on
+one rank: a process cannot start MPI again once it has ended it.
 """
 
 import contextlib
