@@ -200,7 +200,7 @@ def test_gradients_match_whole_run_finite_differences(case):
 @pytest.mark.parametrize('name', ['epsilon', 'sigma'])
 def test_parameter_gradients_match_whole_run_finite_differences(name):
     build = lambda: argon(3, 40)  # noqa: E731
-    steps = 400
+    steps = 200
     a_nc, b_nc = random_loss(build())
     run = WholeRun(build, steps, a_nc, b_nc)
     g = run.gradients(parameters=(name,))

@@ -25,10 +25,11 @@ def _rattled(atoms):
 
 
 class OtherPeoples(CalculatorConformance):
-    """What the calculators here share: ASE's time step, a check_state
-    with a tolerance (ASE's own, or the one LAMMPSlib inherits) and
-    gradients to 1e-7 of max|F|."""
+    """What the calculators here share: ASE's time step, 300 steps out and
+    back, a check_state with a tolerance (ASE's own, or the one LAMMPSlib
+    inherits) and gradients to 1e-7 of max|F|."""
     timestep = DT
+    reversal_steps = 300
     exact_check_state = False
     gradient_tolerance = 1e-7
 
@@ -38,7 +39,6 @@ class TestAseLennardJones(OtherPeoples):
     # 0.3-3.6e-9 of max|F|: its forces jump at rc (smooth=False).
     systems = {'cluster': lambda: argon_cluster(3, 80),
                'crystal': lambda: _rattled(argon_bulk((2, 2, 2), 80))}
-    reversal_steps = 300
 
     def make_calc(self, **parameters):
         calc = ase_lj()
@@ -50,7 +50,6 @@ class TestAseEMT(OtherPeoples):
     # Gradients measured 0.7-1.6e-9 of max|F|.
     systems = {'cluster': lambda: copper_cluster(2, 600),
                'crystal': lambda: copper_bulk((2, 2, 2), 600)}
-    reversal_steps = 300
 
     def make_calc(self, **parameters):
         return EMT(**parameters)
@@ -77,7 +76,6 @@ class TestLammpsLibLennardJones(OtherPeoples):
     # (lj/cut).
     systems = {'cluster': lambda: argon_cluster(3, 80),
                'crystal': lambda: _rattled(argon_bulk((3, 3, 3), 80))}
-    reversal_steps = 1000
 
     def make_calc(self, **parameters):
         return lammps_lj()
@@ -88,7 +86,6 @@ class TestLammpsLibEAM(OtherPeoples):
     # of a table.
     systems = {'cluster': lambda: copper_cluster(3, 600),
                'crystal': lambda: copper_bulk((3, 3, 3), 600)}
-    reversal_steps = 1000
 
     def make_calc(self, **parameters):
         return lammps_eam()

