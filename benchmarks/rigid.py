@@ -25,40 +25,14 @@ import numpy as np
 SIZES = {27: (3, 4.5), 64: (4, 6.0), 216: (6, 9.0)}
 
 
-def water_box(side, rc, seed=0):
-    from ase import Atoms, units
-    from ase.build import molecule
-    from ase.calculators.tip3p import TIP3P, angleHOH, rOH
-    from ase.constraints import FixBondLengths
-    water = molecule('H2O')
-    water.set_angle(1, 0, 2, angleHOH)
-    water.set_distance(0, 1, rOH, fix=0)
-    water.set_distance(0, 2, rOH, fix=0)
-    rng = np.random.default_rng(seed)
-    box = Atoms()
-    for index in np.ndindex(side, side, side):
-        m = water.copy()
-        m.rotate(rng.uniform(0, 360), rng.normal(size=3))
-        m.translate(3.1 * np.array(index))
-        box += m
-    box.cell = [3.1 * side] * 3
-    box.pbc = True
-    box.set_constraint(FixBondLengths(
-        [(3 * i + a, 3 * i + b) for i in range(side**3)
-         for a, b in ((0, 1), (0, 2), (1, 2))]))
-    box.calc = TIP3P(rc=rc)
-    masses = box.get_masses()[:, None]
-    box.set_momenta(np.sqrt(masses * units.kB * 300.0)
-                    * rng.normal(size=(len(box), 3)))
-    return box
-
-
 def relaxed(n_waters):
     """The start of every measurement on ``n_waters`` waters."""
     from ase import units
 
     from ase_reversible import ReversibleVerlet
-    box = water_box(*SIZES[n_waters])
+    from ase_reversible.app.systems import water_box
+    side, rc = SIZES[n_waters]
+    box = water_box(side, rc=rc)
     for _ in range(3):
         ReversibleVerlet(box, 0.5 * units.fs, energy_check=0).run(200)
         box.set_momenta(box.get_momenta()

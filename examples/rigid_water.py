@@ -33,51 +33,17 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from ase import Atoms, units
-from ase.build import molecule
-from ase.calculators.tip3p import TIP3P, angleHOH, rOH
-from ase.constraints import FixBondLengths
+from ase import units
+from ase.calculators.tip3p import TIP3P, rOH
 from ase.io import read
 
 from ase_reversible import ReversibleLangevin
+from ase_reversible.app.systems import water_bonds, water_box
 
 TEMPERATURE_K = 300.0
 FRICTION = 0.01 / units.fs
 TIMESTEP = 2 * units.fs
 SEED = 11
-
-
-def water_box(side, seed=0):
-    """``side**3`` rigid TIP3P waters, periodic, with thermal momenta."""
-    water = molecule('H2O')
-    water.set_angle(1, 0, 2, angleHOH)
-    water.set_distance(0, 1, rOH, fix=0)
-    water.set_distance(0, 2, rOH, fix=0)
-    rng = np.random.default_rng(seed)
-    box = Atoms()
-    for index in np.ndindex(side, side, side):
-        m = water.copy()
-        m.rotate(rng.uniform(0, 360), rng.normal(size=3))
-        m.translate(3.1 * np.array(index))
-        box += m
-    box.cell = [3.1 * side] * 3
-    box.pbc = True
-    box.set_constraint(water_bonds(side**3))
-    masses = box.get_masses()[:, None]
-    box.set_momenta(np.sqrt(masses * units.kB * TEMPERATURE_K)
-                    * rng.normal(size=(len(box), 3)))
-    return box
-
-
-def water_bonds(n):
-    """FixBondLengths on the three bonds of each of ``n`` waters (O, H,
-    H in order)."""
-    return FixBondLengths([(3 * i + a, 3 * i + b) for i in range(n)
-                           for a, b in ((0, 1), (0, 2), (1, 2))])
-
-
-def tip3p(box):
-    return TIP3P(rc=min(6.0, 0.5 * box.cell.lengths().min() - 0.01))
 
 
 def thermostat(atoms, **kwargs):
@@ -89,8 +55,7 @@ def main(out_dir='.', quick=False):
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     side, steps = (3, 40) if quick else (4, 400)
-    box = water_box(side)
-    box.calc = tip3p(box)
+    box = water_box(side, TEMPERATURE_K)
     path = out_dir / 'rigid_water.traj'
     buffer = out_dir / 'rigid_water.npz'
     half = steps // 2
@@ -110,7 +75,7 @@ def main(out_dir='.', quick=False):
                            for k, v in dyn.counts.items())
     frame = read(path, index=1)
     frame.set_constraint(water_bonds(side**3))
-    frame.calc = tip3p(frame)
+    frame.calc = TIP3P(rc=box.calc.rc)
     resumed = thermostat(frame, buffer=str(buffer))
     resumed.run(steps - half)
     exact_resume = all(np.array_equal(end[k], v)

@@ -10,7 +10,6 @@ import warnings
 import numpy as np
 import pytest
 from ase import Atoms, units
-from ase.build import molecule
 from ase.calculators.acn import ACN, m_me, r_cn, r_mec
 from ase.calculators.emt import EMT
 from ase.calculators.tip3p import TIP3P, angleHOH, rOH
@@ -22,38 +21,12 @@ from ase_reversible import (AnchorMovedWarning, ReversibleBussi, ReversibleLange
                             ReversibleNose, ReversibleVerlet,
                             UnstableIntegrationError,
                             UnsupportedConstraintError)
+from ase_reversible.app.systems import water_box
 from ase_reversible.core import rigid
 from machines import emulation_works, run_leg
 from tiers import SLOW
 
 VARIABLES = ('position', 'momentum', 'orientation', 'angular_momentum')
-
-
-def water_box(n, seed=0, rc=4.5, temperature=300.0):
-    """``n**3`` TIP3P waters on a 3.1 Å lattice, turned at random,
-    periodic, thermal momenta (not yet rigid: the constructor takes their
-    rigid part)."""
-    water = molecule('H2O')
-    water.set_angle(1, 0, 2, angleHOH)
-    water.set_distance(0, 1, rOH, fix=0)
-    water.set_distance(0, 2, rOH, fix=0)
-    rng = np.random.default_rng(seed)
-    box = Atoms()
-    for index in np.ndindex(n, n, n):
-        m = water.copy()
-        m.rotate(rng.uniform(0, 360), rng.normal(size=3))
-        m.translate(3.1 * np.array(index))
-        box += m
-    box.cell = [3.1 * n] * 3
-    box.pbc = True
-    box.set_constraint(FixBondLengths(
-        [(3 * i + a, 3 * i + b) for i in range(n**3)
-         for a, b in ((0, 1), (0, 2), (1, 2))]))
-    box.calc = TIP3P(rc=rc)
-    masses = box.get_masses()[:, None]
-    box.set_momenta(np.sqrt(masses * units.kB * temperature)
-                    * rng.normal(size=(len(box), 3)))
-    return box
 
 
 def acetonitrile_dimer():
@@ -170,7 +143,7 @@ def test_a_frame_restarts_exactly(tmp_path):
         dyn.run(10)
         end = dyn.counts
     frame = read(path, index=20)
-    frame.calc = TIP3P(rc=4.5)
+    frame.calc = TIP3P(rc=box.calc.rc)
     frame.set_constraint(box.constraints)
     with warnings.catch_warnings():
         warnings.simplefilter('error')
@@ -191,7 +164,7 @@ def test_a_frame_without_its_constraint_warns_that_it_runs_free(tmp_path):
         dyn.run(2)
     frame = read(path, index=-1)
     del frame.constraints
-    frame.calc = TIP3P(rc=4.5)
+    frame.calc = TIP3P(rc=box.calc.rc)
     with pytest.warns(AnchorMovedWarning, match='set the constraint again'):
         dyn = ReversibleVerlet(frame, 1 * units.fs)
     assert dyn.system.layout is None and dyn.get_time() == 0.0
@@ -212,7 +185,7 @@ def test_an_edit_between_runs_is_taken_and_snapped():
 
 
 def test_a_turn_too_large_is_refused_and_the_state_kept():
-    box = water_box(3, temperature=300.0)
+    box = water_box(3)
     dyn = ReversibleVerlet(box, 40 * units.fs, energy_check=0)
     before = dyn.counts
     with pytest.raises(UnstableIntegrationError, match='would turn by'):

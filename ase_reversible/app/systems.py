@@ -1,4 +1,5 @@
-"""Ready-made systems: argon and copper with thermal momenta from a seed.
+"""Ready-made systems: argon, copper and rigid water with thermal
+momenta from a seed.
 
 The one place where the library's tests, benchmarks, demo, scenes and
 examples get their standard systems and the argon Lennard-Jones
@@ -70,3 +71,50 @@ def copper_bulk(size=(3, 3, 3), temperature_K=600, seed=0, rattle=0.05):
     if rattle:
         atoms.rattle(rattle, seed=seed)
     return thermalize(atoms, temperature_K, seed)
+
+
+#: Spacing of the water lattice of :func:`water_box`, Å (about liquid
+#: water's density, 1 g/cm**3 at 3.1 Å).
+WATER_SPACING = 3.1
+
+
+def water_bonds(n):
+    """ASE's ``FixBondLengths`` on the three bonds of each of ``n`` waters
+    (atoms O, H, H in order): rigid TIP3P water."""
+    from ase.constraints import FixBondLengths
+    return FixBondLengths([(3 * i + a, 3 * i + b) for i in range(n)
+                           for a, b in ((0, 1), (0, 2), (1, 2))])
+
+
+def water_box(side, temperature_K=300, seed=0, rc=None):
+    """``side**3`` rigid TIP3P waters (ASE's geometry and calculator),
+    periodic, on a lattice of :data:`WATER_SPACING` Å, each turned at
+    random, with Maxwell-Boltzmann momenta at ``temperature_K`` (K; not
+    yet rigid: an integrator takes their rigid part) drawn from ``seed``.
+    ``rc``: TIP3P's cut-off, Å; default 6 Å or just under half the box.
+    """
+    from ase import Atoms, units
+    from ase.build import molecule
+    from ase.calculators.tip3p import TIP3P, angleHOH, rOH
+    water = molecule('H2O')
+    water.set_angle(1, 0, 2, angleHOH)
+    water.set_distance(0, 1, rOH, fix=0)
+    water.set_distance(0, 2, rOH, fix=0)
+    rng = np.random.default_rng(seed)
+    box = Atoms()
+    for index in np.ndindex(side, side, side):
+        m = water.copy()
+        m.rotate(rng.uniform(0, 360), rng.normal(size=3))
+        m.translate(WATER_SPACING * np.array(index))
+        box += m
+    box.cell = [WATER_SPACING * side] * 3
+    box.pbc = True
+    box.set_constraint(water_bonds(side**3))
+    masses = box.get_masses()[:, None]
+    box.set_momenta(np.sqrt(masses * units.kB * temperature_K)
+                    * rng.normal(size=(len(box), 3)))
+    if rc is None:
+        rc = min(6.0, 0.5 * WATER_SPACING * side - 0.01)
+    box.calc = TIP3P(rc=rc)
+    return box
+

@@ -325,11 +325,7 @@ class Kick(SubStep):
             self._r_max = s.p.add_integers(r_nc, self._r_max)
         except QuantumRangeError:
             if not np.all(np.isfinite(self._f_cache[1])):
-                raise NonFiniteForcesError(
-                    f'{type(s.atoms.calc).__name__} returned non-finite '
-                    'forces; the step was not taken and the state is still '
-                    'reversible. Check the structure (overlapping atoms?) '
-                    'and the calculator.') from None
+                raise non_finite_forces(s.atoms.calc) from None
             raise
 
     def checkpoint(self):
@@ -369,6 +365,14 @@ class Kick(SubStep):
         for name in grads:
             grads[name] = grads[name] + ch * np.asarray(dtheta[name],
                                                         dtype=float)
+
+
+def non_finite_forces(calc):
+    """The error of a kick whose forces (from ``calc``) are not finite."""
+    return NonFiniteForcesError(
+        f'{type(calc).__name__} returned non-finite forces; the step was '
+        'not taken and the state is still reversible. Check the structure '
+        '(overlapping atoms?) and the calculator.')
 
 
 def explain_energy_drift(number, drift, tolerance, dt):

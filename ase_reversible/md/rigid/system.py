@@ -29,10 +29,9 @@ from ...core.plans import SubStep
 from ...core.quanta import (Grid, choose_angular_momentum_quantum,
                             choose_grid)
 from ...core.variables import ExactVariable
-from ...errors import (NonFiniteForcesError, QuantumRangeError,
-                       UnstableIntegrationError)
+from ...errors import QuantumRangeError, UnstableIntegrationError
 from ..constraints import no_projection
-from ..hamiltonian import Hamiltonian
+from ..hamiltonian import Hamiltonian, non_finite_forces
 from .adjoint import drift_pullback, kick_pullback
 
 #: The restart record's section of rigid bodies: their atoms, shapes and
@@ -389,11 +388,7 @@ class RigidKick(SubStep):
             s.l.add_integers(self._r[1])
         except QuantumRangeError:
             if not np.all(np.isfinite(self._f_cache[1])):
-                raise NonFiniteForcesError(
-                    f'{type(s.atoms.calc).__name__} returned non-finite '
-                    'forces; the step was not taken and the state is still '
-                    'reversible. Check the structure (overlapping atoms?) '
-                    'and the calculator.') from None
+                raise non_finite_forces(s.atoms.calc) from None
             raise
 
     def adjoint(self, cotangents, ch):
