@@ -17,9 +17,9 @@ from ase.constraints import FixAtoms, FixBondLengths, FixLinearTriatomic
 from ase.io import read
 from ase.md.verlet import VelocityVerlet
 
-from ase_reversible import (AnchorMovedWarning, ReversibleBussi, ReversibleLangevin,
-                            ReversibleNose, ReversibleVerlet,
-                            UnstableIntegrationError,
+from ase_reversible import (AnchorMovedWarning, ReversibleBussi,
+                            ReversibleLangevin, ReversibleNose,
+                            ReversibleVerlet, UnstableIntegrationError,
                             UnsupportedConstraintError)
 from ase_reversible.app.systems import water_box
 from ase_reversible.core import rigid

@@ -53,8 +53,9 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
 
     engine = None
     #: Whether the dynamics runs molecules that FixBondLengths or
-    #: FixLinearTriatomic make rigid, as rigid bodies (:mod:`.rigid`), and
-    #: whether backpropagate retraces them.
+    #: FixLinearTriatomic make rigid as rigid bodies
+    #: (:mod:`ase_reversible.md.rigid`), and whether backpropagate retraces
+    #: them.
     rigid_bodies = rigid_adjoint = False
 
     def _open(self, system, engine, record, purity_choice, timestep,

@@ -30,7 +30,7 @@ Constraints that move atoms by a float correction (FixBondLengths,
 FixInternals, ...) would add an increment that is not a function of the
 other variable, so they are refused; FixBondLengths and FixLinearTriatomic
 are read as rigid bodies instead by the dynamics that runs them
-(:mod:`.rigid`).
+(:mod:`ase_reversible.md.rigid`).
 """
 
 from __future__ import annotations

@@ -24,7 +24,8 @@ def md_forces(atoms):
     FixLinearTriatomic makes a molecule rigid: its ``md`` forces move the
     central atom's force onto the outer two for RATTLE's variables, which
     changes the molecule's total force (by 29% at the start of ASE's
-    acetonitrile dimer); a rigid body takes the sum and torque of its atoms' own."""
+    acetonitrile dimer); a rigid body takes the sum and torque of its
+    atoms' own."""
     # Most runs have no constraint: one test of the list, not a loop
     # (the loop cost 0.34 µs a cached force call of Ar13; this, nothing
     # measurable).

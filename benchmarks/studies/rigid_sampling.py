@@ -1,6 +1,6 @@
 """Rigid TIP3P water under ReversibleLangevin and ReversibleBussi: long
-runs out and back, the canonical distribution of the molecules' translational and rotational
-kinetic energies and the mean temperature over the 6 N - 3 degrees of
+runs out and back, the canonical distribution of the molecules'
+translational and rotational kinetic energies and the mean temperature over the 6 N - 3 degrees of
 freedom of rigid molecules with no net momentum, 64 waters, 300 K, 2 fs;
 Langevin with fixcm (its noise has no net momentum), Bussi with ASE's
 count of degrees of freedom (``atoms.get_number_of_degrees_of_freedom()``,

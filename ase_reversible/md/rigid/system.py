@@ -48,8 +48,9 @@ ROTATION_SPLIT = ((0, 0.5), (1, 0.5), (2, 1.0), (1, 0.5), (0, 0.5))
 
 def rigid_counts(atoms, layout, grid, angular_quantum):
     """The exact variables' int64 counts by name for the atoms (bodies
-    fitted to them by :meth:`RigidLayout.fit`) on ``grid`` and the
-    angular momentum quantum ``angular_quantum``."""
+    fitted to them by
+    :meth:`~ase_reversible.md.rigid.layout.RigidLayout.fit`) on ``grid``
+    and the angular momentum quantum ``angular_quantum``."""
     centres, quats, momenta, spins = layout.fit(atoms)
     free = layout.free_f
     x = np.concatenate([atoms.positions[free], centres])
