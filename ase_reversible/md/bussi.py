@@ -175,7 +175,7 @@ class Rescale(BufferedMomentumStep):
     def prepare(self, ch):
         temperature_K, taut, seed = self.settings()
         s = self.system
-        dof = s.atoms.get_number_of_degrees_of_freedom()
+        dof = ase_degrees_of_freedom(s.atoms)
         if self._draws is None or self._draws.dof != dof:
             self._draws = BussiDraws(dof)
         free_k = self.free_k()
@@ -235,6 +235,17 @@ class Rescale(BufferedMomentumStep):
         projected = float(np.sum(np.where(free_nc, a_nc * p_nc, 0.0)))
         a_nc[...] = np.where(free_nc, ratio * a_nc, a_nc) \
             + (slope * projected) * p_nc / s.m_n1
+
+
+def ase_degrees_of_freedom(atoms):
+    """ASE's ``atoms.get_number_of_degrees_of_freedom()``: ``3N`` less what
+    the constraints remove, written out where the method is missing (ASE
+    3.23 has none; ReversibleBussi failed there)."""
+    count = getattr(atoms, 'get_number_of_degrees_of_freedom', None)
+    if count is not None:
+        return count()
+    return 3 * len(atoms) - sum(c.get_removed_dof(atoms)
+                                for c in atoms.constraints)
 
 
 _ZERO_MOMENTA = (
@@ -428,7 +439,7 @@ class ReversibleBussi(BufferedDynamics):
         """The degrees of freedom thermostatted, ASE's ``Bussi.ndof``:
         ``atoms.get_number_of_degrees_of_freedom()`` (3N less those the
         constraints remove, read as each step is prepared)."""
-        return self.atoms.get_number_of_degrees_of_freedom()
+        return ase_degrees_of_freedom(self.atoms)
 
     @property
     def target_kinetic_energy(self) -> float:
