@@ -46,7 +46,9 @@ STUDIES = {'nose_timestep': ('nose_timestep', 'run', 'nose', 'timestep', None),
            'lammps_scale': ('lammps_scale', 'run', 'lammps_cost', 'scale',
                             None),
            'rigid_sampling': ('rigid_sampling', 'run', 'rigid', 'sampling',
-                              None)}
+                              None),
+           'rigid_stability': ('rigid_stability', 'run', 'rigid',
+                               'stability', None)}
 
 
 def measure(name, quick, only, machine) -> dict:

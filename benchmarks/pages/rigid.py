@@ -68,6 +68,21 @@ def sampling_table(results):
          'KS p, translational', 'KS p, rotational'], rows)
 
 
+def stability_table(results):
+    if 'stability' not in results:
+        return ('*Not measured yet: `python benchmarks/run_all.py --only '
+                'rigid_stability`.*')
+    rows = [[f"{c['timestep_fs']:g}", c['n_waters'], f"{c['steps']:,}",
+             'no' if c['stopped_at'] is None
+             else f"at step {c['stopped_at']}",
+             f"{c['energy_change_per_molecule']:+.1e}"]
+            for c in results['stability']['cases']]
+    return markdown_table(
+        ['dt (fs)', 'waters', 'steps', 'stopped by the energy check',
+         'energy change (eV/molecule)'], rows)
+
+
 SPEC = Spec('Rigid water against RATTLE', blocks={
     'energy': block(energy_table), 'cost': block(cost_table),
-    'long': block(long_table), 'sampling': block(sampling_table)})
+    'long': block(long_table), 'sampling': block(sampling_table),
+    'stability': block(stability_table)})
