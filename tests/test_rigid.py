@@ -158,6 +158,22 @@ def test_a_frame_restarts_exactly(tmp_path):
     assert_same_counts(resumed.counts, start)
 
 
+def test_a_frame_whose_constraint_holds_other_lengths_starts_anew(tmp_path):
+    box = water_box(3)
+    path = tmp_path / 'water.traj'
+    with ReversibleVerlet(box, 1 * units.fs, trajectory=str(path)) as dyn:
+        dyn.run(2)
+    frame = read(path, index=-1)
+    lengths = frame.constraints[0].initialize_bond_lengths(frame)
+    lengths[0] += 0.01
+    frame.set_constraint(FixBondLengths(frame.constraints[0].pairs,
+                                        bondlengths=lengths))
+    frame.calc = TIP3P(rc=box.calc.rc)
+    dyn = ReversibleVerlet(frame, 1 * units.fs)
+    assert dyn.get_time() == 0.0  # the record's shapes are not taken
+    assert abs(frame.get_distance(0, 1) - lengths[0]) < 1e-12
+
+
 def test_a_frame_without_its_constraint_warns_that_it_runs_free(tmp_path):
     box = water_box(3)
     path = tmp_path / 'water.traj'

@@ -92,9 +92,16 @@ class RigidLayout:
     def with_shapes(self, body_bxc, moments_bc):
         """This layout with the shapes ``body_bxc`` ``[b, x, 3]`` (Å) and
         moments ``moments_bc`` ``[b, 3]`` (amu Å**2) of a restart record:
-        bit for bit those of the run that wrote it, wherever it ran."""
+        bit for bit those of the run that wrote it, wherever it ran.
+        Raises ValueError if they are not this layout's shapes (the
+        constraint now holds other lengths)."""
         if body_bxc.shape != self.body_bxc.shape \
                 or moments_bc.shape != self.moments_bc.shape:
+            raise ValueError('the record holds other shapes')
+        # The same distances within each body, to the rounding of the
+        # frames (another machine's eigenvectors differ in last bits).
+        if not np.allclose(_distances(body_bxc), _distances(self.body_bxc),
+                           rtol=1e-12, atol=1e-12):
             raise ValueError('the record holds other shapes')
         new = copy.copy(self)
         new.body_bxc, new.moments_bc = body_bxc, moments_bc
@@ -110,11 +117,6 @@ class RigidLayout:
     def n_sites(self):
         """Free atoms and bodies: what has a position and momentum."""
         return len(self.free_f) + self.n_bodies
-
-    def removed_dof(self):
-        """Degrees of freedom the bodies remove from their atoms'."""
-        return int(sum(3 * len(b) - (5 if lin else 6)
-                       for b, lin in zip(self.bodies_bx, self.linear_b)))
 
     def fit(self, atoms):
         """The bodies' state fitted to the atoms: ``(centres [b, 3] Å,
@@ -144,6 +146,12 @@ class RigidLayout:
         return (np.array(centres).reshape(-1, 3),
                 np.array(quats).reshape(-1, 4),
                 np.array(momenta).reshape(-1, 3), spins)
+
+
+def _distances(body_bxc):
+    """``[b, x, x]``: the distances between each body's atoms, Å."""
+    d = body_bxc[:, :, None, :] - body_bxc[:, None, :, :]
+    return np.sqrt((d * d).sum(axis=-1))
 
 
 def unwrapped(r_xc, cell, pbc):
