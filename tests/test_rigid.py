@@ -158,12 +158,18 @@ def test_a_frame_restarts_exactly(tmp_path):
     assert_same_counts(resumed.counts, start)
 
 
-def test_a_frame_whose_constraint_holds_other_lengths_starts_anew(tmp_path):
+def written_frame(folder):
+    """The last frame of a short ReversibleVerlet run of 27 waters, read
+    back with ``ase.io.read``, and the box that wrote it."""
     box = water_box(3)
-    path = tmp_path / 'water.traj'
+    path = folder / 'water.traj'
     with ReversibleVerlet(box, 1 * units.fs, trajectory=str(path)) as dyn:
         dyn.run(2)
-    frame = read(path, index=-1)
+    return read(path, index=-1), box
+
+
+def test_a_frame_whose_constraint_holds_other_lengths_starts_anew(tmp_path):
+    frame, box = written_frame(tmp_path)
     lengths = frame.constraints[0].initialize_bond_lengths(frame)
     lengths[0] += 0.01
     frame.set_constraint(FixBondLengths(frame.constraints[0].pairs,
@@ -175,11 +181,7 @@ def test_a_frame_whose_constraint_holds_other_lengths_starts_anew(tmp_path):
 
 
 def test_a_frame_without_its_constraint_warns_that_it_runs_free(tmp_path):
-    box = water_box(3)
-    path = tmp_path / 'water.traj'
-    with ReversibleVerlet(box, 1 * units.fs, trajectory=str(path)) as dyn:
-        dyn.run(2)
-    frame = read(path, index=-1)
+    frame, box = written_frame(tmp_path)
     del frame.constraints
     frame.calc = TIP3P(rc=box.calc.rc)
     with pytest.warns(AnchorMovedWarning, match='set the constraint again'):

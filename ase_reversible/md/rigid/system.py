@@ -153,6 +153,7 @@ class RigidSystem(Hamiltonian):
         self._inverse_moments_k = layout.inverse_moments_bc.reshape(-1)
         self._frame = (None, None, None)
         self._shown = (None, None)
+        self._shapes = None
         self.drift = RigidDrift(self)
         self.kick = RigidKick(self)
 
@@ -181,10 +182,12 @@ class RigidSystem(Hamiltonian):
     def record_section(self):
         """The restart record's :data:`SECTION`: the bodies' atoms and
         shapes, and the counts of every variable (JSON-ready lists)."""
-        layout = self.layout
-        return {'bodies': layout.bodies_bx.tolist(),
-                'body': layout.body_bxc.tolist(),
-                'moments': layout.moments_bc.tolist(),
+        if self._shapes is None:  # fixed for the system's life
+            layout = self.layout
+            self._shapes = {'bodies': layout.bodies_bx.tolist(),
+                            'body': layout.body_bxc.tolist(),
+                            'moments': layout.moments_bc.tolist()}
+        return {**self._shapes,
                 **{name: v.counts.astype(np.int64).tolist()
                    for name, v in self.variables.items()}}
 
