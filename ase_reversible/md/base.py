@@ -24,18 +24,16 @@ from ase.md.md import MolecularDynamics
 
 from ..adjoint.retrace import retrace_gradients
 from ..adjoint.schedule import checked_schedule
-from ..core.record import RecordWriter
+from ..core.record import RecordWriter, read_record
+from ..errors import UnsupportedConstraintError
 from .admission import admit, checked_grid, encoded
 from .changes import ChangeContract
 from .checks import check_energy_watch, check_steps, check_timestep, fixed
-from ..core.record import read_record
-from ..errors import AnchorMovedWarning, UnsupportedConstraintError
-from ..purity.advice import warn_at_user_line
 from .hamiltonian import Hamiltonian
+from .rigid.adjoint import shown_cotangents
 from .rigid.layout import refuse_guarded_rigid, rigid_layout
 from .rigid.system import SECTION as RIGID, VARIABLES as RIGID_VARIABLES
 from .rigid.system import resumed_system, rigid_system
-from .rigid.adjoint import shown_cotangents
 from .machine import SECTION as MACHINE
 from .restart import RestartRecord
 from .state import FixedPointState
@@ -529,15 +527,7 @@ class ReversibleDynamics(ChangeContract, RestartRecord, MolecularDynamics):
         if layout is not None:
             return self._rigid_system(atoms, layout, masses_n, purity,
                                       position_quantum, momentum_quantum)
-        rigid_record = read_record(atoms.info, names=(), sections=(RIGID,))
-        if rigid_record is not None and rigid_record[RIGID] is not None:
-            warn_at_user_line(
-                'These atoms are a frame of a run of rigid molecules (its '
-                'restart record holds their bodies), but they carry no '
-                'FixBondLengths or FixLinearTriatomic now: they run as free '
-                'atoms, a new run. To go on with the rigid run exactly, set '
-                'the constraint again before constructing (ase.io.read '
-                'restores it from a .traj frame).', AnchorMovedWarning)
+        self._warn_rigid_record_unused(atoms.info)
         grid = checked_grid(atoms, masses_n, project, purity, max_kick,
                             position_quantum, momentum_quantum, record)
         counts = encoded(atoms, grid.position_quantum, grid.momentum_quantum,

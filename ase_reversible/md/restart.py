@@ -157,6 +157,19 @@ class RestartRecord:
             'unedited .traj frame; to silence this, remove the '
             f'record (atoms.info.pop({INFO_KEY!r})).', AnchorMovedWarning)
 
+    def _warn_rigid_record_unused(self, info):
+        """Warn where the record in ``info`` holds rigid bodies that these
+        atoms, without their constraint, will not run."""
+        record = read_record(info, names=(), sections=(RIGID,))
+        if record is not None and record[RIGID] is not None:
+            warn_at_user_line(
+                'These atoms are a frame of a run of rigid molecules (its '
+                'restart record holds their bodies), but they carry no '
+                'FixBondLengths or FixLinearTriatomic now: they run as free '
+                'atoms, a new run. To go on with the rigid run exactly, set '
+                'the constraint again before constructing (ase.io.read '
+                'restores it from a .traj frame).', AnchorMovedWarning)
+
     @property
     def forces_match_record(self):
         """Whether the forces at the restart frame this integrator resumed
