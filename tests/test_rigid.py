@@ -337,8 +337,8 @@ def test_gradients_through_rigid_bodies_match_finite_differences():
 @SLOW
 def test_gradients_through_200_steps_of_water_match_finite_differences():
     # Measured 5e-7 to 2e-6: at this step the differences' rounding noise
-    # and their curvature balance (10 times it: 1e-4 to 5e-3 of curvature;
-    # a tenth: 8e-6 to 6e-5 of noise).
+    # and their curvature balance (ten times it: up to 5e-3, curvature; a
+    # tenth: up to 6e-5, noise).
     errors = gradient_errors(water_box(3), 200)
     assert max(errors.values()) < 1e-5, errors
 
