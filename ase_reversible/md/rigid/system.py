@@ -46,21 +46,27 @@ VARIABLES = ('position', 'momentum', 'orientation', 'angular_momentum')
 ROTATION_SPLIT = ((0, 0.5), (1, 0.5), (2, 1.0), (1, 0.5), (0, 0.5))
 
 
-def rigid_counts(atoms, layout, grid, angular_quantum):
-    """The exact variables' int64 counts by name for the atoms (bodies
+def rigid_values(atoms, layout):
+    """The four variables' float values by name for the atoms, the bodies
     fitted to them by
-    :meth:`~ase_reversible.md.rigid.layout.RigidLayout.fit`) on ``grid``
-    and the angular momentum quantum ``angular_quantum``."""
+    :meth:`~ase_reversible.md.rigid.layout.RigidLayout.fit`."""
     centres, quats, momenta, spins = layout.fit(atoms)
     free = layout.free_f
-    x = np.concatenate([atoms.positions[free], centres])
-    p = np.concatenate([atoms.get_momenta()[free], momenta])
-    return {'position': encode(x, grid.position_quantum, 'position'),
-            'momentum': encode(p, grid.momentum_quantum, 'momentum'),
-            'orientation': encode(quats, rigid.ORIENTATION_QUANTUM,
-                                  'orientation'),
-            'angular_momentum': encode(spins, angular_quantum,
-                                       'angular momentum')}
+    return {'position': np.concatenate([atoms.positions[free], centres]),
+            'momentum': np.concatenate([atoms.get_momenta()[free],
+                                        momenta]),
+            'orientation': quats, 'angular_momentum': spins}
+
+
+def rigid_counts(values, grid, angular_quantum):
+    """The int64 counts of :func:`rigid_values`' ``values`` on ``grid``
+    and the angular momentum quantum ``angular_quantum``."""
+    quanta = {'position': grid.position_quantum,
+              'momentum': grid.momentum_quantum,
+              'orientation': rigid.ORIENTATION_QUANTUM,
+              'angular_momentum': angular_quantum}
+    return {name: encode(values[name], q, name.replace('_', ' '))
+            for name, q in quanta.items()}
 
 
 def resumed_system(atoms, layout, masses_n, purity, record):
@@ -98,15 +104,15 @@ def rigid_system(atoms, layout, masses_n, purity, position_quantum=None,
                  momentum_quantum=None):
     """The :class:`RigidSystem` of the atoms and their ``layout``, on a
     grid chosen for its sites (quanta given, or the defaults)."""
-    centres, _, momenta, spins = layout.fit(atoms)
-    free = layout.free_f
+    values = rigid_values(atoms, layout)
+    # The extent: the atoms and the centres (a body's may lie outside).
     grid, _ = choose_grid(
-        np.concatenate([atoms.positions, centres]), atoms.cell, atoms.pbc,
-        layout.site_masses,
-        np.concatenate([atoms.get_momenta()[free], momenta]),
+        np.concatenate([atoms.positions, values['position']]), atoms.cell,
+        atoms.pbc, layout.site_masses, values['momentum'],
         position_quantum=position_quantum, momentum_quantum=momentum_quantum)
-    angular = choose_angular_momentum_quantum(layout.moments_bc, spins)
-    counts = rigid_counts(atoms, layout, grid, angular)
+    angular = choose_angular_momentum_quantum(layout.moments_bc,
+                                              values['angular_momentum'])
+    counts = rigid_counts(values, grid, angular)
     return RigidSystem(atoms, grid, counts, masses_n, layout, purity,
                        angular)
 
@@ -194,7 +200,8 @@ class RigidSystem(Hamiltonian):
     def encode(self, atoms, project):
         """The counts of the four variables fitted to the atoms
         (:func:`rigid_counts`); ``project`` is not used."""
-        return rigid_counts(atoms, self.layout, self.grid, self.l.quantum)
+        return rigid_counts(rigid_values(atoms, self.layout), self.grid,
+                            self.l.quantum)
 
     def shown_positions(self, out=None):
         """The atoms' positions ``[n_atoms, 3]``, Å: the free atoms' counts'
